@@ -1,0 +1,32 @@
+# make demo: create .venv, install, run the default scenario end to end.
+# make test: same install, then ruff and every test.
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+PYTHON ?= python3
+
+.PHONY: install demo test lint bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: install
+	$(BIN)/dvfc simulate examples/ur5_circle.toml --out out/demo
+	@echo "demo outputs: out/demo (trajectory.npz, summary.json)"
+
+lint: install
+	$(BIN)/ruff check .
+
+test: lint
+	$(BIN)/pytest -q
+
+bench: install
+	$(BIN)/python benchmarks/simulate.py
+
+clean:
+	rm -rf out .pytest_cache .ruff_cache

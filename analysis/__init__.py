@@ -1,0 +1,1 @@
+"""Analysis of the dynamic visual feedback system: simulation, verification, certification, CLI."""

@@ -1,0 +1,69 @@
+"""Writing results: atomic files (temporary file, then rename) and provenance."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import tempfile
+from collections.abc import Callable
+from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import IO, Any
+
+DEPENDENCIES = ("casadi", "numpy", "scipy", "cvxpy", "clarabel", "adam-robotics", "example-robot-data")
+
+
+def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+    """Write ``path`` through ``write`` into a temporary file in the same directory,
+    then rename it over ``path``: readers never see a partial file."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            write(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def json_text(data: Any) -> str:
+    return json.dumps(data, indent=2, sort_keys=False) + "\n"
+
+
+def write_json(target: str | Path, data: Any) -> None:
+    """JSON to a file (atomically) or, for ``"-"``, to standard output."""
+    text = json_text(data)
+    if str(target) == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        atomic_write(Path(target), lambda h: h.write(text.encode()))
+
+
+def _version(package: str) -> str | None:
+    try:
+        return version(package)
+    except PackageNotFoundError:
+        return None
+
+
+def provenance(scenario_path: Path, command: list[str]) -> dict[str, Any]:
+    """Toolkit and dependency versions, the scenario file's SHA-256, the command and the date."""
+    return {
+        "toolkit": {"dvfc": _version("dvfc")},
+        "dependencies": {name: _version(name) for name in DEPENDENCIES},
+        "python": sys.version.split()[0],
+        "scenario": str(scenario_path),
+        "scenario_sha256": hashlib.sha256(Path(scenario_path).read_bytes()).hexdigest(),
+        "command": command,
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
+    }

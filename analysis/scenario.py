@@ -1,0 +1,312 @@
+"""Scenario files (TOML): validation with field-level errors, and the models they build.
+
+A scenario names the arm, the camera, the target and its motion, the reference
+``g_d``, the weights and gains of (35)/(42), the disturbances and the simulation
+settings. Every problem is reported as one :class:`ScenarioError` line that names the
+field, e.g. ``gains.k_c: expected 6 entries, got 5``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+import casadi as cs
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from analysis.simulate import Settings
+from models.camera import Camera
+from models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
+from models.lie import SE3
+from models.loop import ClosedLoop, Gains, Weights
+from models.robot import BUILTIN_CAMERA_FRAME, Robot, RobotModelError, builtin_urdf
+from models.target import TargetMotion
+
+DEFAULT_SCENARIO = Path(__file__).parent / "scenarios" / "ur5_circle.toml"
+"""The built-in default scenario (a copy of ``examples/ur5_circle.toml``)."""
+
+
+class ScenarioError(ValueError):
+    """Invalid scenario: the message is one line that names the field."""
+
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+Vector3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Pose(_Strict):
+    xyz: Vector3 = [0.0, 0.0, 0.0]
+    rpy: Vector3 = [0.0, 0.0, 0.0]
+
+    def se3(self) -> SE3:
+        return SE3.from_xyz_rpy(self.xyz, self.rpy)
+
+
+class RobotSection(_Strict):
+    model: str | None = None
+    urdf: str | None = None
+    camera_frame: str | None = None
+    q0: list[Finite]
+    qd0: list[Finite] | None = None
+    mount: Pose = Pose()
+
+    @model_validator(mode="after")
+    def _one_source(self) -> RobotSection:
+        if (self.model is None) == (self.urdf is None):
+            raise ValueError("give exactly one of 'model' (a built-in arm) or 'urdf' (a path)")
+        return self
+
+
+class CameraSection(_Strict):
+    focal_length: Positive
+
+
+class MotionSection(_Strict):
+    kind: Literal["static", "circle", "circle_spin"] = "static"
+    radius: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    period: Positive = 1.0
+    normal: Vector3 = [0.0, 0.0, 1.0]
+    spin_axis: Vector3 = [0.0, 0.0, 1.0]
+    spin_rate: Finite = 0.0
+
+    @model_validator(mode="after")
+    def _consistent(self) -> MotionSection:
+        if self.kind == "static" and (self.radius != 0 or self.spin_rate != 0):
+            raise ValueError("a static target has no radius or spin_rate")
+        if self.kind == "circle" and self.spin_rate != 0:
+            raise ValueError("kind 'circle' does not spin; use kind 'circle_spin'")
+        if np.linalg.norm(self.normal) == 0 or np.linalg.norm(self.spin_axis) == 0:
+            raise ValueError("normal and spin_axis must be non-zero vectors")
+        return self
+
+
+class TargetSection(_Strict):
+    points: Annotated[list[Vector3], Field(min_length=4)]
+    xyz: Vector3
+    rpy: Vector3 = [0.0, 0.0, 0.0]
+    motion: MotionSection = MotionSection()
+
+    @field_validator("points")
+    @classmethod
+    def _not_collinear(cls, points: list[list[float]]) -> list[list[float]]:
+        p = np.asarray(points)
+        if np.linalg.matrix_rank(p - p.mean(axis=0), tol=1e-9) < 2:
+            raise ValueError("the feature points are collinear: J(gbar) cannot have rank 6")
+        return points
+
+
+class ReferenceSection(Pose):
+    @field_validator("rpy")
+    @classmethod
+    def _below_pi(cls, rpy: list[float]) -> list[float]:
+        r = np.asarray(cs.DM(SE3.from_xyz_rpy([0, 0, 0], rpy).rotation.matrix))
+        theta = math.acos(max(-1.0, min(1.0, (np.trace(r) - 1) / 2)))
+        if theta >= math.pi - 1e-9:
+            raise ValueError("the reference rotation angle must be below pi (e_R vanishes at pi)")
+        return rpy
+
+
+class ObserverSection(_Strict):
+    """Initial estimation error ``g_ee(0)``: ``gbar(0) = g(0) g_ee(0)^-1``."""
+
+    error_xyz: Vector3 = [0.0, 0.0, 0.0]
+    error_rpy: Vector3 = [0.0, 0.0, 0.0]
+
+
+class WeightsSection(_Strict):
+    w_pc: Positive
+    w_rc: Positive
+    w_pe: Positive
+    w_re: Positive
+
+
+GainValue = Positive | Annotated[list[Positive], Field(min_length=1)]
+
+
+class GainsSection(_Strict):
+    k_xi: GainValue
+    k_c: GainValue
+    k_e: GainValue
+
+
+class DisturbanceSection(_Strict):
+    kind: Literal["step", "sine", "noise"]
+    amplitude: Finite | list[Finite] | None = None
+    start: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    frequency: Positive | None = None
+    phase: Finite = 0.0
+    rms: Annotated[float, Field(ge=0, allow_inf_nan=False)] | list[Finite] | None = None
+    bandwidth: Positive | None = None
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _fields_of_kind(self) -> DisturbanceSection:
+        needed = {"step": ("amplitude",), "sine": ("amplitude", "frequency"), "noise": ("rms", "bandwidth")}
+        for name in needed[self.kind]:
+            if getattr(self, name) is None:
+                raise ValueError(f"kind {self.kind!r} needs '{name}'")
+        return self
+
+
+class DisturbancesSection(_Strict):
+    torque: list[DisturbanceSection] = []
+
+
+class SimulationSection(_Strict):
+    duration: Positive = 10.0
+    dt: Positive = 0.01
+    mode: Literal["ideal", "image"] = "ideal"
+    rtol: Annotated[float, Field(gt=0, lt=1)] = 1e-10
+    atol: Annotated[float, Field(gt=0, lt=1)] = 1e-10
+    jit: bool = False
+    time_budget: Positive = 600.0
+
+    @model_validator(mode="after")
+    def _grid(self) -> SimulationSection:
+        if self.dt > self.duration:
+            raise ValueError("dt must not exceed duration")
+        if self.duration / self.dt > 1e6:
+            raise ValueError("more than 1e6 output steps: raise dt")
+        return self
+
+
+class Scenario(_Strict):
+    """The whole scenario file."""
+
+    name: str = "scenario"
+    robot: RobotSection
+    camera: CameraSection
+    target: TargetSection
+    reference: ReferenceSection
+    observer: ObserverSection = ObserverSection()
+    weights: WeightsSection
+    gains: GainsSection
+    disturbance: DisturbancesSection = DisturbancesSection()
+    simulation: SimulationSection = SimulationSection()
+
+
+def _format(error: ValidationError) -> str:
+    first = error.errors()[0]
+    where = ".".join(str(part) for part in first["loc"]) or "scenario"
+    message = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "extra_forbidden":
+        message = "unknown key"
+    return f"{where}: {message}"
+
+
+def load(path: str | Path) -> tuple[Scenario, Path]:
+    """Read and validate a scenario file; returns it with its directory (for relative paths)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{path}: cannot read scenario file ({exc.__class__.__name__}: {exc})") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    try:
+        return Scenario.model_validate(data), path.parent
+    except ValidationError as exc:
+        raise ScenarioError(_format(exc)) from exc
+
+
+def _vector(value: float | list[float], n: int, where: str) -> np.ndarray:
+    if isinstance(value, list):
+        if len(value) != n:
+            raise ScenarioError(f"{where}: expected {n} entries, got {len(value)}")
+        return np.asarray(value, dtype=float)
+    return np.full(n, float(value))
+
+
+def build_robot(section: RobotSection, base: Path) -> Robot:
+    """The arm of a scenario (built-in name or URDF path relative to the scenario file)."""
+    try:
+        if section.model is not None:
+            urdf = builtin_urdf(section.model)
+            frame = section.camera_frame or BUILTIN_CAMERA_FRAME[section.model]
+        else:
+            urdf = (base / section.urdf).resolve()
+            if not urdf.is_file():
+                raise ScenarioError(f"robot.urdf: no such file: {urdf}")
+            if section.camera_frame is None:
+                raise ScenarioError("robot.camera_frame: required with robot.urdf")
+            frame = section.camera_frame
+        return Robot(urdf, frame, section.mount.se3())
+    except RobotModelError as exc:
+        field = "robot.model" if "unknown robot model" in str(exc) else "robot.urdf"
+        if "no link named" in str(exc):
+            field = "robot.camera_frame"
+        raise ScenarioError(f"{field}: {exc}") from exc
+
+
+def disturbances(section: DisturbancesSection, n: int) -> list[Disturbance]:
+    """The joint-torque disturbance components."""
+    out: list[Disturbance] = []
+    for i, d in enumerate(section.torque):
+        where = f"disturbance.torque.{i}"
+        if d.kind == "step":
+            out.append(Step(_vector(d.amplitude, n, f"{where}.amplitude"), d.start))
+        elif d.kind == "sine":
+            out.append(Sine(_vector(d.amplitude, n, f"{where}.amplitude"), d.frequency, d.phase))
+        else:
+            out.append(BandLimitedNoise(_vector(d.rms, n, f"{where}.rms"), d.bandwidth, d.seed))
+    return out
+
+
+def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[ClosedLoop, np.ndarray, Settings]:
+    """The closed loop, its initial state and the simulation settings of a scenario."""
+    robot = build_robot(scenario.robot, base)
+    n = robot.n
+    q0 = _vector(scenario.robot.q0, n, "robot.q0")
+    qd0 = _vector(scenario.robot.qd0 or 0.0, n, "robot.qd0")
+    t = scenario.target
+    m = t.motion
+    target = TargetMotion(
+        SE3.from_xyz_rpy(t.xyz, t.rpy), m.radius, m.period, tuple(m.normal), tuple(m.spin_axis), m.spin_rate
+    )
+    g = scenario.gains
+    loop = ClosedLoop(
+        robot=robot,
+        camera=Camera(scenario.camera.focal_length, np.asarray(t.points, dtype=float)),
+        target=target,
+        reference=scenario.reference.se3(),
+        weights=Weights(**scenario.weights.model_dump()),
+        gains=Gains(_vector(g.k_xi, n, "gains.k_xi"), _vector(g.k_c, 6, "gains.k_c"), _vector(g.k_e, 6, "gains.k_e")),
+        mode=mode or scenario.simulation.mode,
+        disturbances=disturbances(scenario.disturbance, n),
+    )
+    o = scenario.observer
+    s0 = loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
+    _check_initial_view(loop, s0)
+    sim = scenario.simulation
+    settings = Settings(sim.duration, sim.dt, sim.rtol, sim.atol, sim.jit, sim.time_budget)
+    return loop, s0, settings
+
+
+def _check_initial_view(loop: ClosedLoop, s0: np.ndarray) -> None:
+    """At t = 0 every point must be in front of the camera (actual and estimated) and
+    ``J(gbar)`` must have full column rank."""
+    cam = loop.camera
+    outputs = [cam.depths(loop.relative_pose), cam.depths(loop.estimate), cam.jacobian(loop.estimate)]
+    check = cs.Function("view", [loop.t, loop.state], outputs)
+    depth, depth_bar, jac = (np.asarray(v) for v in check(0.0, s0))
+    for name, z in (("target.points", depth), ("observer", depth_bar)):
+        bad = np.flatnonzero(~(z.ravel() > 1e-9))
+        if bad.size:
+            i = int(bad[0])
+            depth_i = z.ravel()[i]
+            raise ScenarioError(f"{name}: feature point {i} is at depth {depth_i:.4g} m at t = 0 (not in front of the camera)")
+    s = np.linalg.svd(jac, compute_uv=False)
+    if s[-1] < 1e-9 * s[0]:
+        raise ScenarioError("target.points: J(gbar) is rank-deficient at t = 0 (degenerate feature layout)")
+
+

@@ -1,0 +1,383 @@
+"""The dynamic visual feedback system (36) under the passivity-based law (35), (42).
+
+Symbols (paper numbering):
+
+- relative pose ``g = g_wc^-1 g_wo`` (3), moving by (9);
+- observer ``gbar`` (12), estimation error ``g_ee = gbar^-1 g`` (15), ``e_e = e(g_ee)``;
+- control error ``g_ec = g_d^-1 gbar`` (24), ``e_c = e(g_ec)``;
+- ``qd_d = pinv(J_b) u_d``, ``xi = qd - qd_d``; torque law (35);
+- error state ``x = [xi; e_c; e_e]``, input ``u = [u_xi; u_d; u_e]``,
+  disturbance ``w = [tau_d; V_wo]``, passive output ``nu = N x`` (Lemma 2);
+- storage ``V`` (38); feedback ``u = -K N x`` (42).
+
+Along (36), ``dV/dt = u^T nu + x^T G w`` exactly (n = 6 and ``J_b`` invertible, or
+``n > 6`` with ``J_b`` of full row rank): with (42), ``dV/dt = -nu^T K nu + x^T G w``
+(43), the basis of Theorems 1 and 2.
+
+The simulation state is ``s = [q; qd; pbar; quat]`` with ``Rbar`` carried by a unit
+quaternion ``[qw, qx, qy, qz]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Literal
+
+import casadi as cs
+import numpy as np
+
+from models.camera import Camera
+from models.disturbance import Disturbance, torque
+from models.lie import SE3, SO3, Matrix, matrix_to_quaternion, quaternion_rate, quaternion_to_matrix
+from models.robot import Robot
+from models.target import TargetMotion
+
+Mode = Literal["ideal", "image"]
+
+QUADRATURES = ("supply_u_nu", "supply_x_G_w", "dissipation_nu_K_nu", "x_squared", "w_squared")
+"""Integrals accumulated by the integrator: ``u^T nu``, ``x^T G w``, ``nu^T K nu``,
+``|x|^2`` and ``|w|^2``."""
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Block-isotropic weights ``W_c = diag(w_pc I3, w_rc I3)``, ``W_e = diag(w_pe I3, w_re I3)``
+    (Section V-A); the cancellations behind Lemma 2 need the isotropy."""
+
+    w_pc: float
+    w_rc: float
+    w_pe: float
+    w_re: float
+
+    @property
+    def control(self) -> cs.DM:
+        """``W_c``."""
+        return cs.diag(cs.DM([self.w_pc] * 3 + [self.w_rc] * 3))
+
+    @property
+    def estimation(self) -> cs.DM:
+        """``W_e``."""
+        return cs.diag(cs.DM([self.w_pe] * 3 + [self.w_re] * 3))
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Diagonal gains of (42): ``K_xi`` (n entries), ``K_c`` and ``K_e`` (6 entries each)."""
+
+    k_xi: np.ndarray
+    k_c: np.ndarray
+    k_e: np.ndarray
+
+    @property
+    def matrix(self) -> cs.DM:
+        """``K = diag(K_xi, K_c, K_e)`` (42)."""
+        return cs.diag(cs.DM(np.concatenate([self.k_xi, self.k_c, self.k_e])))
+
+
+def output_matrix(weights: Weights, reference: SE3, r_ec: Matrix, n: int) -> Matrix:
+    """``N`` of Lemma 2 (``nu = N x``) at the control-error rotation ``R_ec``::
+
+        N = [[I_n, 0,                    0   ],
+             [0,  -Ad_{g_d^-1}^T W_c,    0   ],
+             [0,   Ad_{R_ec}^T W_c,     -W_e ]]
+    """
+    w_c, w_e = weights.control, weights.estimation
+    ad_d = reference.inverse().adjoint()
+    ad_ec = SO3(r_ec).adjoint()
+    zero = cs.DM.zeros
+    return cs.vertcat(
+        cs.horzcat(cs.DM.eye(n), zero(n, 6), zero(n, 6)),
+        cs.horzcat(zero(6, n), -ad_d.T @ w_c, zero(6, 6)),
+        cs.horzcat(zero(6, n), ad_ec.T @ w_c, -w_e),
+    )
+
+
+def disturbance_matrix(weights: Weights, r_ee: Matrix, n: int) -> Matrix:
+    """``G`` with ``dV/dt = u^T nu + x^T G w``: ``G = [[I, 0], [0, 0], [0, W_e Ad_{R_ee}]]``,
+    so that ``G G^T = W = diag(I_n, 0_6, W_e^2)`` of Theorem 2."""
+    zero = cs.DM.zeros
+    return cs.vertcat(
+        cs.horzcat(cs.DM.eye(n), zero(n, 6)),
+        zero(6, n + 6),
+        cs.horzcat(zero(6, n), weights.estimation @ SO3(r_ee).adjoint()),
+    )
+
+
+def disturbance_weight(weights: Weights, n: int) -> cs.DM:
+    """``W = diag(I_n, 0_6, W_e^2)`` of Theorem 2."""
+    w_e = weights.estimation
+    return cs.diagcat(cs.DM.eye(n), cs.DM.zeros(6, 6), w_e @ w_e)
+
+
+def pseudo_inverse(j: Matrix) -> Matrix:
+    """``pinv(J)`` for a matrix of full rank: ``J^-1`` (square), ``J^T (J J^T)^-1``
+    (wide, full row rank) or ``(J^T J)^-1 J^T`` (tall, full column rank)."""
+    rows, cols = j.shape
+    if rows == cols:
+        return cs.inv(j)
+    if rows < cols:
+        return j.T @ cs.inv(j @ j.T)
+    return cs.inv(j.T @ j) @ j.T
+
+
+@dataclass
+class ClosedLoop:
+    """The dynamic visual feedback system of one scenario, as CasADi expressions.
+
+    Parameters
+    ----------
+    robot, camera, target
+        The arm, the camera with the object's feature points, the target motion.
+    reference
+        Desired relative pose ``g_d`` (constant).
+    weights, gains
+        ``W_c, W_e`` and ``K`` of (35), (42).
+    mode
+        ``"ideal"``: the law uses the exact ``e_e``; ``"image"``: the law uses the
+        first-order estimate ``pinv(J)(f - fbar)`` (21) from the image.
+    disturbances
+        Joint-torque disturbance components, summed into ``tau_d(t)``.
+    inputs
+        When given, the open loop (36) driven by ``u(t)`` (a function of the time
+        symbol returning ``n + 12`` entries) instead of the feedback (42).
+    """
+
+    robot: Robot
+    camera: Camera
+    target: TargetMotion
+    reference: SE3
+    weights: Weights
+    gains: Gains
+    mode: Mode = "ideal"
+    disturbances: list[Disturbance] = field(default_factory=list)
+    inputs: Callable[[cs.SX], Matrix] | None = None
+
+    def __post_init__(self) -> None:
+        n = self.robot.n
+        self.t = cs.SX.sym("t")
+        self.q, self.qd = self.robot.q, self.robot.qd
+        self.pbar = cs.SX.sym("pbar", 3)
+        self.quat = cs.SX.sym("quat", 4)
+        self.state = cs.vertcat(self.q, self.qd, self.pbar, self.quat)
+        self.n_state = 2 * n + 7
+
+    # --- poses and errors -------------------------------------------------------
+    @cached_property
+    def relative_pose(self) -> SE3:
+        """``g = g_wc^-1 g_wo`` (3)."""
+        return self.robot.camera_pose.inverse() @ self.target.pose(self.t)
+
+    @cached_property
+    def estimate(self) -> SE3:
+        """``gbar = (pbar, Rbar)``, the observer's state (12)."""
+        return SE3(self.pbar, SO3(quaternion_to_matrix(self.quat)))
+
+    @cached_property
+    def estimation_pose_error(self) -> SE3:
+        """``g_ee = gbar^-1 g`` (15)."""
+        return self.estimate.inverse() @ self.relative_pose
+
+    @cached_property
+    def control_pose_error(self) -> SE3:
+        """``g_ec = g_d^-1 gbar`` (24)."""
+        return self.reference.inverse() @ self.estimate
+
+    @cached_property
+    def e_c(self) -> Matrix:
+        return self.control_pose_error.error_vector()
+
+    @cached_property
+    def e_e(self) -> Matrix:
+        return self.estimation_pose_error.error_vector()
+
+    @cached_property
+    def features(self) -> Matrix:
+        """``f`` (11), the measured image."""
+        return self.camera.project(self.relative_pose)
+
+    @cached_property
+    def estimated_features(self) -> Matrix:
+        """``fbar`` (14)."""
+        return self.camera.project(self.estimate)
+
+    @cached_property
+    def e_e_image(self) -> Matrix:
+        """``pinv(J(gbar)) (f - fbar)`` (21)."""
+        return self.camera.estimation_error(self.features, self.estimate)
+
+    # --- passivity structure ----------------------------------------------------
+    @cached_property
+    def output_matrix(self) -> Matrix:
+        """``N`` of Lemma 2 at the current ``R_ec``."""
+        return output_matrix(self.weights, self.reference, self.control_pose_error.rotation.matrix, self.robot.n)
+
+    @cached_property
+    def disturbance_matrix(self) -> Matrix:
+        """``G`` at the current ``R_ee``."""
+        return disturbance_matrix(self.weights, self.estimation_pose_error.rotation.matrix, self.robot.n)
+
+    # --- the law --------------------------------------------------------------
+    @cached_property
+    def _camera_inputs(self) -> tuple[Matrix, Matrix]:
+        """``(u_d, u_e)``: from (42) with the mode's ``e_e``, or from :attr:`inputs`."""
+        n = self.robot.n
+        if self.inputs is not None:
+            u = self.inputs(self.t)
+            return u[n : n + 6], u[n + 6 : n + 12]
+        e_e_law = self.e_e if self.mode == "ideal" else self.e_e_image
+        nu_ce = self.output_matrix[n:, n:] @ cs.vertcat(self.e_c, e_e_law)
+        return -cs.DM(self.gains.k_c) * nu_ce[0:6], -cs.DM(self.gains.k_e) * nu_ce[6:12]
+
+    @cached_property
+    def camera_velocity(self) -> Matrix:
+        """``V_wc = J_b(q) qd`` (34)."""
+        return self.robot.body_jacobian @ self.qd
+
+    @cached_property
+    def estimate_velocity(self) -> Matrix:
+        """``Vbar = -Ad_{gbar^-1} V_wc + u_e`` (12)."""
+        return -self.estimate.inverse().adjoint() @ self.camera_velocity + self._camera_inputs[1]
+
+    @cached_property
+    def estimate_rate(self) -> Matrix:
+        """``[dpbar/dt; dquat/dt]`` from ``d gbar/dt = gbar hat(Vbar)``."""
+        v = self.estimate_velocity
+        return cs.vertcat(self.estimate.rotation.matrix @ v[0:3], quaternion_rate(self.quat, v[3:6]))
+
+    @cached_property
+    def qd_d(self) -> Matrix:
+        """Reference joint velocity ``qd_d = pinv(J_b) u_d`` (Section V-A)."""
+        return pseudo_inverse(self.robot.body_jacobian) @ self._camera_inputs[0]
+
+    @cached_property
+    def qdd_d(self) -> Matrix:
+        """``d qd_d/dt`` by automatic differentiation along ``(qd, 1, dgbar/dt)``:
+        needs no target information beyond what ``u_e`` already uses."""
+        args = cs.vertcat(self.q, self.t, self.pbar, self.quat)
+        rates = cs.vertcat(self.qd, 1, self.estimate_rate)
+        return cs.jtimes(self.qd_d, args, rates)
+
+    @cached_property
+    def xi(self) -> Matrix:
+        """``xi = qd - qd_d``."""
+        return self.qd - self.qd_d
+
+    @cached_property
+    def x(self) -> Matrix:
+        """Error state ``x = [xi; e_c; e_e]`` (36), with the exact ``e_e``."""
+        return cs.vertcat(self.xi, self.e_c, self.e_e)
+
+    @cached_property
+    def u(self) -> Matrix:
+        """Input ``u = [u_xi; u_d; u_e]``; ``u_xi = -K_xi xi`` under (42)."""
+        u_d, u_e = self._camera_inputs
+        if self.inputs is not None:
+            u_xi = self.inputs(self.t)[0 : self.robot.n]
+        else:
+            u_xi = -cs.DM(self.gains.k_xi) * self.xi
+        return cs.vertcat(u_xi, u_d, u_e)
+
+    @cached_property
+    def tau_d(self) -> Matrix:
+        return torque(self.disturbances, self.t, self.robot.n)
+
+    @cached_property
+    def w(self) -> Matrix:
+        """Disturbance ``w = [tau_d; V_wo]`` (36)."""
+        return cs.vertcat(self.tau_d, self.target.velocity(self.t))
+
+    @cached_property
+    def tau(self) -> Matrix:
+        """Torque law (35): ``M qdd_d + C qd_d + g + J_b^T Ad_{g_d^-1}^T W_c e_c + u_xi``."""
+        r = self.robot
+        ad_d = self.reference.inverse().adjoint()
+        feedforward = r.mass_matrix @ self.qdd_d + r.coriolis @ self.qd_d + r.gravity
+        return feedforward + r.body_jacobian.T @ ad_d.T @ self.weights.control @ self.e_c + self.u[0 : r.n]
+
+    @cached_property
+    def qdd(self) -> Matrix:
+        """Joint acceleration from (33): ``M qdd = tau + tau_d - C qd - g``."""
+        r = self.robot
+        return cs.solve(r.mass_matrix, self.tau + self.tau_d - r.coriolis @ self.qd - r.gravity)
+
+    @cached_property
+    def state_rate(self) -> Matrix:
+        """``ds/dt`` for ``s = [q; qd; pbar; quat]``."""
+        return cs.vertcat(self.qd, self.qdd, self.estimate_rate)
+
+    # --- storage and supply -----------------------------------------------------
+    @cached_property
+    def nu(self) -> Matrix:
+        """Passive output ``nu = N x`` (Lemma 2)."""
+        return self.output_matrix @ self.x
+
+    @cached_property
+    def storage(self) -> Matrix:
+        """Storage function (38)."""
+        w = self.weights
+        ec = self.control_pose_error.error_function()
+        ee = self.estimation_pose_error.error_function()
+        kinetic = self.xi.T @ self.robot.mass_matrix @ self.xi / 2
+        return kinetic + w.w_pc * ec[0] + w.w_rc * ec[1] + w.w_pe * ee[0] + w.w_re * ee[1]
+
+    @cached_property
+    def storage_rate(self) -> Matrix:
+        """``dV/dt`` along the loop, by automatic differentiation of (38)."""
+        return cs.jtimes(self.storage, cs.vertcat(self.state, self.t), cs.vertcat(self.state_rate, 1))
+
+    @cached_property
+    def quadratures(self) -> Matrix:
+        """Integrands of :data:`QUADRATURES`."""
+        nu, x, w = self.nu, self.x, self.w
+        k = self.gains.matrix
+        return cs.vertcat(self.u.T @ nu, x.T @ self.disturbance_matrix @ w, nu.T @ k @ nu, x.T @ x, w.T @ w)
+
+    @cached_property
+    def signals(self) -> dict[str, Matrix]:
+        """Every signal of the loop as an expression of ``(t, s)``."""
+        r = self.robot
+        return {
+            "q": self.q,
+            "qd": self.qd,
+            "tau": self.tau,
+            "tau_d": self.tau_d,
+            "g": cs.vec(self.relative_pose.as_matrix()),
+            "gbar": cs.vec(self.estimate.as_matrix()),
+            "g_wc": cs.vec(r.camera_pose.as_matrix()),
+            "g_wo": cs.vec(self.target.pose(self.t).as_matrix()),
+            "f": self.features,
+            "fbar": self.estimated_features,
+            "e_c": self.e_c,
+            "e_e": self.e_e,
+            "e_e_image": self.e_e_image,
+            "xi": self.xi,
+            "u": self.u,
+            "nu": self.nu,
+            "w": self.w,
+            "V": self.storage,
+            "Vdot": self.storage_rate,
+            "depth": self.camera.depths(self.relative_pose),
+            "depth_bar": self.camera.depths(self.estimate),
+            "image_jacobian": cs.vec(self.camera.jacobian(self.estimate)),
+            "body_jacobian": cs.vec(r.body_jacobian),
+        }
+
+    def rhs_function(self) -> cs.Function:
+        """``(t, s) -> (ds/dt, quadrature integrands)``."""
+        return cs.Function("rhs", [self.t, self.state], [self.state_rate, self.quadratures], ["t", "s"], ["ode", "quad"])
+
+    def signals_function(self) -> cs.Function:
+        """``(t, s) -> signals``: one output per entry of :attr:`signals`."""
+        names = list(self.signals)
+        return cs.Function("signals", [self.t, self.state], list(self.signals.values()), ["t", "s"], names)
+
+    def initial_state(self, q0: np.ndarray, qd0: np.ndarray, estimation_error: SE3) -> np.ndarray:
+        """``s(0)`` with ``gbar(0) = g(0) g_ee(0)^-1`` for a given initial estimation error."""
+        pose = cs.Function("g0", [self.q, self.t], [self.relative_pose.as_matrix()])
+        g0 = SE3.from_matrix(pose(q0, 0.0))
+        gbar0 = g0 @ estimation_error.inverse()
+        rbar = np.asarray(cs.DM(gbar0.rotation.matrix))
+        pbar = np.asarray(cs.DM(gbar0.translation)).ravel()
+        return np.concatenate([q0, qd0, pbar, matrix_to_quaternion(rbar)])

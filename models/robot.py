@@ -1,0 +1,155 @@
+"""Manipulator dynamics (33) and the camera's body Jacobian (34), from a URDF.
+
+The rigid-body algorithms come from adam-robotics (CasADi expressions of the URDF):
+the mass matrix ``M(q)``, gravity ``g(q)`` and forward kinematics. The Coriolis
+matrix is built from the Christoffel symbols of ``M``, so ``Mdot - 2C`` is
+skew-symmetric by construction (the property the passivity of (33) rests on), and
+the body Jacobian of the camera frame is the derivative of its forward kinematics,
+``J_b`` column ``i`` = ``(g_wc^-1 dg_wc/dq_i)^vee``.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from functools import cached_property
+from importlib.metadata import PackageNotFoundError, distribution
+from pathlib import Path
+
+import casadi as cs
+from adam.casadi import KinDynComputations
+
+from models.lie import SE3, Matrix, vee
+
+_ERD = "cmeel.prefix/share/example-robot-data/robots"
+BUILTIN_URDF = {"ur5": f"{_ERD}/ur_description/urdf/ur5_robot.urdf"}
+"""Built-in arms: name -> URDF path inside the example-robot-data distribution."""
+
+BUILTIN_CAMERA_FRAME = {"ur5": "tool0"}
+
+
+class RobotModelError(ValueError):
+    """The URDF cannot be read, or it does not have the frame or joints asked for."""
+
+
+def builtin_urdf(name: str) -> Path:
+    """Path of a built-in arm's URDF (shipped by example-robot-data, nothing downloaded)."""
+    if name not in BUILTIN_URDF:
+        raise RobotModelError(f"unknown robot model {name!r}; built-in models: {', '.join(sorted(BUILTIN_URDF))}")
+    try:
+        path = Path(distribution("example-robot-data").locate_file(BUILTIN_URDF[name]))
+    except PackageNotFoundError as exc:
+        raise RobotModelError("the package example-robot-data is not installed") from exc
+    if not path.is_file():
+        raise RobotModelError(f"the URDF of {name!r} is missing from example-robot-data: {path}")
+    return path
+
+
+def chain_joints(urdf: Path, frame: str) -> list[str]:
+    """Names of the movable joints from the URDF's root to ``frame``, root first."""
+    try:
+        root = ET.parse(urdf).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise RobotModelError(f"cannot read URDF {urdf}: {exc}") from exc
+    links = {link.get("name") for link in root.iter("link")}
+    if frame not in links:
+        raise RobotModelError(f"URDF {urdf.name} has no link named {frame!r}")
+    parent_joint = {j.find("child").get("link"): j for j in root.iter("joint") if j.find("child") is not None}
+    names: list[str] = []
+    link = frame
+    while link in parent_joint:
+        joint = parent_joint[link]
+        if joint.get("type") in ("revolute", "continuous", "prismatic"):
+            names.append(joint.get("name"))
+        link = joint.find("parent").get("link")
+    if not names:
+        raise RobotModelError(f"no movable joint between the root of {urdf.name} and {frame!r}")
+    return names[::-1]
+
+
+@dataclass
+class Robot:
+    """An arm with a camera rigidly mounted on the link ``frame``.
+
+    Parameters
+    ----------
+    urdf
+        Path of the URDF.
+    frame
+        Link carrying the camera.
+    mount
+        Fixed transform from that link to the camera frame (optical axis = z).
+    """
+
+    urdf: Path
+    frame: str
+    mount: SE3 = field(default_factory=SE3.identity)
+
+    def __post_init__(self) -> None:
+        self.urdf = Path(self.urdf)
+        self.joints = chain_joints(self.urdf, self.frame)
+        try:
+            self._kindyn = KinDynComputations(str(self.urdf), self.joints)
+        except Exception as exc:  # adam raises bare exceptions on malformed files
+            raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {exc}") from exc
+        self.q = cs.SX.sym("q", self.n)
+        self.qd = cs.SX.sym("qd", self.n)
+
+    @property
+    def n(self) -> int:
+        """Number of joints."""
+        return len(self.joints)
+
+    def _joint_block(self, expr: Matrix) -> Matrix:
+        """adam models a floating base: keep the joint rows (base fixed at identity)."""
+        return expr[6:, 6:] if expr.shape[1] > 1 else expr[6:]
+
+    @cached_property
+    def mass_matrix(self) -> Matrix:
+        """``M(q)`` of (33), symbolic in :attr:`q`."""
+        return self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self.q))
+
+    @cached_property
+    def gravity(self) -> Matrix:
+        """``g(q)`` of (33): the gradient of the potential energy."""
+        return self._joint_block(self._kindyn.gravity_term(cs.SX.eye(4), self.q))
+
+    @cached_property
+    def coriolis(self) -> Matrix:
+        """``C(q, qd)`` of (33) from the Christoffel symbols of ``M``.
+
+        With ``B = d(M qd)/dq`` (``qd`` held fixed), ``C = (Mdot + B - B^T) / 2``; then
+        ``C qd`` is the Coriolis and centrifugal torque and ``Mdot - 2C = B^T - B``.
+        """
+        m = self.mass_matrix
+        mdot = cs.reshape(cs.jtimes(cs.vec(m), self.q, self.qd), self.n, self.n)
+        b = cs.jacobian(m @ self.qd, self.q)
+        return (mdot + b - b.T) / 2
+
+    @cached_property
+    def mass_matrix_dot(self) -> Matrix:
+        """``dM/dt = sum_k dM/dq_k qd_k``."""
+        return cs.reshape(cs.jtimes(cs.vec(self.mass_matrix), self.q, self.qd), self.n, self.n)
+
+    @cached_property
+    def camera_pose(self) -> SE3:
+        """``g_wc(q)``: world to camera, the link's forward kinematics times the mount."""
+        link = SE3.from_matrix(self._kindyn.forward_kinematics(self.frame, cs.SX.eye(4), self.q))
+        return link @ self.mount
+
+    @cached_property
+    def body_jacobian(self) -> Matrix:
+        """``J_b(q)`` with ``V_wc = J_b qd`` (34), ``V_wc = (g_wc^-1 dg_wc/dt)^vee`` (4)."""
+        g = self.camera_pose.as_matrix()
+        g_inv = self.camera_pose.inverse().as_matrix()
+        cols = [vee(g_inv @ cs.reshape(cs.jacobian(cs.vec(g), self.q[i]), 4, 4)) for i in range(self.n)]
+        return cs.horzcat(*cols)
+
+    def potential_energy(self) -> Matrix:
+        """``U(q) = -m_total g0 . c(q)``, c the centre of mass (for checking ``g(q) = dU/dq``)."""
+        com = self._kindyn.CoM_position(cs.SX.eye(4), self.q)
+        return -self._kindyn.get_total_mass() * (cs.DM(self._kindyn.g[0:3]).T @ com)
+
+    def function(self, name: str, expr: Matrix) -> cs.Function:
+        """A numeric function of ``(q, qd)`` for any of the expressions above."""
+        return cs.Function(name, [self.q, self.qd], [expr], ["q", "qd"], [name])

@@ -1,0 +1,1 @@
+"""Reports of the analysis: figures and documents."""

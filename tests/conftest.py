@@ -1,0 +1,46 @@
+"""Shared builders: the default scenario, edited as a TOML dictionary."""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from analysis.scenario import DEFAULT_SCENARIO, Scenario, build
+from analysis.simulate import Settings, Simulator, Trajectory
+from models.loop import ClosedLoop
+
+DEFAULT = tomllib.loads(DEFAULT_SCENARIO.read_text())
+
+
+def scenario_dict(edit: Callable[[dict], None] | None = None) -> dict:
+    data = copy.deepcopy(DEFAULT)
+    data["simulation"]["jit"] = False
+    if edit is not None:
+        edit(data)
+    return data
+
+
+def build_loop(edit: Callable[[dict], None] | None = None, **loop_changes) -> tuple[ClosedLoop, np.ndarray, Settings]:
+    """The default scenario's loop after ``edit`` of its TOML dictionary."""
+    loop, s0, settings = build(Scenario.model_validate(scenario_dict(edit)), DEFAULT_SCENARIO.parent)
+    if loop_changes:
+        loop = replace(loop, **loop_changes)
+    return loop, s0, settings
+
+
+def run(loop: ClosedLoop, s0: np.ndarray, settings: Settings, **changes) -> Trajectory:
+    return Simulator(loop, replace(settings, **changes)).run(s0)
+
+
+def static_target(data: dict) -> None:
+    data["target"]["motion"] = {"kind": "static"}
+
+
+@pytest.fixture(scope="session")
+def rng() -> np.random.Generator:
+    return np.random.default_rng(20261122)
