@@ -23,7 +23,9 @@ from analysis.output import atomic_write, provenance, write_json
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, load
 from analysis.simulate import Simulator, summary
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help="Dynamic visual feedback control: simulate, verify, certify.")
+app = typer.Typer(
+    add_completion=False, no_args_is_help=True, help="Dynamic visual feedback control: simulate, verify, certify."
+)
 err = Console(stderr=True)
 out = Console()
 
@@ -40,7 +42,7 @@ class Mode(StrEnum):
 
 def fail(message: str) -> typer.Exit:
     """Print one line naming the problem and return the exit for status 2."""
-    err.print(f"error: {message}", markup=False, highlight=False)
+    typer.echo(f"error: {message}", err=True)
     return typer.Exit(2)
 
 
@@ -85,7 +87,7 @@ def simulate(
         raise fail(str(exc)) from exc
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
-    steps = max(1, int(round(settings.duration / settings.dt)))
+    steps = max(1, round(settings.duration / settings.dt))
     settings = replace(settings, chunk=max(50, steps // 20))
 
     with Progress(

@@ -109,7 +109,7 @@ class ReferenceSection(Pose):
     def _below_pi(cls, rpy: list[float]) -> list[float]:
         r = np.asarray(cs.DM(SE3.from_xyz_rpy([0, 0, 0], rpy).rotation.matrix))
         theta = math.acos(max(-1.0, min(1.0, (np.trace(r) - 1) / 2)))
-        if theta >= math.pi - 1e-9:
+        if theta >= math.pi - 1e-6:
             raise ValueError("the reference rotation angle must be below pi (e_R vanishes at pi)")
         return rpy
 
@@ -304,9 +304,9 @@ def _check_initial_view(loop: ClosedLoop, s0: np.ndarray) -> None:
         if bad.size:
             i = int(bad[0])
             depth_i = z.ravel()[i]
-            raise ScenarioError(f"{name}: feature point {i} is at depth {depth_i:.4g} m at t = 0 (not in front of the camera)")
+            raise ScenarioError(
+                f"{name}: feature point {i} is at depth {depth_i:.4g} m at t = 0 (not in front of the camera)"
+            )
     s = np.linalg.svd(jac, compute_uv=False)
     if s[-1] < 1e-9 * s[0]:
         raise ScenarioError("target.points: J(gbar) is rank-deficient at t = 0 (degenerate feature layout)")
-
-

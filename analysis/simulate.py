@@ -102,7 +102,7 @@ class Simulator:
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
         """Integrate from ``s0`` over the settings' horizon."""
         st = self.settings
-        steps = int(round(st.duration / st.dt))
+        steps = round(st.duration / st.dt)
         t = np.arange(steps + 1) * st.dt
         states = np.empty((self.loop.n_state, steps + 1))
         integrals = np.zeros((len(QUADRATURES), steps + 1))
@@ -131,7 +131,10 @@ class Simulator:
             if progress is not None:
                 progress(t[k])
             if time.perf_counter() - start > st.time_budget:
-                status, message = "time_budget", f"stopped at t = {t[k]:.4g} s: time budget {st.time_budget:g} s exceeded"
+                status, message = (
+                    "time_budget",
+                    f"stopped at t = {t[k]:.4g} s: time budget {st.time_budget:g} s exceeded",
+                )
                 break
         t, states, integrals = t[: k + 1], states[:, : k + 1], integrals[:, : k + 1]
         signals = self.evaluate_signals(t, states)

@@ -63,8 +63,7 @@ class BandLimitedNoise:
         phases = rng.uniform(0.0, 2 * np.pi, size=(n, self.tones))
         scale = np.sqrt(2.0 / self.tones)
         rows = [
-            self.rms[j] * scale * cs.sum1(cs.sin(2 * np.pi * cs.DM(freqs[j]) * t + cs.DM(phases[j])))
-            for j in range(n)
+            self.rms[j] * scale * cs.sum1(cs.sin(2 * np.pi * cs.DM(freqs[j]) * t + cs.DM(phases[j]))) for j in range(n)
         ]
         return cs.vertcat(*rows)
 

@@ -79,9 +79,9 @@ class Gains:
 def output_matrix(weights: Weights, reference: SE3, r_ec: Matrix, n: int) -> Matrix:
     """``N`` of Lemma 2 (``nu = N x``) at the control-error rotation ``R_ec``::
 
-        N = [[I_n, 0,                    0   ],
-             [0,  -Ad_{g_d^-1}^T W_c,    0   ],
-             [0,   Ad_{R_ec}^T W_c,     -W_e ]]
+    N = [[I_n, 0,                    0   ],
+         [0,  -Ad_{g_d^-1}^T W_c,    0   ],
+         [0,   Ad_{R_ec}^T W_c,     -W_e ]]
     """
     w_c, w_e = weights.control, weights.estimation
     ad_d = reference.inverse().adjoint()
@@ -273,10 +273,8 @@ class ClosedLoop:
     def u(self) -> Matrix:
         """Input ``u = [u_xi; u_d; u_e]``; ``u_xi = -K_xi xi`` under (42)."""
         u_d, u_e = self._camera_inputs
-        if self.inputs is not None:
-            u_xi = self.inputs(self.t)[0 : self.robot.n]
-        else:
-            u_xi = -cs.DM(self.gains.k_xi) * self.xi
+        feedback = self.inputs is None
+        u_xi = -cs.DM(self.gains.k_xi) * self.xi if feedback else self.inputs(self.t)[0 : self.robot.n]
         return cs.vertcat(u_xi, u_d, u_e)
 
     @cached_property
@@ -366,7 +364,9 @@ class ClosedLoop:
 
     def rhs_function(self) -> cs.Function:
         """``(t, s) -> (ds/dt, quadrature integrands)``."""
-        return cs.Function("rhs", [self.t, self.state], [self.state_rate, self.quadratures], ["t", "s"], ["ode", "quad"])
+        return cs.Function(
+            "rhs", [self.t, self.state], [self.state_rate, self.quadratures], ["t", "s"], ["ode", "quad"]
+        )
 
     def signals_function(self) -> cs.Function:
         """``(t, s) -> signals``: one output per entry of :attr:`signals`."""

@@ -1,0 +1,138 @@
+"""``dvfc simulate``: outputs, and one clear line with exit status 2 for bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+from typer.testing import CliRunner
+
+from analysis.cli import app
+from tests.conftest import scenario_dict
+
+runner = CliRunner()
+
+
+def write(tmp_path: Path, edit=None, name="s.toml") -> Path:
+    def short(data):
+        data["simulation"]["duration"] = 0.2
+        if edit is not None:
+            edit(data)
+
+    data = scenario_dict(short)
+    path = tmp_path / name
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def setter(path: str, value):
+    def edit(data):
+        *parents, key = path.split(".")
+        node = data
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[key] = value
+
+    return edit
+
+
+def remover(path: str):
+    def edit(data):
+        *parents, key = path.split(".")
+        node = data
+        for p in parents:
+            node = node[p]
+        del node[key]
+
+    return edit
+
+
+BAD_SCENARIOS = {
+    "unknown key": (setter("gains.k_z", 1.0), "gains.k_z: unknown key"),
+    "unknown section": (setter("controller.k", 1.0), "controller: unknown key"),
+    "missing gains": (remover("gains"), "gains: Field required"),
+    "negative gain": (setter("gains.k_xi", -1.0), "gains.k_xi"),
+    "zero gain": (setter("gains.k_e", 0.0), "gains.k_e"),
+    "five-entry k_c": (setter("gains.k_c", [1.0] * 5), "gains.k_c: expected 6 entries, got 5"),
+    "nan gain": (setter("gains.k_c", float("nan")), "gains.k_c"),
+    "inf weight": (setter("weights.w_pc", float("inf")), "weights.w_pc"),
+    "string weight": (setter("weights.w_re", "heavy"), "weights.w_re"),
+    "three points": (
+        setter("target.points", [[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [0.0, -0.05, 0.0]]),
+        "target.points",
+    ),
+    "collinear points": (setter("target.points", [[x, 0.0, 0.0] for x in (-0.1, 0.0, 0.05, 0.1)]), "collinear"),
+    "points behind camera": (setter("target.xyz", [0.487, 0.109, 0.9]), "target.points"),
+    "unknown robot": (setter("robot.model", "r2d2"), "robot.model: unknown robot model"),
+    "missing camera frame": (setter("robot.camera_frame", "no_such_link"), "robot.camera_frame"),
+    "missing urdf": (
+        lambda d: (d["robot"].pop("model"), d["robot"].update(urdf="nope.urdf")),
+        "robot.urdf: no such file",
+    ),
+    "wrong q0 length": (setter("robot.q0", [0.0] * 5), "robot.q0: expected 6 entries, got 5"),
+    "reference at pi": (setter("reference.rpy", [3.141592653589793, 0.0, 0.0]), "reference.rpy"),
+    "bad motion kind": (setter("target.motion.kind", "zigzag"), "target.motion.kind"),
+    "static with radius": (setter("target.motion", {"kind": "static", "radius": 0.1}), "target.motion"),
+    "step without amplitude": (setter("disturbance.torque", [{"kind": "step"}]), "disturbance.torque.0"),
+    "bad mode": (setter("simulation.mode", "psychic"), "simulation.mode"),
+    "negative duration": (setter("simulation.duration", -1.0), "simulation.duration"),
+    "zero focal length": (setter("camera.focal_length", 0.0), "camera.focal_length"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_SCENARIOS)
+def test_bad_scenario_is_one_line_exit_2(case, tmp_path):
+    edit, expected = BAD_SCENARIOS[case]
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["simulate", str(write(tmp_path, edit)), "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and expected in lines[0], result.stderr
+    assert "Traceback" not in result.output and not out.exists()
+
+
+def test_missing_file_is_exit_2(tmp_path):
+    result = runner.invoke(app, ["simulate", str(tmp_path / "absent.toml")])
+    assert result.exit_code == 2 and "cannot read scenario file" in result.stderr
+
+
+def test_not_toml_is_exit_2(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text("[robot\nmodel = ")
+    result = runner.invoke(app, ["simulate", str(path)])
+    assert result.exit_code == 2 and "not valid TOML" in result.stderr
+
+
+def test_unwritable_out_is_exit_2(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    result = runner.invoke(app, ["simulate", str(write(tmp_path)), "--out", str(blocker)])
+    assert result.exit_code == 2 and "--out" in result.stderr
+
+
+def test_simulate_writes_trajectory_and_summary(tmp_path):
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["simulate", str(write(tmp_path)), "--out", str(out), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    printed = json.loads(result.stdout)
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert printed["summary"] == on_disk["summary"]
+    assert on_disk["provenance"]["scenario_sha256"]
+    with np.load(out / "trajectory.npz") as data:
+        for name in ("t", "q", "qd", "tau", "g", "gbar", "f", "fbar", "e_c", "e_e", "xi", "u", "nu", "V", "w"):
+            assert name in data.files
+        assert data["t"][-1] == pytest.approx(0.2)
+    assert on_disk["summary"]["identity_residuals"]["dissipation"] < 1e-6
+
+
+def test_cli_process_exit_status_and_message(tmp_path):
+    """A real process: bad input gives status 2 and a single line, no traceback."""
+    path = write(tmp_path, setter("gains.k_c", [1.0] * 5))
+    proc = subprocess.run([sys.executable, "-m", "analysis", "simulate", str(path)], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "error: gains.k_c: expected 6 entries, got 5"
