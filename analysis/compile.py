@@ -26,8 +26,8 @@ def cache_dir() -> Path:
     return base / "dvfc"
 
 
-def compiled(function: cs.Function) -> cs.Function:
-    """``function`` and its Jacobian as compiled C, loaded as a CasADi external.
+def compiled(function: cs.Function, *, jacobian: bool = True) -> cs.Function:
+    """``function`` (and its Jacobian) as compiled C, loaded as a CasADi external.
 
     The Jacobian is generated under CasADi's name ``jac_<name>`` so that the
     external function differentiates through it. Falls back to ``function`` itself
@@ -40,7 +40,8 @@ def compiled(function: cs.Function) -> cs.Function:
     with tempfile.TemporaryDirectory() as tmp:
         generator = cs.CodeGenerator(f"{name}.c")
         generator.add(function)
-        generator.add(function.jacobian())
+        if jacobian:
+            generator.add(function.jacobian())
         source = Path(generator.generate(tmp + os.sep))
         digest = hashlib.sha256(source.read_bytes() + " ".join(CC_FLAGS).encode()).hexdigest()[:24]
         library = cache_dir() / f"{name}-{digest}.so"

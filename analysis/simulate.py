@@ -91,7 +91,8 @@ class Simulator:
         options = {"abstol": settings.atol, "reltol": settings.rtol, "quad_err_con": True, "max_num_steps": 100000}
         self.integrator = cs.integrator("closed_loop", "cvodes", dae, 0.0, grid, options)
         self.signal_names = list(loop.signals)
-        self.signal_function = loop.signals_function()
+        signals = loop.signals_function()
+        self.signal_function = compiled(signals, jacobian=False) if settings.jit else signals
 
     def evaluate_signals(self, t: np.ndarray, states: np.ndarray) -> dict[str, np.ndarray]:
         """All signals at times ``t`` (``states``: one column per time)."""

@@ -1,0 +1,76 @@
+"""Benchmark: the default scenario, 10 s simulated.
+
+Compares, in one run, the CVODES simulation with the right-hand side compiled to C,
+the same with CasADi's virtual machine, and a plain baseline: scipy's ``solve_ivp``
+(LSODA) calling a NumPy right-hand side of the same model (the CasADi function
+evaluated point by point) at the same tolerances. Prints the times, the ratios and
+the real-time factors.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from analysis.scenario import DEFAULT_SCENARIO, build, load
+from analysis.simulate import Simulator
+
+
+def best_of(fn, repeat: int = 3) -> float:
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def main() -> None:
+    scenario, base = load(DEFAULT_SCENARIO)
+    loop, s0, settings = build(scenario, base)
+    settings = replace(settings, duration=10.0, chunk=100)
+    horizon = settings.duration
+
+    start = time.perf_counter()
+    compiled = Simulator(loop, replace(settings, jit=True))
+    setup = time.perf_counter() - start
+    vm = Simulator(loop, replace(settings, jit=False))
+
+    t_compiled = best_of(lambda: compiled.run(s0))
+    t_vm = best_of(lambda: vm.run(s0))
+
+    rhs = loop.rhs_function()
+
+    def f(t, s):
+        ode, _ = rhs(t, s)
+        return np.asarray(ode).ravel()
+
+    grid = np.arange(round(horizon / settings.dt) + 1) * settings.dt
+
+    def baseline():
+        sol = solve_ivp(f, (0.0, horizon), s0, method="LSODA", t_eval=grid, rtol=settings.rtol, atol=settings.atol)
+        assert sol.success, sol.message
+
+    t_scipy = best_of(baseline, repeat=1)
+    end_compiled = compiled.run(s0)["state"][-1]
+    sol = solve_ivp(f, (0.0, horizon), s0, method="LSODA", rtol=settings.rtol, atol=settings.atol)
+    agreement = np.abs(sol.y[:, -1] - end_compiled).max()
+
+    print(f"default scenario, {horizon:g} s simulated, rtol = atol = {settings.rtol:g}")
+    print(f"  compile (or load from cache)     {setup:8.3f} s")
+    for label, seconds in (
+        ("CVODES, compiled RHS", t_compiled),
+        ("CVODES, CasADi virtual machine", t_vm),
+        ("scipy solve_ivp LSODA + NumPy", t_scipy),
+    ):
+        print(f"  {label:32s} {seconds * 1e3:8.1f} ms   real-time factor {horizon / seconds:7.0f}x")
+    print(f"  ratio scipy / compiled           {t_scipy / t_compiled:8.1f}x")
+    print(f"  ratio VM / compiled              {t_vm / t_compiled:8.1f}x")
+    print(f"  final-state agreement, scipy vs CVODES: {agreement:.2e}")
+
+
+if __name__ == "__main__":
+    main()
