@@ -6,8 +6,10 @@ features lost), 2 bad input (one line on standard error naming the field).
 
 from __future__ import annotations
 
+import math
 import os
 import sys
+import time
 from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
@@ -19,8 +21,9 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from analysis.certify import ASSUMPTIONS, Certificate, GainPoint, certify
 from analysis.output import atomic_write, provenance, write_json
-from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, load
+from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, build_robot, gain_point, load
 from analysis.simulate import Simulator, summary
 
 app = typer.Typer(
@@ -144,3 +147,87 @@ def show(result: dict) -> None:
         table.add_row(name, str(value))
     out.print(table)
     out.print(f"trajectory: {result['outputs']['trajectory']}\nsummary:    {result['outputs']['summary']}")
+
+
+def point_record(point: GainPoint, cert: Certificate) -> dict:
+    """One gain point of the ``certify`` JSON."""
+    w = point.weights
+    return {
+        "gains": {"k_xi": point.k_xi.tolist(), "k_c": point.k_c.tolist(), "k_e": point.k_e.tolist()},
+        "weights": {"w_pc": w.w_pc, "w_rc": w.w_rc, "w_pe": w.w_pe, "w_re": w.w_re},
+        "certified": cert.certified,
+        "gamma": cert.gamma,
+        "method": cert.method,
+        "margin": cert.margin,
+        "reason": cert.reason,
+        "worst_rotation": cert.worst_rotation,
+        "gamma_worst_found": cert.gamma_worst_found,
+        "gap": cert.gap,
+    }
+
+
+@app.command("certify")
+def certify_command(
+    scenario: ScenarioArg = DEFAULT_SCENARIO,
+    out_dir: OutOpt = None,
+    json_target: JsonOpt = None,
+) -> None:
+    """Certify Theorem 2 (L2 gain <= gamma) for the scenario's gains over the [certify] region."""
+    start = time.perf_counter()
+    try:
+        spec, base = load(scenario)
+        point = gain_point(spec, build_robot(spec.robot, base).n)
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    check_json_target(json_target)
+    directory = prepare_out_dir(out_dir) if out_dir is not None else None
+    theta_max = math.radians(spec.certify.theta_max_deg)
+    cert = certify(point, spec.reference.se3(), theta_max=theta_max, gamma_bound=spec.certify.gamma)
+    record = point_record(point, cert)
+    result = {
+        "scenario": spec.name,
+        "region": cert.region,
+        "assumptions": list(ASSUMPTIONS),
+        "gamma_required": spec.certify.gamma,
+        "points": [record],
+        "summary": {
+            "points": 1,
+            "certified": int(cert.certified),
+            "gamma_min": cert.gamma,
+            "seconds": time.perf_counter() - start,
+        },
+        "provenance": provenance(scenario, ["dvfc", *sys.argv[1:]]),
+    }
+    if directory is not None:
+        write_json(directory / "certificate.json", result)
+    if json_target is not None:
+        write_json(json_target, result)
+    if json_target != "-":
+        show_certificate(result)
+    if not cert.certified:
+        raise typer.Exit(1)
+
+
+def show_certificate(result: dict) -> None:
+    """Human output of ``certify``: the point, the region, the method and a verdict."""
+    p = result["points"][0]
+    table = Table(title=f"Theorem 2 certificate: {result['scenario']}", show_header=False)
+    fmt = lambda v: "-" if v is None else f"{v:.6g}"  # noqa: E731
+    rows = [
+        ("k_xi, k_c, k_e", f"{p['gains']['k_xi']}, {p['gains']['k_c']}, {p['gains']['k_e']}"),
+        ("w_pc, w_rc, w_pe, w_re", ", ".join(f"{v:g}" for v in p["weights"].values())),
+        ("region", result["region"]),
+        ("method", p["method"]),
+        ("gamma (certified)", fmt(p["gamma"])),
+        ("margin lambda_min(P)", fmt(p["margin"])),
+        ("worst gamma found by search", fmt(p["gamma_worst_found"])),
+    ]
+    for name, value in rows:
+        table.add_row(name, str(value))
+    out.print(table)
+    if p["certified"]:
+        out.print(
+            f"CERTIFIED: L2 gain <= {p['gamma']:.6g} from w = [tau_d; V_wo] to x over {result['region']}.", markup=False
+        )
+    else:
+        out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)

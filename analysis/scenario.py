@@ -17,6 +17,7 @@ import casadi as cs
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from analysis.certify import GainPoint
 from analysis.simulate import Settings
 from models.camera import Camera
 from models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
@@ -178,6 +179,13 @@ class SimulationSection(_Strict):
         return self
 
 
+class CertifySection(_Strict):
+    """Region and requirement of the Theorem 2 certificate."""
+
+    theta_max_deg: Annotated[float, Field(gt=0, le=180, allow_inf_nan=False)] = 180.0
+    gamma: Positive | None = None
+
+
 class Scenario(_Strict):
     """The whole scenario file."""
 
@@ -191,6 +199,7 @@ class Scenario(_Strict):
     gains: GainsSection
     disturbance: DisturbancesSection = DisturbancesSection()
     simulation: SimulationSection = SimulationSection()
+    certify: CertifySection = CertifySection()
 
 
 def _format(error: ValidationError) -> str:
@@ -273,14 +282,14 @@ def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[C
     target = TargetMotion(
         SE3.from_xyz_rpy(t.xyz, t.rpy), m.radius, m.period, tuple(m.normal), tuple(m.spin_axis), m.spin_rate
     )
-    g = scenario.gains
+    point = gain_point(scenario, n)
     loop = ClosedLoop(
         robot=robot,
         camera=Camera(scenario.camera.focal_length, np.asarray(t.points, dtype=float)),
         target=target,
         reference=scenario.reference.se3(),
-        weights=Weights(**scenario.weights.model_dump()),
-        gains=Gains(_vector(g.k_xi, n, "gains.k_xi"), _vector(g.k_c, 6, "gains.k_c"), _vector(g.k_e, 6, "gains.k_e")),
+        weights=point.weights,
+        gains=Gains(point.k_xi, point.k_c, point.k_e),
         mode=mode or scenario.simulation.mode,
         disturbances=disturbances(scenario.disturbance, n),
     )
@@ -290,6 +299,17 @@ def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[C
     sim = scenario.simulation
     settings = Settings(sim.duration, sim.dt, sim.rtol, sim.atol, sim.jit, sim.time_budget)
     return loop, s0, settings
+
+
+def gain_point(scenario: Scenario, n: int) -> GainPoint:
+    """The scenario's gains and weights as a certifier point (``n`` joints)."""
+    g = scenario.gains
+    return GainPoint(
+        _vector(g.k_xi, n, "gains.k_xi"),
+        _vector(g.k_c, 6, "gains.k_c"),
+        _vector(g.k_e, 6, "gains.k_e"),
+        Weights(**scenario.weights.model_dump()),
+    )
 
 
 def _check_initial_view(loop: ClosedLoop, s0: np.ndarray) -> None:

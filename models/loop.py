@@ -46,20 +46,20 @@ class Weights:
     """Block-isotropic weights ``W_c = diag(w_pc I3, w_rc I3)``, ``W_e = diag(w_pe I3, w_re I3)``
     (Section V-A); the cancellations behind Lemma 2 need the isotropy."""
 
-    w_pc: float
-    w_rc: float
-    w_pe: float
-    w_re: float
+    w_pc: float | cs.SX
+    w_rc: float | cs.SX
+    w_pe: float | cs.SX
+    w_re: float | cs.SX
 
     @property
-    def control(self) -> cs.DM:
-        """``W_c``."""
-        return cs.diag(cs.DM([self.w_pc] * 3 + [self.w_rc] * 3))
+    def control(self) -> Matrix:
+        """``W_c`` (numeric, or symbolic when the weights are CasADi symbols)."""
+        return cs.diag(cs.vertcat(*[self.w_pc] * 3, *[self.w_rc] * 3))
 
     @property
-    def estimation(self) -> cs.DM:
+    def estimation(self) -> Matrix:
         """``W_e``."""
-        return cs.diag(cs.DM([self.w_pe] * 3 + [self.w_re] * 3))
+        return cs.diag(cs.vertcat(*[self.w_pe] * 3, *[self.w_re] * 3))
 
 
 @dataclass(frozen=True)
@@ -105,7 +105,7 @@ def disturbance_matrix(weights: Weights, r_ee: Matrix, n: int) -> Matrix:
     )
 
 
-def disturbance_weight(weights: Weights, n: int) -> cs.DM:
+def disturbance_weight(weights: Weights, n: int) -> Matrix:
     """``W = diag(I_n, 0_6, W_e^2)`` of Theorem 2."""
     w_e = weights.estimation
     return cs.diagcat(cs.DM.eye(n), cs.DM.zeros(6, 6), w_e @ w_e)

@@ -136,3 +136,29 @@ def test_cli_process_exit_status_and_message(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "analysis", "simulate", str(path)], capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.strip() == "error: gains.k_c: expected 6 entries, got 5"
+
+
+def test_certify_default_scenario_json(tmp_path):
+    result = runner.invoke(app, ["certify", str(write(tmp_path)), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    point = data["points"][0]
+    assert point["certified"] and point["gamma"] > 0 and point["margin"] >= 0
+    assert set(point) >= {"gains", "weights", "certified", "gamma", "method", "margin", "reason"}
+    assert data["summary"] == {**data["summary"], "points": 1, "certified": 1, "gamma_min": point["gamma"]}
+    assert "SO(3)" in data["region"]
+
+
+def test_certify_uncertified_point_exits_1(tmp_path):
+    result = runner.invoke(app, ["certify", str(write(tmp_path, setter("gains.k_xi", 0.5)))])
+    assert result.exit_code == 1 and "k_xi <= 1/2" in result.stdout
+
+
+def test_certify_required_gamma_exits_1(tmp_path):
+    result = runner.invoke(app, ["certify", str(write(tmp_path, setter("certify.gamma", 0.1))), "--json", "-"])
+    assert result.exit_code == 1 and "exceeds the required bound" in json.loads(result.stdout)["points"][0]["reason"]
+
+
+def test_certify_bad_region_is_exit_2(tmp_path):
+    result = runner.invoke(app, ["certify", str(write(tmp_path, setter("certify.theta_max_deg", 270.0)))])
+    assert result.exit_code == 2 and result.stderr.startswith("error: certify.theta_max_deg")

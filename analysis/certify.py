@@ -1,0 +1,302 @@
+"""Theorem 2 certificates: the smallest gamma with ``P(gamma) = N^T K N - W/(2 gamma^2) - I/2 >= 0``.
+
+``N`` comes from :func:`models.loop.output_matrix`, the expression the simulator uses.
+``P`` does not depend on the robot (MATH fact 1): the ``xi`` block of ``N`` is the
+identity, so that block decouples and needs ``k_xi,i >= 1/2 + 1/(2 gamma^2)``. The
+rest, over ``(e_c, e_e)``, depends on ``K_c, K_e, W_c, W_e, g_d`` and on the rotation
+``R_ec`` of the state.
+
+Two routes to the smallest gamma:
+
+- exact (MATH fact 3): with ``A = N^T K N - I/2`` and ``s = 1/(2 gamma^2)``, the largest
+  ``s`` with ``A - s W >= 0`` is ``min(min k_xi - 1/2, lambda_min(D^-1/2 S D^-1/2))``,
+  ``S`` the Schur complement of the ``e_c`` block ``A_cc`` (where ``W`` vanishes) and
+  ``D = W_e^2``; it requires ``A_cc > 0``. Batched over many gain points.
+- SDP: ``maximize s  s.t.  A - s W >= 0`` with cvxpy and Clarabel (SCS as fallback).
+
+Every answer is re-checked a posteriori on the literal ``P`` of Theorem 2: the reported
+gamma is the computed one inflated by :data:`INFLATION`, and it is certified only when
+``lambda_min(P(gamma)) >= 0`` there (the margin reported).
+
+Region: for block-isotropic ``K_e`` (``k_e1 = k_e2 = k_e3``, ``k_e4 = k_e5 = k_e6``)
+``P(R_ec)`` is congruent to ``P(I)`` (MATH fact 2), so ``R_ec = I`` decides for every
+rotation. Otherwise the isotropic gains ``K_min`` (blockwise minima of ``K_e``) give a
+sound bound for every ``R_ec`` (MATH fact 5); a search over rotations reports the worst
+case it finds and the gap.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from functools import cache
+
+import casadi as cs
+import cvxpy as cp
+import numpy as np
+from scipy.optimize import minimize
+from scipy.spatial.transform import Rotation
+
+from models.lie import SE3, SO3
+from models.loop import Weights, disturbance_weight, output_matrix
+
+INFLATION = 1e-6
+"""Relative inflation of a computed gamma before the a posteriori check: at the exact
+optimum ``P`` is singular; at ``gamma (1 + 1e-6)`` its smallest eigenvalue is positive
+by a margin far above the eigenvalue solver's error (~1e-14 ||P||)."""
+
+ASSUMPTIONS = (
+    "exact estimation error e_e (ideal loop; the image estimate (21) is first order)",
+    "n = 6 with J_b invertible, or n > 6 with J_b of full row rank",
+    "rotation errors with |theta| < pi (e_R identifies R = I only there)",
+    "feature points in front of the camera and J(gbar) of full column rank",
+)
+
+
+@dataclass(frozen=True)
+class GainPoint:
+    """One design: the gains of (42) and the weights of (35)."""
+
+    k_xi: np.ndarray
+    k_c: np.ndarray
+    k_e: np.ndarray
+    weights: Weights
+
+    @property
+    def isotropic(self) -> bool:
+        """Block-isotropic ``K_e`` (the exact reduction of MATH fact 2 applies)."""
+        return bool(np.ptp(self.k_e[:3]) == 0 and np.ptp(self.k_e[3:]) == 0)
+
+    def with_k_e(self, k_e: np.ndarray) -> GainPoint:
+        return GainPoint(self.k_xi, self.k_c, np.asarray(k_e, dtype=float), self.weights)
+
+
+@dataclass
+class Certificate:
+    """What was certified, at which gamma, over which region, and why not if not."""
+
+    certified: bool
+    gamma: float | None
+    method: str
+    margin: float | None
+    reason: str | None
+    region: str
+    gamma_worst_found: float | None = None
+    worst_rotation: list[list[float]] | None = None
+    gap: float | None = None
+
+
+@cache
+def _ce_block_function() -> cs.Function:
+    """``N`` restricted to ``(e_c, e_e)`` (12 x 12) as a CasADi function of the weights,
+    ``g_d`` and ``R_ec``: the simulator's expression with ``n = 0``."""
+    w = cs.SX.sym("w", 4)
+    p_d, r_d, r_ec = cs.SX.sym("p_d", 3), cs.SX.sym("R_d", 3, 3), cs.SX.sym("R_ec", 3, 3)
+    n = output_matrix(Weights(w[0], w[1], w[2], w[3]), SE3(p_d, SO3(r_d)), r_ec, 0)
+    return cs.Function("N_ce", [w, p_d, r_d, r_ec], [n])
+
+
+def output_blocks(weights: np.ndarray, reference: SE3, rotations: np.ndarray) -> np.ndarray:
+    """``N_ce`` for a batch: ``weights`` (B, 4) as (w_pc, w_rc, w_pe, w_re), ``rotations``
+    (B, 3, 3) values of ``R_ec``; returns (B, 12, 12)."""
+    b = weights.shape[0]
+    f = _ce_block_function().map(b)
+    p_d = np.asarray(cs.DM(reference.translation))
+    r_d = np.asarray(cs.DM(reference.rotation.matrix))
+    r_ec = np.transpose(rotations, (1, 0, 2)).reshape(3, 3 * b, order="F")
+    out = np.asarray(f(weights.T, p_d, r_d, r_ec))
+    return out.reshape(12, b, 12, order="F").transpose(1, 0, 2)
+
+
+def exact_s(n_ce: np.ndarray, k_xi_min: np.ndarray, k_c: np.ndarray, k_e: np.ndarray, w_e: np.ndarray):
+    """Largest ``s = 1/(2 gamma^2)`` with ``A - s W >= 0`` (MATH fact 3), batched.
+
+    Parameters are batches: ``n_ce`` (B, 12, 12), ``k_xi_min`` (B,), ``k_c``, ``k_e`` (B, 6),
+    ``w_e`` (B, 2) as (w_pe, w_re). Returns ``(s, reason)``: ``s`` (B,) with ``-inf``
+    where ``A_cc`` is not positive definite, and a reason code per point (0 fine,
+    1 ``k_xi <= 1/2``, 2 ``A_cc`` not positive definite, 3 Schur complement not positive).
+    """
+    k = np.concatenate([k_c, k_e], axis=1)
+    a = np.einsum("bji,bj,bjk->bik", n_ce, k, n_ce) - 0.5 * np.eye(12)
+    a_cc, a_ce, a_ee = a[:, :6, :6], a[:, :6, 6:], a[:, 6:, 6:]
+    cc_min = np.linalg.eigvalsh(a_cc)[:, 0]
+    ok = cc_min > 0
+    s = np.full(len(a), -np.inf)
+    if ok.any():
+        schur = a_ee[ok] - np.einsum("bji,bjk->bik", a_ce[ok], np.linalg.solve(a_cc[ok], a_ce[ok]))
+        d = np.repeat(1.0 / w_e[ok], 3, axis=1)  # D^-1/2 = W_e^-1
+        s[ok] = np.linalg.eigvalsh(d[:, :, None] * schur * d[:, None, :])[:, 0]
+    s = np.minimum(s, k_xi_min - 0.5)
+    reason = np.where(k_xi_min <= 0.5, 1, np.where(~ok, 2, np.where(s <= 0, 3, 0)))
+    return s, reason
+
+
+REASONS = {
+    1: "k_xi <= 1/2: the xi block of P needs k_xi > 1/2",
+    2: "the e_c block of N^T K N - I/2 is not positive definite (raise k_c or the weights W_c)",
+    3: "the Schur complement of the e_c block is not positive definite: no gamma satisfies Theorem 2",
+}
+
+
+def gamma_of(s: np.ndarray) -> np.ndarray:
+    """``gamma = 1 / sqrt(2 s)`` (infinite where ``s <= 0``)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(s > 0, 1.0 / np.sqrt(2.0 * np.maximum(s, 1e-300)), np.inf)
+
+
+def theorem2_matrices(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``A = N^T K N - I/2`` and ``W`` of Theorem 2, literally, with ``N`` of size ``n + 12``."""
+    n = len(point.k_xi)
+    nmat = np.asarray(cs.DM(output_matrix(point.weights, reference, cs.DM(r_ec), n)))
+    k = np.concatenate([point.k_xi, point.k_c, point.k_e])
+    a = nmat.T @ (k[:, None] * nmat) - 0.5 * np.eye(n + 12)
+    return (a + a.T) / 2, np.asarray(cs.DM(disturbance_weight(point.weights, n)))
+
+
+def p_min_eigenvalue(point: GainPoint, reference: SE3, r_ec: np.ndarray, gamma: float) -> float:
+    """``lambda_min(P(gamma))`` of Theorem 2: the independent a posteriori check."""
+    a, w = theorem2_matrices(point, reference, r_ec)
+    return float(np.linalg.eigvalsh(a - w / (2 * gamma**2))[0])
+
+
+def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[float, int]:
+    """Smallest gamma at one rotation by the closed form, and the reason code."""
+    s, reason = exact_s(
+        output_blocks(_weights_row(point)[None], reference, np.asarray(r_ec)[None]),
+        np.array([point.k_xi.min()]),
+        point.k_c[None],
+        point.k_e[None],
+        np.array([[point.weights.w_pe, point.weights.w_re]]),
+    )
+    return float(gamma_of(s)[0]), int(reason[0])
+
+
+def sdp_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray, solver_options: dict | None = None):
+    """Smallest gamma by the SDP ``maximize s s.t. A - s W >= 0`` (Clarabel, then SCS).
+
+    Returns ``(gamma or None, method, reason or None)``: anything but a clean optimum of
+    one of the solvers is "uncertified" with the solver's status as reason.
+    """
+    a, w = theorem2_matrices(point, reference, r_ec)
+    s = cp.Variable()
+    problem = cp.Problem(cp.Maximize(s), [a - s * w >> 0])
+    failures = []
+    for solver in (cp.CLARABEL, cp.SCS):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                problem.solve(solver=solver, **(solver_options or {}).get(solver, {}))
+        except cp.SolverError as exc:
+            failures.append(f"{solver}: {exc}".splitlines()[0])
+            continue
+        if problem.status == cp.OPTIMAL and s.value is not None:
+            if s.value <= 0:
+                return None, f"sdp-{solver.lower()}", "the SDP optimum has s <= 0: no gamma satisfies Theorem 2"
+            return float(1.0 / math.sqrt(2.0 * s.value)), f"sdp-{solver.lower()}", None
+        failures.append(f"{solver}: status {problem.status}")
+    return None, "sdp", "solver trouble: " + "; ".join(failures)
+
+
+def _weights_row(point: GainPoint) -> np.ndarray:
+    w = point.weights
+    return np.array([w.w_pc, w.w_rc, w.w_pe, w.w_re], dtype=float)
+
+
+def random_rotations(count: int, theta_max: float, rng: np.random.Generator) -> np.ndarray:
+    """Rotations with angle at most ``theta_max``: uniform axis, angle uniform in [0, theta_max]."""
+    axes = rng.normal(size=(count, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = rng.uniform(0.0, theta_max, size=(count, 1))
+    return Rotation.from_rotvec(axes * angles).as_matrix()
+
+
+def worst_rotation(
+    point: GainPoint, reference: SE3, theta_max: float, samples: int = 2000, seed: int = 0
+) -> tuple[float, np.ndarray]:
+    """The largest smallest-gamma over ``R_ec`` found by sampling and local refinement
+    (a lower bound on the worst case; never a certificate)."""
+    rng = np.random.default_rng(seed)
+    rotations = np.concatenate([np.eye(3)[None], random_rotations(samples, theta_max, rng)])
+    b = len(rotations)
+    s, _ = exact_s(
+        output_blocks(np.tile(_weights_row(point), (b, 1)), reference, rotations),
+        np.full(b, point.k_xi.min()),
+        np.tile(point.k_c, (b, 1)),
+        np.tile(point.k_e, (b, 1)),
+        np.tile([point.weights.w_pe, point.weights.w_re], (b, 1)),
+    )
+    start = Rotation.from_matrix(rotations[int(np.argmin(s))]).as_rotvec()
+
+    def objective(v: np.ndarray) -> float:
+        angle = np.linalg.norm(v)
+        if angle > theta_max:
+            v = v * theta_max / angle
+        r = Rotation.from_rotvec(v).as_matrix()
+        return -exact_gamma(point, reference, r)[0]
+
+    best = minimize(objective, start, method="Nelder-Mead", options={"xatol": 1e-6, "fatol": 1e-10, "maxiter": 400})
+    v = best.x if np.linalg.norm(best.x) <= theta_max else best.x * theta_max / np.linalg.norm(best.x)
+    rotation = Rotation.from_rotvec(v).as_matrix()
+    return exact_gamma(point, reference, rotation)[0], rotation
+
+
+def region_text(theta_max: float) -> str:
+    if theta_max >= math.pi:
+        return "every rotation R_ec in SO(3) with |theta_ec| < pi"
+    return f"every rotation R_ec with |theta_ec| <= {math.degrees(theta_max):.6g} deg"
+
+
+def certify(
+    point: GainPoint,
+    reference: SE3,
+    *,
+    theta_max: float = math.pi,
+    gamma_bound: float | None = None,
+    with_sdp: bool = True,
+    solver_options: dict | None = None,
+) -> Certificate:
+    """Certify Theorem 2 for one gain point over the rotations ``|theta_ec| <= theta_max``.
+
+    ``gamma`` in the result is the smallest gamma certified over the whole region
+    (inflated by :data:`INFLATION` and re-checked); certified means it exists, passes
+    the re-check and, when ``gamma_bound`` is given, is at most ``gamma_bound``.
+    """
+    region = region_text(theta_max)
+    identity = np.eye(3)
+    if point.isotropic:
+        sound_point, method = point, "exact (isotropic K_e: R_ec = I decides, fact 2)"
+    else:
+        k_min = np.repeat([point.k_e[:3].min(), point.k_e[3:].min()], 3)
+        sound_point, method = point.with_k_e(k_min), "exact (anisotropic K_e: blockwise-minimum bound, fact 5)"
+    gamma_exact, code = exact_gamma(sound_point, reference, identity)
+    if code:
+        return Certificate(False, None, method, None, REASONS[code], region)
+    result = Certificate(False, None, method, None, None, region)
+    if not point.isotropic:
+        found, rotation = worst_rotation(point, reference, theta_max)
+        result.gamma_worst_found = found
+        result.worst_rotation = rotation.tolist()
+        result.gap = gamma_exact / found - 1.0
+    if with_sdp:
+        gamma_sdp, sdp_method, trouble = sdp_gamma(sound_point, reference, identity, solver_options)
+        if trouble is not None:
+            result.reason = trouble
+            result.method = f"{method}; {sdp_method}"
+            return result
+        if abs(gamma_sdp - gamma_exact) > 1e-5 * gamma_exact:
+            result.reason = f"exact ({gamma_exact:.9g}) and SDP ({gamma_sdp:.9g}) disagree"
+            return result
+        result.method = f"{method}; cross-checked by {sdp_method}"
+    gamma = gamma_exact * (1 + INFLATION)
+    margin = p_min_eigenvalue(sound_point, reference, identity, gamma)
+    result.margin = margin
+    if margin < 0:
+        result.reason = f"a posteriori check failed: lambda_min(P) = {margin:.3g} < 0"
+        return result
+    result.gamma = gamma
+    if gamma_bound is not None and gamma > gamma_bound:
+        result.reason = f"gamma = {gamma:.6g} exceeds the required bound {gamma_bound:.6g}"
+        return result
+    result.certified = True
+    return result

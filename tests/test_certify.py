@@ -1,0 +1,134 @@
+"""Theorem 2 certificates: exact closed form (MATH fact 3) against the SDP, invariance
+and soundness over rotations (facts 2 and 5), minimality, failure reasons, and the
+L2 inequality (45) on an integrated trajectory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from analysis.certify import GainPoint, certify, exact_gamma, p_min_eigenvalue, sdp_gamma
+from analysis.simulate import identity_residuals
+from models.lie import SE3
+from models.loop import Weights
+from tests.conftest import build_loop, run
+
+REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
+I3 = np.eye(3)
+
+
+def random_point(rng: np.random.Generator, isotropic: bool) -> GainPoint:
+    """A random gain point for which Theorem 2 has a finite gamma at R_ec = I (about one
+    draw in twenty has none; those are redrawn)."""
+    while True:
+        k_e = np.repeat(rng.uniform(2, 20, 2), 3) if isotropic else rng.uniform(2, 20, 6)
+        w = Weights(*rng.uniform(0.5, 5, 4))
+        point = GainPoint(rng.uniform(2, 40, 6), rng.uniform(1, 10, 6), k_e, w)
+        k_min = np.repeat([k_e[:3].min(), k_e[3:].min()], 3)
+        if exact_gamma(point.with_k_e(k_min), REFERENCE, I3)[1] == 0:
+            return point
+
+
+@pytest.mark.parametrize("isotropic", [True, False])
+def test_exact_and_sdp_agree(rng, isotropic):
+    """The closed form and Clarabel's SDP optimum agree to 1e-6 relative at R_ec = I
+    (Clarabel's default tolerances are 1e-8 on the objective)."""
+    for _ in range(5):
+        point = random_point(rng, isotropic)
+        exact, code = exact_gamma(point, REFERENCE, I3)
+        sdp, _, trouble = sdp_gamma(point, REFERENCE, I3)
+        assert code == 0 and trouble is None
+        assert abs(sdp - exact) <= 1e-6 * exact
+
+
+def test_isotropic_gamma_is_rotation_invariant(rng):
+    """Fact 2: with block-isotropic K_e, gamma(R_ec) = gamma(I) for every R_ec."""
+    point = random_point(rng, isotropic=True)
+    base, _ = exact_gamma(point, REFERENCE, I3)
+    for r in Rotation.random(50, random_state=1).as_matrix():
+        assert exact_gamma(point, REFERENCE, r)[0] == pytest.approx(base, rel=1e-10)
+
+
+def test_anisotropic_gamma_depends_on_rotation(rng):
+    """Without isotropy the smallest gamma changes with R_ec (why a region matters)."""
+    point = GainPoint(
+        np.full(6, 20.0), np.full(6, 3.0), np.array([1.0, 10.0, 30.0, 2.0, 8.0, 20.0]), Weights(4, 1, 4, 1)
+    )
+    gammas = [exact_gamma(point, REFERENCE, r)[0] for r in Rotation.random(50, random_state=2).as_matrix()]
+    assert np.ptp(gammas) > 1e-3 * np.mean(gammas)
+
+
+def test_anisotropic_certificate_is_sound(rng):
+    """Fact 5: the certified gamma bounds gamma(R_ec) at every sampled rotation."""
+    for _ in range(3):
+        point = random_point(rng, isotropic=False)
+        cert = certify(point, REFERENCE)
+        assert cert.certified
+        for r in Rotation.random(300, random_state=3).as_matrix():
+            assert exact_gamma(point, REFERENCE, r)[0] <= cert.gamma
+
+
+def test_worst_rotation_reproduces_reported_gamma(rng):
+    point = random_point(rng, isotropic=False)
+    cert = certify(point, REFERENCE)
+    assert exact_gamma(point, REFERENCE, np.array(cert.worst_rotation))[0] == pytest.approx(
+        cert.gamma_worst_found, rel=1e-12
+    )
+    assert cert.gamma >= cert.gamma_worst_found and cert.gap >= 0
+
+
+def test_certificate_holds_at_gamma_and_not_below(rng):
+    """An independent eigenvalue check of the literal P: >= 0 at gamma, not at 0.99 gamma."""
+    for isotropic in (True, False):
+        point = random_point(rng, isotropic)
+        cert = certify(point, REFERENCE)
+        k_min = np.repeat([point.k_e[:3].min(), point.k_e[3:].min()], 3)
+        sound = point if isotropic else point.with_k_e(k_min)
+        assert p_min_eigenvalue(sound, REFERENCE, I3, cert.gamma) >= 0
+        assert p_min_eigenvalue(sound, REFERENCE, I3, 0.99 * cert.gamma) < 0
+
+
+def test_k_xi_at_most_half_is_uncertified():
+    point = GainPoint(np.array([20, 20, 0.5, 20, 20, 20.0]), np.full(6, 3.0), np.full(6, 10.0), Weights(4, 1, 4, 1))
+    cert = certify(point, REFERENCE)
+    assert not cert.certified and cert.gamma is None and "k_xi <= 1/2" in cert.reason
+
+
+def test_indefinite_control_error_block_is_uncertified():
+    """Tiny K_c and W_c make ``N^T K N - I/2`` indefinite on the e_c block."""
+    point = GainPoint(np.full(6, 20.0), np.full(6, 0.01), np.full(6, 0.01), Weights(0.1, 0.1, 4, 1))
+    cert = certify(point, REFERENCE)
+    assert not cert.certified and "e_c block" in cert.reason
+
+
+def test_required_gamma_is_enforced(rng):
+    point = random_point(rng, isotropic=True)
+    gamma = certify(point, REFERENCE).gamma
+    assert certify(point, REFERENCE, gamma_bound=1.01 * gamma).certified
+    assert not certify(point, REFERENCE, gamma_bound=0.99 * gamma).certified
+
+
+def test_solver_failure_is_uncertified(rng):
+    """Clarabel stopped at zero iterations and SCS at one: never "certified"."""
+    point = random_point(rng, isotropic=True)
+    forced = {"CLARABEL": {"max_iter": 0}, "SCS": {"max_iters": 1}}
+    cert = certify(point, REFERENCE, solver_options=forced)
+    assert not cert.certified and cert.gamma is None and "solver trouble" in cert.reason
+
+
+def test_theorem_2_integral_inequality_on_trajectory():
+    """(45): ``int |x|^2 <= gamma^2 int |w|^2 + 2 V(0)`` at every time of a run with a moving
+    target and torque noise, gamma certified for the scenario's gains."""
+
+    def disturbed(data):
+        data["disturbance"] = {"torque": [{"kind": "noise", "rms": 2.0, "bandwidth": 5.0, "seed": 3}]}
+
+    loop, s0, settings = build_loop(disturbed)
+    g = loop.gains
+    cert = certify(GainPoint(g.k_xi, g.k_c, g.k_e, loop.weights), loop.reference)
+    traj = run(loop, s0, settings, duration=5.0)
+    assert cert.certified and identity_residuals(traj)["dissipation"] < 1e-6
+    lhs = traj.integrals["x_squared"]
+    rhs = cert.gamma**2 * traj.integrals["w_squared"] + 2 * traj["V"][0, 0]
+    assert np.all(lhs <= rhs)
