@@ -104,9 +104,9 @@ def output_blocks(weights: np.ndarray, reference: SE3, rotations: np.ndarray) ->
     f = _ce_block_function().map(b)
     p_d = np.asarray(cs.DM(reference.translation))
     r_d = np.asarray(cs.DM(reference.rotation.matrix))
-    r_ec = np.transpose(rotations, (1, 0, 2)).reshape(3, 3 * b, order="F")
+    r_ec = np.transpose(rotations, (1, 0, 2)).reshape(3, 3 * b)  # CasADi's map stacks inputs side by side
     out = np.asarray(f(weights.T, p_d, r_d, r_ec))
-    return out.reshape(12, b, 12, order="F").transpose(1, 0, 2)
+    return out.reshape(12, b, 12).transpose(1, 0, 2)
 
 
 def exact_s(n_ce: np.ndarray, k_xi_min: np.ndarray, k_c: np.ndarray, k_e: np.ndarray, w_e: np.ndarray):

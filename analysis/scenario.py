@@ -186,6 +186,56 @@ class CertifySection(_Strict):
     gamma: Positive | None = None
 
 
+class RangeSpec(_Strict):
+    """``num`` values from ``start`` to ``stop``, linearly or logarithmically spaced."""
+
+    start: Positive
+    stop: Positive
+    num: Annotated[int, Field(ge=1, le=10**7)]
+    spacing: Literal["linear", "log"] = "linear"
+
+    def values(self) -> np.ndarray:
+        space = np.geomspace if self.spacing == "log" else np.linspace
+        return space(self.start, self.stop, self.num)
+
+
+class GridSection(_Strict):
+    """Axes swept by ``certify``: any of :data:`analysis.grid.AXES`."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _axes(cls, data: dict) -> dict:
+        from analysis.grid import AXES
+
+        if not isinstance(data, dict) or not data:
+            raise ValueError("the grid is empty: give at least one axis, e.g. k_c = [1, 2, 4]")
+        for name in data:
+            if name not in AXES:
+                raise ValueError(f"unknown axis {name!r}; sweepable: {', '.join(AXES)}")
+        return data
+
+    def axes(self) -> list[tuple[str, np.ndarray]]:
+        """The swept values per axis, validated (field-level errors)."""
+        out = []
+        for name, value in (self.model_extra or {}).items():
+            if isinstance(value, dict):
+                try:
+                    values = RangeSpec.model_validate(value).values()
+                except ValidationError as exc:
+                    raise ScenarioError(f"grid.{name}.{_format(exc)}") from exc
+            else:
+                values = np.asarray(value if isinstance(value, list) else [None], dtype=object)
+                if not len(values) or not all(
+                    isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in values
+                ):
+                    raise ScenarioError(f"grid.{name}: expected a list of positive finite numbers or a range table")
+                values = values.astype(float)
+            out.append((name, values))
+        return out
+
+
 class Scenario(_Strict):
     """The whole scenario file."""
 
@@ -200,6 +250,7 @@ class Scenario(_Strict):
     disturbance: DisturbancesSection = DisturbancesSection()
     simulation: SimulationSection = SimulationSection()
     certify: CertifySection = CertifySection()
+    grid: GridSection | None = None
 
 
 def _format(error: ValidationError) -> str:

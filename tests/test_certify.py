@@ -4,14 +4,15 @@ L2 inequality (45) on an integrated trajectory."""
 
 from __future__ import annotations
 
+import casadi as cs
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from analysis.certify import GainPoint, certify, exact_gamma, p_min_eigenvalue, sdp_gamma
+from analysis.certify import GainPoint, certify, exact_gamma, output_blocks, p_min_eigenvalue, sdp_gamma
 from analysis.simulate import identity_residuals
 from models.lie import SE3
-from models.loop import Weights
+from models.loop import Weights, output_matrix
 from tests.conftest import build_loop, run
 
 REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
@@ -132,3 +133,13 @@ def test_theorem_2_integral_inequality_on_trajectory():
     lhs = traj.integrals["x_squared"]
     rhs = cert.gamma**2 * traj.integrals["w_squared"] + 2 * traj["V"][0, 0]
     assert np.all(lhs <= rhs)
+
+
+def test_batched_output_blocks_equal_single_evaluations(rng):
+    """The batched N (CasADi map) equals the simulator's N evaluated point by point."""
+    weights = rng.uniform(0.5, 5, (7, 4))
+    rotations = Rotation.random(7, random_state=4).as_matrix()
+    batch = output_blocks(weights, REFERENCE, rotations)
+    for i in range(7):
+        single = np.asarray(cs.DM(output_matrix(Weights(*weights[i]), REFERENCE, cs.DM(rotations[i]), 0)))
+        assert np.array_equal(batch[i], single)
