@@ -256,9 +256,7 @@ def show_certificate(result: dict) -> None:
         out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)
 
 
-def sweep(
-    spec, scenario: Path, point: GainPoint, axes, directory: Path, json_target, workers, scheduler, resume, start
-):
+def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_target, how: tuple, start: float):
     """Run a grid sweep with a progress bar; write certificate.json; exit 0/1.
 
     ``how`` is ``(workers, scheduler, resume, batch_size)``.
