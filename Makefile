@@ -27,6 +27,7 @@ test: lint
 
 bench: install
 	$(BIN)/python benchmarks/simulate.py
+	$(BIN)/python benchmarks/certify.py
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

@@ -115,10 +115,10 @@ def exact_s(n_ce: np.ndarray, k_xi_min: np.ndarray, k_c: np.ndarray, k_e: np.nda
     Parameters are batches: ``n_ce`` (B, 12, 12), ``k_xi_min`` (B,), ``k_c``, ``k_e`` (B, 6),
     ``w_e`` (B, 2) as (w_pe, w_re). Returns ``(s, reason)``: ``s`` (B,) with ``-inf``
     where ``A_cc`` is not positive definite, and a reason code per point (0 fine,
-    1 ``k_xi <= 1/2``, 2 ``A_cc`` not positive definite, 3 Schur complement not positive).
+    1 ``k_xi <= 1/2``, 2 ``A_cc`` not positive definite, 3 Schur complement not positive),
+    and ``A = N^T K N - I/2`` on ``(e_c, e_e)`` (B, 12, 12).
     """
-    k = np.concatenate([k_c, k_e], axis=1)
-    a = np.einsum("bji,bj,bjk->bik", n_ce, k, n_ce) - 0.5 * np.eye(12)
+    a = nkn(n_ce, np.concatenate([k_c, k_e], axis=1)) - 0.5 * np.eye(12)
     a_cc, a_ce, a_ee = a[:, :6, :6], a[:, :6, 6:], a[:, 6:, 6:]
     cc_min = np.linalg.eigvalsh(a_cc)[:, 0]
     ok = cc_min > 0
@@ -129,7 +129,12 @@ def exact_s(n_ce: np.ndarray, k_xi_min: np.ndarray, k_c: np.ndarray, k_e: np.nda
         s[ok] = np.linalg.eigvalsh(d[:, :, None] * schur * d[:, None, :])[:, 0]
     s = np.minimum(s, k_xi_min - 0.5)
     reason = np.where(k_xi_min <= 0.5, 1, np.where(~ok, 2, np.where(s <= 0, 3, 0)))
-    return s, reason
+    return s, reason, a
+
+
+def nkn(n: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Batched ``N^T diag(k) N``."""
+    return n.transpose(0, 2, 1) @ (k[:, :, None] * n)
 
 
 REASONS = {
@@ -162,7 +167,7 @@ def p_min_eigenvalue(point: GainPoint, reference: SE3, r_ec: np.ndarray, gamma: 
 
 def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[float, int]:
     """Smallest gamma at one rotation by the closed form, and the reason code."""
-    s, reason = exact_s(
+    s, reason, _ = exact_s(
         output_blocks(_weights_row(point)[None], reference, np.asarray(r_ec)[None]),
         np.array([point.k_xi.min()]),
         point.k_c[None],
@@ -219,7 +224,7 @@ def worst_rotation(
     rng = np.random.default_rng(seed)
     rotations = np.concatenate([np.eye(3)[None], random_rotations(samples, theta_max, rng)])
     b = len(rotations)
-    s, _ = exact_s(
+    s, _, _ = exact_s(
         output_blocks(np.tile(_weights_row(point), (b, 1)), reference, rotations),
         np.full(b, point.k_xi.min()),
         np.tile(point.k_c, (b, 1)),
