@@ -35,11 +35,10 @@ from functools import cache
 import casadi as cs
 import cvxpy as cp
 import numpy as np
-from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
 from models.lie import SE3, SO3
-from models.loop import Weights, disturbance_weight, output_matrix
+from models.loop import Weights, disturbance_matrix, disturbance_weight, output_matrix
 
 INFLATION = 1e-6
 """Relative inflation of a computed gamma before the a posteriori check: at the exact
@@ -97,11 +96,16 @@ def _ce_block_function() -> cs.Function:
     return cs.Function("N_ce", [w, p_d, r_d, r_ec], [n])
 
 
+@cache
+def _mapped_ce_block_function(batch: int) -> cs.Function:
+    return _ce_block_function().map(batch)
+
+
 def output_blocks(weights: np.ndarray, reference: SE3, rotations: np.ndarray) -> np.ndarray:
     """``N_ce`` for a batch: ``weights`` (B, 4) as (w_pc, w_rc, w_pe, w_re), ``rotations``
     (B, 3, 3) values of ``R_ec``; returns (B, 12, 12)."""
     b = weights.shape[0]
-    f = _ce_block_function().map(b)
+    f = _mapped_ce_block_function(b)
     p_d = np.asarray(cs.DM(reference.translation))
     r_d = np.asarray(cs.DM(reference.rotation.matrix))
     r_ec = np.transpose(rotations, (1, 0, 2)).reshape(3, 3 * b)  # CasADi's map stacks inputs side by side
@@ -208,6 +212,91 @@ def _weights_row(point: GainPoint) -> np.ndarray:
     return np.array([w.w_pc, w.w_rc, w.w_pe, w.w_re], dtype=float)
 
 
+@dataclass
+class TightCertificate:
+    """Fact 4: the smallest gamma certified by a scaled storage ``alpha V``."""
+
+    gamma: float | None
+    alpha: float | None
+    margin: float | None
+    method: str
+    reason: str | None
+
+
+def tight_lmi(point: GainPoint, reference: SE3, alpha: float, gamma: float) -> np.ndarray:
+    """The dissipation LMI of the storage ``alpha V`` (MATH fact 4), at ``R_ec = R_ee = I``::
+
+        [[alpha N^T K N - I/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]] >= 0
+
+    It gives ``d(alpha V)/dt + |x|^2/2 - gamma^2 |w|^2/2 <= 0`` and so
+    ``int |x|^2 <= gamma^2 int |w|^2 + 2 alpha V(0)``; ``alpha = 1`` is Theorem 2's ``P``.
+    """
+    a, g = _tight_blocks(point, reference)
+    half = 0.5 * np.eye(a.shape[0])
+    return np.block([[alpha * a - half, -alpha / 2 * g], [-alpha / 2 * g.T, gamma**2 / 2 * np.eye(g.shape[1])]])
+
+
+def _tight_blocks(point: GainPoint, reference: SE3) -> tuple[np.ndarray, np.ndarray]:
+    """``N^T K N`` and ``G`` at the identity rotations."""
+    a, _ = theorem2_matrices(point, reference, np.eye(3))
+    n = len(point.k_xi)
+    g = np.asarray(cs.DM(disturbance_matrix(point.weights, cs.DM.eye(3), n)))
+    return a + 0.5 * np.eye(a.shape[0]), g
+
+
+def gamma_for_alpha(a: np.ndarray, g: np.ndarray, alpha: float) -> float | None:
+    """Smallest gamma of the fact-4 LMI at a fixed ``alpha`` (Schur complement):
+    ``gamma^2 = (alpha^2 / 2) lambda_max(G^T (alpha A - I/2)^-1 G)``, None unless
+    ``alpha A - I/2 > 0``. The solver supplies ``alpha``; gamma is then computed exactly."""
+    m = alpha * a - 0.5 * np.eye(a.shape[0])
+    if np.linalg.eigvalsh(m)[0] <= 0:
+        return None
+    return math.sqrt(alpha**2 / 2 * np.linalg.eigvalsh(g.T @ np.linalg.solve(m, g))[-1])
+
+
+def tight_gamma(point: GainPoint, reference: SE3, solver_options: dict | None = None) -> TightCertificate:
+    """Minimise gamma^2 over ``alpha > 0`` subject to the LMI of :func:`tight_lmi` (jointly
+    linear in ``alpha`` and ``gamma^2``), re-checked a posteriori like every certificate.
+
+    The rotations drop out as for Theorem 2: the change of variables ``e_e -> Ad_{R_ec} e_e``
+    and ``w -> diag(I, Ad_{R_ec} Ad_{R_ee}) w`` (orthogonal) maps the LMI at any rotation
+    to the one at ``I`` for block-isotropic ``K_e``; otherwise the blockwise-minimum
+    ``K_e`` gives a bound sound for every rotation (the LMI is monotone in ``K``).
+    """
+    sound = point if point.isotropic else point.with_k_e(np.repeat([point.k_e[:3].min(), point.k_e[3:].min()], 3))
+    a, g = _tight_blocks(sound, reference)
+    nx, nw = g.shape
+    alpha, g2 = cp.Variable(nonneg=True), cp.Variable(nonneg=True)
+    lmi = cp.bmat([[alpha * a - 0.5 * np.eye(nx), -alpha / 2 * g], [-alpha / 2 * g.T, g2 / 2 * np.eye(nw)]])
+    problem = cp.Problem(cp.Minimize(g2), [(lmi + lmi.T) / 2 >> 0])
+    failures = []
+    for solver in (cp.CLARABEL, cp.SCS):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                problem.solve(solver=solver, **(solver_options or {}).get(solver, {}))
+        except cp.SolverError as exc:
+            failures.append(f"{solver}: {exc}".splitlines()[0])
+            continue
+        if problem.status != cp.OPTIMAL or g2.value is None or alpha.value is None:
+            failures.append(f"{solver}: status {problem.status}")
+            continue
+        a_alpha = float(alpha.value)
+        gamma = gamma_for_alpha(a, g, a_alpha)
+        if gamma is None:
+            failures.append(f"{solver}: alpha A - I/2 is not positive definite at the solver's alpha")
+            continue
+        gamma *= 1 + INFLATION
+        margin = float(np.linalg.eigvalsh(tight_lmi(sound, reference, a_alpha, gamma))[0])
+        method = f"scaled storage alpha V (fact 4), {solver.lower()}"
+        if margin < 0:
+            return TightCertificate(None, a_alpha, margin, method, "a posteriori check failed")
+        return TightCertificate(gamma, a_alpha, margin, method, None)
+    return TightCertificate(
+        None, None, None, "scaled storage alpha V (fact 4)", "solver trouble: " + "; ".join(failures)
+    )
+
+
 def random_rotations(count: int, theta_max: float, rng: np.random.Generator) -> np.ndarray:
     """Rotations with angle at most ``theta_max``: uniform axis, angle uniform in [0, theta_max]."""
     axes = rng.normal(size=(count, 3))
@@ -216,13 +305,8 @@ def random_rotations(count: int, theta_max: float, rng: np.random.Generator) -> 
     return Rotation.from_rotvec(axes * angles).as_matrix()
 
 
-def worst_rotation(
-    point: GainPoint, reference: SE3, theta_max: float, samples: int = 2000, seed: int = 0
-) -> tuple[float, np.ndarray]:
-    """The largest smallest-gamma over ``R_ec`` found by sampling and local refinement
-    (a lower bound on the worst case; never a certificate)."""
-    rng = np.random.default_rng(seed)
-    rotations = np.concatenate([np.eye(3)[None], random_rotations(samples, theta_max, rng)])
+def gammas_over_rotations(point: GainPoint, reference: SE3, rotations: np.ndarray) -> np.ndarray:
+    """Smallest gamma of ``point`` at each rotation ``R_ec`` of a batch (B, 3, 3)."""
     b = len(rotations)
     s, _, _ = exact_s(
         output_blocks(np.tile(_weights_row(point), (b, 1)), reference, rotations),
@@ -231,19 +315,39 @@ def worst_rotation(
         np.tile(point.k_e, (b, 1)),
         np.tile([point.weights.w_pe, point.weights.w_re], (b, 1)),
     )
-    start = Rotation.from_matrix(rotations[int(np.argmin(s))]).as_rotvec()
+    return gamma_of(s)
 
-    def objective(v: np.ndarray) -> float:
-        angle = np.linalg.norm(v)
-        if angle > theta_max:
-            v = v * theta_max / angle
-        r = Rotation.from_rotvec(v).as_matrix()
-        return -exact_gamma(point, reference, r)[0]
 
-    best = minimize(objective, start, method="Nelder-Mead", options={"xatol": 1e-6, "fatol": 1e-10, "maxiter": 400})
-    v = best.x if np.linalg.norm(best.x) <= theta_max else best.x * theta_max / np.linalg.norm(best.x)
-    rotation = Rotation.from_rotvec(v).as_matrix()
-    return exact_gamma(point, reference, rotation)[0], rotation
+def _clip(rotvecs: np.ndarray, theta_max: float) -> np.ndarray:
+    angle = np.linalg.norm(rotvecs, axis=1, keepdims=True)
+    return rotvecs * np.minimum(1.0, theta_max / np.maximum(angle, 1e-300))
+
+
+def worst_rotation(
+    point: GainPoint, reference: SE3, theta_max: float, samples: int = 512, rounds: int = 15, seed: int = 0
+) -> tuple[float, np.ndarray]:
+    """The largest smallest-gamma over ``|theta_ec| <= theta_max`` found by batched random
+    sampling, then batched local refinement around the best rotation with a shrinking
+    radius. A lower bound on the worst case, never a certificate."""
+    rng = np.random.default_rng(seed)
+    rotvecs = np.concatenate(
+        [np.zeros((1, 3)), Rotation.from_matrix(random_rotations(samples, theta_max, rng)).as_rotvec()]
+    )
+    values = gammas_over_rotations(point, reference, Rotation.from_rotvec(rotvecs).as_matrix())
+    best = int(np.argmax(values))
+    best_vec, best_value = rotvecs[best], values[best]
+    radius = 0.5
+    for _ in range(rounds):
+        steps = rng.normal(scale=radius, size=(64, 3))
+        candidates = _clip((Rotation.from_rotvec(best_vec) * Rotation.from_rotvec(steps)).as_rotvec(), theta_max)
+        values = gammas_over_rotations(point, reference, Rotation.from_rotvec(candidates).as_matrix())
+        i = int(np.argmax(values))
+        if values[i] > best_value:
+            best_vec, best_value = candidates[i], values[i]
+        else:
+            radius *= 0.5
+    rotation = Rotation.from_rotvec(best_vec).as_matrix()
+    return float(gammas_over_rotations(point, reference, rotation[None])[0]), rotation
 
 
 def region_text(theta_max: float) -> str:

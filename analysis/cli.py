@@ -22,7 +22,15 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from analysis.certify import ASSUMPTIONS, Certificate, GainPoint, certify, region_text
+from analysis.certify import (
+    ASSUMPTIONS,
+    Certificate,
+    GainPoint,
+    TightCertificate,
+    certify,
+    region_text,
+    tight_gamma,
+)
 from analysis.grid import GridSpec, run_sweep
 from analysis.output import atomic_write, provenance, write_json
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, build_robot, gain_point, load
@@ -152,9 +160,10 @@ def show(result: dict) -> None:
     out.print(f"trajectory: {result['outputs']['trajectory']}\nsummary:    {result['outputs']['summary']}")
 
 
-def point_record(point: GainPoint, cert: Certificate) -> dict:
-    """One gain point of the ``certify`` JSON."""
+def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:
+    """One gain point of the ``certify`` JSON (with the fact-4 bound when computed)."""
     w = point.weights
+    extra = {} if tight is None else {"gamma_tight": tight.gamma, "alpha": tight.alpha, "tight_reason": tight.reason}
     return {
         "gains": {"k_xi": point.k_xi.tolist(), "k_c": point.k_c.tolist(), "k_e": point.k_e.tolist()},
         "weights": {"w_pc": w.w_pc, "w_rc": w.w_rc, "w_pe": w.w_pe, "w_re": w.w_re},
@@ -166,6 +175,7 @@ def point_record(point: GainPoint, cert: Certificate) -> dict:
         "worst_rotation": cert.worst_rotation,
         "gamma_worst_found": cert.gamma_worst_found,
         "gap": cert.gap,
+        **extra,
     }
 
 
@@ -206,7 +216,7 @@ def certify_command(
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     theta_max = math.radians(spec.certify.theta_max_deg)
     cert = certify(point, spec.reference.se3(), theta_max=theta_max, gamma_bound=spec.certify.gamma)
-    record = point_record(point, cert)
+    record = point_record(point, cert, tight_gamma(point, spec.reference.se3()))
     result = {
         "scenario": spec.name,
         "region": cert.region,
@@ -243,6 +253,7 @@ def show_certificate(result: dict) -> None:
         ("method", p["method"]),
         ("gamma (certified)", fmt(p["gamma"])),
         ("margin lambda_min(P)", fmt(p["margin"])),
+        ("gamma_tight (alpha V, fact 4)", f"{fmt(p.get('gamma_tight'))} (alpha = {fmt(p.get('alpha'))})"),
         ("worst gamma found by search", fmt(p["gamma_worst_found"])),
     ]
     for name, value in rows:

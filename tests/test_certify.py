@@ -9,7 +9,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from analysis.certify import GainPoint, certify, exact_gamma, output_blocks, p_min_eigenvalue, sdp_gamma
+from analysis.certify import (
+    GainPoint,
+    certify,
+    exact_gamma,
+    output_blocks,
+    p_min_eigenvalue,
+    sdp_gamma,
+    tight_gamma,
+    tight_lmi,
+)
 from analysis.simulate import identity_residuals
 from models.lie import SE3
 from models.loop import Weights, output_matrix
@@ -143,3 +152,42 @@ def test_batched_output_blocks_equal_single_evaluations(rng):
     for i in range(7):
         single = np.asarray(cs.DM(output_matrix(Weights(*weights[i]), REFERENCE, cs.DM(rotations[i]), 0)))
         assert np.array_equal(batch[i], single)
+
+
+def test_tight_gamma_is_at_most_paper_gamma(rng):
+    """Fact 4: alpha = 1 is feasible, so the scaled-storage bound never exceeds Theorem 2's."""
+    for isotropic in (True, False):
+        point = random_point(rng, isotropic)
+        tight, paper = tight_gamma(point, REFERENCE), certify(point, REFERENCE, with_sdp=False)
+        assert tight.gamma is not None and tight.gamma <= paper.gamma * (1 + 1e-6)
+
+
+def test_tight_lmi_holds_at_reported_gamma_and_not_below(rng):
+    point = random_point(rng, isotropic=True)
+    tight = tight_gamma(point, REFERENCE)
+    assert np.linalg.eigvalsh(tight_lmi(point, REFERENCE, tight.alpha, tight.gamma))[0] >= 0
+    alphas = np.geomspace(1e-2, 1e2, 200)
+    assert all(np.linalg.eigvalsh(tight_lmi(point, REFERENCE, a, 0.99 * tight.gamma))[0] < 0 for a in alphas)
+
+
+def test_tight_gamma_certifies_where_theorem_2_cannot():
+    """Small gains: N^T K N - I/2 is indefinite, so no gamma satisfies Theorem 2, while the
+    scaled storage alpha V > 1 still certifies a finite gamma."""
+    point = GainPoint(np.full(6, 5.0), np.full(6, 1.0), np.full(6, 3.0), Weights(2, 1, 1, 1))
+    assert not certify(point, REFERENCE).certified
+    assert tight_gamma(point, REFERENCE).gamma is not None
+
+
+def test_tight_integral_inequality_on_trajectory():
+    """(45) for the storage alpha V: ``int |x|^2 <= gamma_t^2 int |w|^2 + 2 alpha V(0)`` along a
+    disturbed run (moving target, torque noise)."""
+
+    def disturbed(data):
+        data["disturbance"] = {"torque": [{"kind": "noise", "rms": 2.0, "bandwidth": 5.0, "seed": 5}]}
+
+    loop, s0, settings = build_loop(disturbed)
+    g = loop.gains
+    tight = tight_gamma(GainPoint(g.k_xi, g.k_c, g.k_e, loop.weights), loop.reference)
+    traj = run(loop, s0, settings, duration=5.0)
+    rhs = tight.gamma**2 * traj.integrals["w_squared"] + 2 * tight.alpha * traj["V"][0, 0]
+    assert np.all(traj.integrals["x_squared"] <= rhs)
