@@ -10,6 +10,7 @@ import math
 import os
 import sys
 import time
+import tomllib
 from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import Annotated
 
 import casadi as cs
 import numpy as np
+import tomli_w
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -35,6 +37,7 @@ from analysis.grid import GridSpec, run_sweep
 from analysis.output import atomic_write, provenance, write_json
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, build_robot, gain_point, load
 from analysis.simulate import Simulator, summary
+from analysis.synthesize import Bounds, synthesize
 from models.loop import Weights
 
 app = typer.Typer(
@@ -375,4 +378,70 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
             f"{state.certified} of {grid.size} points certified; results: {directory / 'points.csv'}", markup=False
         )
     if state.certified < grid.size:
+        raise typer.Exit(1)
+
+
+@app.command("synthesize")
+def synthesize_command(
+    scenario: ScenarioArg = DEFAULT_SCENARIO,
+    out_file: Annotated[
+        Path | None, typer.Option("--out", help="Scenario file to write (default: out/<name>-synthesized.toml).")
+    ] = None,
+    json_target: JsonOpt = None,
+) -> None:
+    """Choose diagonal gains within the [synthesize] bounds that minimise the certified gamma
+    (fact 6), or reach [synthesize] gamma with the smallest gains; write them as a scenario."""
+    start = time.perf_counter()
+    try:
+        spec, base = load(scenario)
+        n = build_robot(spec.robot, base).n
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    check_json_target(json_target)
+    target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
+    prepare_out_dir(target.parent)
+    cfg = spec.synthesize
+    bounds = Bounds(tuple(cfg.k_xi), tuple(cfg.k_c), tuple(cfg.k_e))
+    weights = Weights(**spec.weights.model_dump())
+    with err.status("solving the gain-synthesis SDP"):
+        result = synthesize(
+            weights, spec.reference.se3(), n, bounds, gamma_target=cfg.gamma, search_weights=cfg.search_weights
+        )
+    record = {
+        "scenario": spec.name,
+        "status": result.status,
+        "objective": "minimise gamma" if cfg.gamma is None else f"smallest gains with gamma <= {cfg.gamma:g}",
+        "bounds": {"k_xi": cfg.k_xi, "k_c": cfg.k_c, "k_e": cfg.k_e},
+        "weights_tried": result.weights_tried,
+        "point": None if result.point is None else point_record(result.point, result.certificate),
+        "scenario_file": None,
+        "seconds": time.perf_counter() - start,
+        "provenance": provenance(scenario, ["dvfc", *sys.argv[1:]]),
+    }
+    if result.point is not None:
+        data = tomllib.loads(Path(scenario).read_text())
+        p = result.point
+        data["name"] = f"{spec.name}-synthesized"
+        data["gains"] = {"k_xi": p.k_xi.tolist(), "k_c": p.k_c.tolist(), "k_e": p.k_e.tolist()}
+        data["weights"] = {k: float(v) for k, v in record["point"]["weights"].items()}
+        data.pop("grid", None)
+        if "robot" in data and "urdf" in data["robot"]:
+            data["robot"]["urdf"] = str((base / data["robot"]["urdf"]).resolve())
+        atomic_write(target, lambda h: h.write(tomli_w.dumps(data).encode()))
+        record["scenario_file"] = str(target)
+    if json_target is not None:
+        write_json(json_target, record)
+    if json_target != "-":
+        if result.point is None:
+            out.print(f"NOT SYNTHESIZED: {result.status}", markup=False)
+        else:
+            pr = record["point"]
+            out.print(
+                f"gains: k_xi = {pr['gains']['k_xi']}\n       k_c = {pr['gains']['k_c']}\n"
+                f"       k_e = {pr['gains']['k_e']}\n"
+                f"weights: {pr['weights']}\ncertified gamma = {pr['gamma']:.6g} over {result.certificate.region}\n"
+                f"scenario written: {target}",
+                markup=False,
+            )
+    if result.point is None:
         raise typer.Exit(1)

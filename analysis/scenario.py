@@ -186,6 +186,28 @@ class CertifySection(_Strict):
     gamma: Positive | None = None
 
 
+Interval = Annotated[list[Positive], Field(min_length=2, max_length=2)]
+
+
+class SynthesizeSection(_Strict):
+    """Gain bounds ``[lower, upper]`` for ``synthesize``, an optional gamma target, and
+    whether to search the weights on a log grid around the scenario's."""
+
+    k_xi: Interval = [1.0, 100.0]
+    k_c: Interval = [0.1, 20.0]
+    k_e: Interval = [0.1, 50.0]
+    gamma: Positive | None = None
+    search_weights: bool = False
+
+    @model_validator(mode="after")
+    def _ordered(self) -> SynthesizeSection:
+        for name in ("k_xi", "k_c", "k_e"):
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise ValueError(f"{name}: lower bound {lo} exceeds upper bound {hi}")
+        return self
+
+
 class RangeSpec(_Strict):
     """``num`` values from ``start`` to ``stop``, linearly or logarithmically spaced."""
 
@@ -251,6 +273,7 @@ class Scenario(_Strict):
     simulation: SimulationSection = SimulationSection()
     certify: CertifySection = CertifySection()
     grid: GridSection | None = None
+    synthesize: SynthesizeSection = SynthesizeSection()
 
 
 def _format(error: ValidationError) -> str:

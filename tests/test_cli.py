@@ -162,3 +162,13 @@ def test_certify_required_gamma_exits_1(tmp_path):
 def test_certify_bad_region_is_exit_2(tmp_path):
     result = runner.invoke(app, ["certify", str(write(tmp_path, setter("certify.theta_max_deg", 270.0)))])
     assert result.exit_code == 2 and result.stderr.startswith("error: certify.theta_max_deg")
+
+
+def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
+    target = tmp_path / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(write(tmp_path)), "--out", str(target), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.stdout)
+    check = runner.invoke(app, ["certify", str(target), "--json", "-"])
+    assert check.exit_code == 0
+    assert json.loads(check.stdout)["points"][0]["gamma"] == pytest.approx(record["point"]["gamma"], rel=1e-9)
