@@ -38,6 +38,7 @@ from analysis.output import atomic_write, provenance, write_json
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, build_robot, gain_point, load
 from analysis.simulate import Simulator, summary
 from analysis.synthesize import Bounds, synthesize
+from analysis.verify import verify
 from models.loop import Weights
 
 app = typer.Typer(
@@ -444,4 +445,51 @@ def synthesize_command(
                 markup=False,
             )
     if result.point is None:
+        raise typer.Exit(1)
+
+
+@app.command("verify")
+def verify_command(
+    scenario: ScenarioArg = DEFAULT_SCENARIO,
+    out_dir: OutOpt = None,
+    json_target: JsonOpt = None,
+) -> None:
+    """Check every claim of the paper (Lemmas 1-2, Theorems 1-2, the passivity remarks, the
+    Lyapunov derivative) on simulated trajectories; measure the image loop's gap."""
+    start = time.perf_counter()
+    try:
+        spec, base = load(scenario)
+        loop, s0, settings = build(spec, base)
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    check_json_target(json_target)
+    directory = prepare_out_dir(out_dir) if out_dir is not None else None
+    g = loop.gains
+    cert = certify(GainPoint(g.k_xi, g.k_c, g.k_e, loop.weights), loop.reference, with_sdp=False)
+    with err.status("simulating and checking the claims"):
+        claims = verify(loop, s0, settings, cert.gamma)
+    failed = [c for c in claims if c.passed is False]
+    result = {
+        "scenario": spec.name,
+        "gamma": cert.gamma,
+        "claims": [c.as_dict() for c in claims],
+        "summary": {"claims": sum(c.passed is not None for c in claims), "failed": len(failed),
+                    "seconds": time.perf_counter() - start},
+        "provenance": provenance(scenario, ["dvfc", *sys.argv[1:]]),
+    }  # fmt: skip
+    if directory is not None:
+        write_json(directory / "verification.json", result)
+    if json_target is not None:
+        write_json(json_target, result)
+    if json_target != "-":
+        table = Table(title=f"Claims of the paper on {spec.name}")
+        for col in ("paper", "claim", "value", "bound", "status"):
+            table.add_column(col)
+        for c in claims:
+            status = {True: "[green]PASS[/]", False: "[red]FAIL[/]", None: "measured"}[c.passed]
+            table.add_row(c.reference, c.name, f"{c.value:.3e}", c.bound, status)
+        out.print(table)
+        verdict = "every claim holds" if not failed else f"{len(failed)} claim(s) FAIL"
+        out.print(f"{verdict} ({result['summary']['claims']} checked)", markup=False)
+    if failed:
         raise typer.Exit(1)

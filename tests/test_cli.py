@@ -172,3 +172,11 @@ def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
     check = runner.invoke(app, ["certify", str(target), "--json", "-"])
     assert check.exit_code == 0
     assert json.loads(check.stdout)["points"][0]["gamma"] == pytest.approx(record["point"]["gamma"], rel=1e-9)
+
+
+def test_verify_passes_and_writes_json(tmp_path):
+    out = tmp_path / "v"
+    result = runner.invoke(app, ["verify", str(write(tmp_path)), "--out", str(out), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "verification.json").read_text())
+    assert data["summary"]["failed"] == 0 and all(c["status"] in ("PASS", "MEASURED") for c in data["claims"])
