@@ -176,7 +176,16 @@ def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
 
 def test_verify_passes_and_writes_json(tmp_path):
     out = tmp_path / "v"
-    result = runner.invoke(app, ["verify", str(write(tmp_path)), "--out", str(out), "--json", "-"])
+    scenario = write(tmp_path, setter("simulation.duration", 4.0))
+    result = runner.invoke(app, ["verify", str(scenario), "--out", str(out), "--json", "-"])
     assert result.exit_code == 0, result.output
     data = json.loads((out / "verification.json").read_text())
     assert data["summary"]["failed"] == 0 and all(c["status"] in ("PASS", "MEASURED") for c in data["claims"])
+
+
+def test_verify_short_horizon_fails_convergence(tmp_path):
+    """0.2 s is too short for x -> 0: verify says FAIL and exits 1."""
+    result = runner.invoke(app, ["verify", str(write(tmp_path)), "--json", "-"])
+    assert result.exit_code == 1
+    failed = [c["claim"] for c in json.loads(result.stdout)["claims"] if c["status"] == "FAIL"]
+    assert failed == ["x -> 0"]
