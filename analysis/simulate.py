@@ -125,7 +125,8 @@ class Simulator:
             if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(qf))):
                 status, message = "diverged", f"non-finite state after t = {t[k]:.4g} s"
                 break
-            xf[-4:] /= np.linalg.norm(xf[-4:], axis=0)
+            for q in self.loop.quaternions:
+                xf[q] /= np.linalg.norm(xf[q], axis=0)
             states[:, k + 1 : k + 1 + count] = xf
             integrals[:, k + 1 : k + 1 + count] = integrals[:, k : k + 1] + qf
             k += count

@@ -162,6 +162,8 @@ class ClosedLoop:
         self.quat = cs.SX.sym("quat", 4)
         self.state = cs.vertcat(self.q, self.qd, self.pbar, self.quat)
         self.n_state = 2 * n + 7
+        self.quaternions = [slice(2 * n + 3, 2 * n + 7)]
+        """Where the state holds unit quaternions (renormalised between integration chunks)."""
 
     # --- poses and errors -------------------------------------------------------
     @cached_property

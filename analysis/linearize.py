@@ -1,0 +1,243 @@
+"""Lower bounds on the true L2 gain from ``w = [tau_d; V_wo]`` to ``x``.
+
+1. The linearisation of the closed loop at its equilibrium, exported as a python-control
+   ``StateSpace``: states ``z = [dq; dqd; dpbar; dthetabar; zeta]`` (``Rbar = Rbar* exp(dthetabar)``,
+   the target ``g_wo = g_wo* exp(zeta)`` moved by ``V_wo``), inputs ``w``, outputs ``x``. Its
+   H-infinity norm is a lower bound on the nonlinear loop's L2 gain (small signals).
+2. A worst-case disturbance search on the nonlinear loop from ``x(0) = 0``: sinusoidal
+   disturbances along the linearisation's worst input direction at its peak frequency,
+   scaled small, integrated by CVODES; ``sqrt(int |x|^2 / int |w|^2)`` is a lower bound.
+
+Both are lower bounds: a certified gamma below either is a contradiction (a bug).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from functools import cached_property
+
+import casadi as cs
+import control
+import numpy as np
+
+from analysis.simulate import Settings, Simulator
+from models.lie import SE3, SO3, matrix_to_quaternion, quaternion_rate, quaternion_to_matrix
+from models.loop import ClosedLoop
+from models.target import TargetMotion
+
+
+class InputDisturbanceLoop(ClosedLoop):
+    """The loop with ``w`` a free input and the target's pose a state ``zeta`` (local
+    coordinates at its initial pose): the form in which (36) is linearised."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.zeta = cs.SX.sym("zeta", 6)
+        self.w_in = cs.SX.sym("w", self.robot.n + 6)
+
+    @cached_property
+    def relative_pose(self) -> SE3:
+        return self.robot.camera_pose.inverse() @ (self.target.start @ SE3.exp(self.zeta))
+
+    @cached_property
+    def tau_d(self):
+        return self.w_in[: self.robot.n]
+
+    @cached_property
+    def w(self):
+        return self.w_in
+
+
+@dataclass
+class DrivenTargetLoop(ClosedLoop):
+    """The loop driven by a disturbance signal ``w(t) = [tau_d; V_wo]``: the target's pose
+    is a state ``(p_o, quat_o)`` moved by ``V_wo`` (5), so any ``w`` can be applied."""
+
+    disturbance_input: Callable[[cs.SX], cs.SX] | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.p_o, self.quat_o = cs.SX.sym("p_o", 3), cs.SX.sym("quat_o", 4)
+        self.quaternions = [*self.quaternions, slice(self.n_state + 3, self.n_state + 7)]
+        self.state = cs.vertcat(self.state, self.p_o, self.quat_o)
+        self.n_state += 7
+
+    @cached_property
+    def target_pose(self) -> SE3:
+        return SE3(self.p_o, SO3(quaternion_to_matrix(self.quat_o)))
+
+    @cached_property
+    def relative_pose(self) -> SE3:
+        return self.robot.camera_pose.inverse() @ self.target_pose
+
+    @cached_property
+    def w(self):
+        return self.disturbance_input(self.t)
+
+    @cached_property
+    def tau_d(self):
+        return self.w[: self.robot.n]
+
+    @cached_property
+    def state_rate(self):
+        v = self.w[self.robot.n :]
+        target = cs.vertcat(self.target_pose.rotation.matrix @ v[0:3], quaternion_rate(self.quat_o, v[3:6]))
+        return cs.vertcat(super().state_rate, target)
+
+
+def sinusoid(re: np.ndarray, im: np.ndarray, omega: float) -> Callable[[cs.SX], cs.SX]:
+    """``w(t) = Re((re + j im) e^{j omega t})``."""
+    return lambda t: cs.DM(re) * cs.cos(omega * t) - cs.DM(im) * cs.sin(omega * t)
+
+
+def worst_case_disturbance(
+    loop: ClosedLoop, lin: Linearization, amplitude: float = 1e-2, horizon: float = 20.0
+) -> tuple[float, dict]:
+    """Nonlinear lower bound: from the equilibrium (x = 0), apply
+    ``w(t) = amplitude Re(d e^{j omega t})`` along the linearisation's worst input ``d`` at
+    frequencies around its peak (and at 0); return the largest
+    ``sqrt(int |x|^2 / int |w|^2)`` over ``[0, horizon]`` and the disturbance that gave it."""
+    n = loop.robot.n
+    direction = lin.worst_input
+    best = (0.0, {})
+    peak = lin.peak_frequency
+    for omega in sorted({0.0, peak, 2 * peak, 0.5 * peak}):
+        re, im = np.real(direction), np.imag(direction)
+        driven = DrivenTargetLoop(
+            **{f: getattr(loop, f) for f in ClosedLoop.__dataclass_fields__},
+            disturbance_input=sinusoid(amplitude * re, amplitude * im, omega),
+        )
+        driven = replace(driven, target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None)
+        s0 = np.concatenate([
+            lin.q_eq, np.zeros(n), np.asarray(cs.DM(loop.reference.translation)).ravel(),
+            matrix_to_quaternion(np.asarray(cs.DM(loop.reference.rotation.matrix))),
+            np.asarray(cs.DM(loop.target.start.translation)).ravel(),
+            matrix_to_quaternion(np.asarray(cs.DM(loop.target.start.rotation.matrix))),
+        ])  # fmt: skip
+        traj = Simulator(driven, Settings(duration=horizon, dt=0.01, jit=False)).run(s0)
+        if traj.status != "ok":
+            continue
+        ratio = float(np.sqrt(traj.integrals["x_squared"][-1] / traj.integrals["w_squared"][-1]))
+        if ratio > best[0]:
+            best = (ratio, {"frequency_rad_s": omega, "amplitude": amplitude, "direction_re": re.tolist(),
+                            "direction_im": im.tolist(), "horizon": horizon})  # fmt: skip
+    return best
+
+
+def equilibrium_configuration(loop: ClosedLoop, q0: np.ndarray, iterations: int = 50) -> np.ndarray:
+    """Joint angles with ``g_wc(q) = g_wo(0) g_d^-1`` (camera at the reference), by Newton's
+    method on ``log(g_wc(q)^-1 g_target)`` with the body Jacobian, from ``q0``."""
+    target = np.asarray(cs.DM((loop.target.start @ loop.reference.inverse()).as_matrix()))
+    r = loop.robot
+    error = SE3.from_matrix(r.camera_pose.inverse().as_matrix() @ cs.DM(target)).log()
+    step = cs.Function("step", [r.q], [cs.pinv(r.body_jacobian) @ error, error])
+    q = np.array(q0, dtype=float)
+    for _ in range(iterations):
+        dq, err = (np.asarray(v).ravel() for v in step(q))
+        q = q + dq
+        if np.linalg.norm(err) < 1e-13:
+            break
+    residual = np.linalg.norm(np.asarray(step(q)[1]))
+    if residual > 1e-9:
+        raise ValueError(f"no equilibrium configuration found from q0 (pose residual {residual:.2e})")
+    return q
+
+
+@dataclass
+class Linearization:
+    """The linearised loop, its equilibrium, and its H-infinity norm (two ways)."""
+
+    system: control.StateSpace
+    reduced: control.StateSpace
+    q_eq: np.ndarray
+    hinf: float
+    peak_gain: float
+    peak_frequency: float
+    worst_input: np.ndarray
+
+
+def linearize(loop: ClosedLoop, q0: np.ndarray) -> Linearization:
+    """Linearise the ideal loop at its equilibrium (static target at ``g_wo(0)``, ``x = 0``)."""
+    static = replace(loop, target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None)
+    q_eq = equilibrium_configuration(static, q0)
+    open_loop = InputDisturbanceLoop(**{f: getattr(static, f) for f in static.__dataclass_fields__})
+    n = loop.robot.n
+    dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
+    z = cs.vertcat(dq, dqd, dp, dth, open_loop.zeta)
+    gbar = static.reference
+    quat_eq = matrix_to_quaternion(np.asarray(cs.DM(gbar.rotation.matrix)))
+    quat = _quaternion_product(quat_eq, cs.vertcat(1, dth / 2))
+    state = cs.vertcat(q_eq + dq, dqd, cs.DM(gbar.translation) + dp, quat)
+    local = cs.vertcat(
+        open_loop.qd,
+        open_loop.qdd,
+        open_loop.estimate_rate[0:3],
+        open_loop.estimate_velocity[3:6],
+        open_loop.w_in[n:],
+    )
+    local = cs.substitute(local, open_loop.state, state)
+    output = cs.substitute(open_loop.x, open_loop.state, state)
+    zero_z, zero_w = np.zeros(z.shape[0]), np.zeros(open_loop.w_in.shape[0])
+    w = open_loop.w_in
+    jacobians = [cs.jacobian(local, z), cs.jacobian(local, w), cs.jacobian(output, z), cs.jacobian(output, w)]
+    f = cs.Function("lin", [z, w, open_loop.t], jacobians)
+    a, b, c, d = (np.asarray(m) for m in f(zero_z, zero_w, 0.0))
+    system = control.ss(a, b, c, d)
+    reduced = observable_quotient(system)
+    peak, omega, direction = frequency_peak(reduced)
+    return Linearization(system, reduced, q_eq, hinf_norm(reduced), peak, omega, direction)
+
+
+def _quaternion_product(p: np.ndarray, q):
+    s1, v1 = p[0], cs.DM(p[1:4])
+    s2, v2 = q[0], q[1:4]
+    return cs.vertcat(s1 * s2 - v1.T @ v2, s1 * v2 + s2 * v1 + cs.cross(v1, v2))
+
+
+def observable_quotient(sys: control.StateSpace, tol: float = 1e-9) -> control.StateSpace:
+    """The loop on the quotient by its unobservable equilibrium directions.
+
+    Moving the target and the camera together leaves ``x = 0``: those directions span
+    ``ker [A; C]``, an ``A``-invariant subspace with eigenvalue 0 that ``x`` never sees.
+    With ``V`` an orthonormal basis of its complement, ``(V^T A V, V^T B, C V, D)`` has
+    the same transfer function and no poles at 0.
+    """
+    a, b, c, d = sys.A, sys.B, sys.C, sys.D
+    _, sv, vh = np.linalg.svd(np.vstack([a, c]))
+    rank = int(np.sum(sv > tol * sv[0]))
+    keep = vh[:rank].T
+    return control.ss(keep.T @ a @ keep, keep.T @ b, c @ keep, d)
+
+
+def hinf_norm(sys: control.StateSpace) -> float:
+    """H-infinity norm by python-control (Hamiltonian bisection; slycot not needed).
+
+    ``control.system_norm`` 0.10.2 mis-sizes a non-square ``D``; zero input columns (which
+    change no singular value) make the system square first.
+    """
+    extra = sys.noutputs - sys.ninputs
+    b, d = sys.B, sys.D
+    if extra > 0:
+        b = np.hstack([b, np.zeros((b.shape[0], extra))])
+        d = np.hstack([d, np.zeros((d.shape[0], extra))])
+    return float(control.system_norm(control.ss(sys.A, b, sys.C, d), p="inf"))
+
+
+def frequency_peak(sys: control.StateSpace) -> tuple[float, float, np.ndarray]:
+    """Largest singular value of ``G(jw) = C (jwI - A)^-1 B + D`` over ``w = 0`` and a log grid
+    (1e-3 to 1e4 rad/s) refined around the peak, with the peak frequency and the worst
+    input direction. Every value is attained, so it is a lower bound on the H-infinity norm."""
+    a, b, c, d = sys.A, sys.B, sys.C, sys.D
+    eye = np.eye(a.shape[0])
+
+    def sigma(w: float) -> tuple[float, np.ndarray]:
+        _, s, vh = np.linalg.svd(c @ np.linalg.solve(1j * w * eye - a, b) + d)
+        return float(s[0]), vh[0].conj()
+
+    grid = np.r_[0.0, np.logspace(-3, 4, 1400)]
+    k = int(np.argmax([sigma(w)[0] for w in grid]))
+    fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 400)
+    best = max(fine, key=lambda w: sigma(w)[0])
+    value, direction = sigma(best)
+    return value, float(best), direction
