@@ -17,7 +17,9 @@ install: $(STAMP)
 
 demo: install
 	$(BIN)/dvfc simulate examples/ur5_circle.toml --out out/demo
-	@echo "demo outputs: out/demo (trajectory.npz, summary.json)"
+	$(BIN)/dvfc certify examples/ur5_circle.toml --out out/demo
+	$(BIN)/dvfc verify examples/ur5_circle.toml --out out/demo
+	@echo "demo outputs in out/demo: trajectory.npz, summary.json, certificate.json, verification.json"
 
 lint: install
 	$(BIN)/ruff check .
