@@ -11,9 +11,8 @@ import numpy as np
 import pytest
 
 from analysis.certify import GainPoint, certify, tight_gamma
-from analysis.linearize import DrivenTargetLoop, linearize, sinusoid, worst_case_disturbance
+from analysis.linearize import DrivenTargetLoop, equilibrium_state, linearize, worst_case_disturbance
 from analysis.simulate import Settings, Simulator
-from models.lie import matrix_to_quaternion
 from models.loop import ClosedLoop
 from models.target import TargetMotion
 from tests.conftest import build_loop
@@ -36,14 +35,8 @@ def test_linearization_matches_small_signal_response(default):
     eps, omega = 1e-4, 1.0
     static = replace(loop, target=TargetMotion(loop.target.start), disturbances=[], mode="ideal")
     fields = {f: getattr(static, f) for f in ClosedLoop.__dataclass_fields__}
-    driven = DrivenTargetLoop(**fields, disturbance_input=sinusoid(np.zeros(12), -eps * d, omega))
-    s0 = np.concatenate([
-        lin.q_eq, np.zeros(6), np.asarray(cs.DM(loop.reference.translation)).ravel(),
-        matrix_to_quaternion(np.asarray(cs.DM(loop.reference.rotation.matrix))),
-        np.asarray(cs.DM(loop.target.start.translation)).ravel(),
-        matrix_to_quaternion(np.asarray(cs.DM(loop.target.start.rotation.matrix))),
-    ])  # fmt: skip
-    traj = Simulator(driven, Settings(duration=3.0, dt=0.01)).run(s0)
+    driven = DrivenTargetLoop(**fields, disturbance_input=lambda t: eps * cs.DM(d) * cs.sin(omega * t))
+    traj = Simulator(driven, Settings(duration=3.0, dt=0.01)).run(equilibrium_state(loop, lin.q_eq))
     x_nl = np.hstack([traj["xi"], traj["e_c"], traj["e_e"]]) / eps
     u = np.outer(d, np.sin(omega * traj.t))
     x_lin = control.forced_response(lin.system, traj.t, u).outputs.T
@@ -77,6 +70,6 @@ def test_lower_bound_below_tight_below_paper(gains):
     point = GainPoint(loop.gains.k_xi, loop.gains.k_c, loop.gains.k_e, loop.weights)
     paper, tight = certify(point, loop.reference, with_sdp=False), tight_gamma(point, loop.reference)
     lin = linearize(loop, s0[:6])
-    nonlinear, _ = worst_case_disturbance(loop, lin, horizon=10.0)
+    nonlinear, _ = worst_case_disturbance(loop, lin)
     lower = max(lin.peak_gain, nonlinear)
     assert lower <= tight.gamma <= paper.gamma
