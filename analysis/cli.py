@@ -378,6 +378,7 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
         "grid": {name: values.tolist() if len(values) <= 1000 else f"{len(values)} values" for name, values in axes},
         "points": [p for p in (best, worst) if p is not None],
         "points_file": str(directory / "points.csv"),
+        "points_jsonl": str(directory / "points.jsonl"),
         "summary": {
             "points": grid.size,
             "certified": state.certified,

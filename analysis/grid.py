@@ -160,10 +160,31 @@ def csv_rows(result: dict[str, np.ndarray], axes: list[str]) -> str:
     return buffer.getvalue()
 
 
+def jsonl_rows(result: dict[str, np.ndarray], axes: list[str]) -> str:
+    """A batch as JSON Lines, one object per point (null where no gamma exists)."""
+    finite = lambda v: None if np.isnan(v) else float(v)  # noqa: E731
+    lines = []
+    for k in range(len(result["index"])):
+        code = int(result["reason"][k])
+        lines.append(json.dumps({
+            "index": int(result["index"][k]),
+            **{a: float(result[a][k]) for a in axes},
+            "certified": bool(result["certified"][k]),
+            "gamma": finite(result["gamma"][k]),
+            "margin": finite(result["margin"][k]),
+            "reason": REASON_TEXT.get(code),
+        }))  # fmt: skip
+    return "".join(line + "\n" for line in lines)
+
+
+OUTPUTS = {"points.csv": csv_rows, "points.jsonl": jsonl_rows}
+"""Streamed result files and how a batch is written to each."""
+
+
 @dataclass
 class SweepState:
     done: int
-    csv_bytes: int
+    sizes: dict[str, int]
     certified: int
     best: tuple[float, int] | None
     worst: tuple[float, int] | None
@@ -180,28 +201,32 @@ def run_sweep(
     progress: Callable[[int], None] | None = None,
     scenario_sha256: str = "",
 ) -> SweepState:
-    """Certify every grid point, streaming to ``directory/points.csv``; resumable."""
+    """Certify every grid point, streaming to ``points.csv`` and ``points.jsonl`` in
+    ``directory``; resumable."""
     axes = [name for name, _ in spec.axes]
-    csv_path, state_path = directory / "points.csv", directory / "sweep.json"
-    header = ",".join(["index", *axes, "certified", "gamma", "margin", "reason"]) + "\n"
+    state_path = directory / "sweep.json"
+    headers = {"points.csv": ",".join(["index", *axes, "certified", "gamma", "margin", "reason"]) + "\n",
+               "points.jsonl": ""}  # fmt: skip
     if resume and state_path.exists():
         saved = json.loads(state_path.read_text())
         if saved["scenario_sha256"] != scenario_sha256 or saved["total"] != spec.size:
             raise ValueError("--resume: the sweep in this directory belongs to another scenario or grid")
         best, worst = (tuple(saved[k]) if saved[k] else None for k in ("best", "worst"))
-        state = SweepState(saved["done"], saved["csv_bytes"], saved["certified"], best, worst)
-        with open(csv_path, "r+b") as handle:
-            handle.truncate(state.csv_bytes)
+        state = SweepState(saved["done"], saved["sizes"], saved["certified"], best, worst)
+        for name, size in state.sizes.items():
+            with open(directory / name, "r+b") as handle:
+                handle.truncate(size)
     else:
-        csv_path.write_text(header)
-        state = SweepState(0, len(header.encode()), 0, None, None)
+        for name, header in headers.items():
+            (directory / name).write_text(header)
+        state = SweepState(0, {name: len(h.encode()) for name, h in headers.items()}, 0, None, None)
 
     def save() -> None:
         data = {
             "scenario_sha256": scenario_sha256,
             "total": spec.size,
             "done": state.done,
-            "csv_bytes": state.csv_bytes,
+            "sizes": state.sizes,
             "certified": state.certified,
             "best": list(state.best) if state.best else None,
             "worst": list(state.worst) if state.worst else None,
@@ -209,26 +234,37 @@ def run_sweep(
         atomic_write(state_path, lambda h: h.write(json_text(data).encode()))
 
     save()
-    with open(csv_path, "ab") as out, BatchRunner(workers, scheduler) as submit:
-        for result in submit(spec, list(batches(state.done, spec.size, batch_size))):
-            text = csv_rows(result, axes).encode()
-            out.write(text)
-            out.flush()
-            os.fsync(out.fileno())
-            state.csv_bytes += len(text)
-            state.done = int(result["index"][-1]) + 1
-            state.certified += int(result["certified"].sum())
-            gammas = np.where(result["certified"], result["gamma"], np.inf)
-            i = int(np.argmin(gammas))
-            if np.isfinite(gammas[i]) and (state.best is None or gammas[i] < state.best[0]):
-                state.best = (float(gammas[i]), int(result["index"][i]))
-            j = int(np.argmax(gammas))
-            if state.worst is None or gammas[j] > state.worst[0]:
-                state.worst = (float(gammas[j]), int(result["index"][j]))
-            save()
-            if progress is not None:
-                progress(state.done)
+    files = {name: open(directory / name, "ab") for name in OUTPUTS}  # noqa: SIM115  (closed below)
+    try:
+        with BatchRunner(workers, scheduler) as submit:
+            for result in submit(spec, list(batches(state.done, spec.size, batch_size))):
+                for name, handle in files.items():
+                    text = OUTPUTS[name](result, axes).encode()
+                    handle.write(text)
+                    handle.flush()
+                    os.fsync(handle.fileno())
+                    state.sizes[name] += len(text)
+                _record(state, result)
+                save()
+                if progress is not None:
+                    progress(state.done)
+    finally:
+        for handle in files.values():
+            handle.close()
     return state
+
+
+def _record(state: SweepState, result: dict[str, np.ndarray]) -> None:
+    """Count a written batch into the sweep state (done, certified, best and worst)."""
+    state.done = int(result["index"][-1]) + 1
+    state.certified += int(result["certified"].sum())
+    gammas = np.where(result["certified"], result["gamma"], np.inf)
+    i = int(np.argmin(gammas))
+    if np.isfinite(gammas[i]) and (state.best is None or gammas[i] < state.best[0]):
+        state.best = (float(gammas[i]), int(result["index"][i]))
+    j = int(np.argmax(gammas))
+    if state.worst is None or gammas[j] > state.worst[0]:
+        state.worst = (float(gammas[j]), int(result["index"][j]))
 
 
 def _windowed(submit_one: Callable, spec: GridSpec, ranges: list[tuple[int, int]], window: int):

@@ -78,7 +78,8 @@ def test_dask_local_cluster_equals_local_sweep(tmp_path):
     for name, options in (("local", {}), ("dask", {"scheduler": "local", "workers": 2})):
         (tmp_path / name).mkdir()
         run_sweep(spec, tmp_path / name, batch_size=10, **options)
-    assert (tmp_path / "local" / "points.csv").read_bytes() == (tmp_path / "dask" / "points.csv").read_bytes()
+    for file in ("points.csv", "points.jsonl"):
+        assert (tmp_path / "local" / file).read_bytes() == (tmp_path / "dask" / file).read_bytes()
 
 
 def write_grid_scenario(tmp_path: Path) -> Path:
@@ -131,7 +132,8 @@ def test_sigkill_and_resume_equals_uninterrupted(tmp_path):
         proc.wait()
     assert kills >= 1
     assert cli(str(scenario), "--out", str(out), "--batch-size", "500", "--resume").wait() in (0, 1)
-    assert (out / "points.csv").read_bytes() == (reference / "points.csv").read_bytes()
+    for name in ("points.csv", "points.jsonl"):
+        assert (out / name).read_bytes() == (reference / name).read_bytes()
     assert json.loads((out / "certificate.json").read_text())["summary"]["points"] == total
 
 
