@@ -11,7 +11,6 @@ import os
 import sys
 import time
 import tomllib
-from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
@@ -106,8 +105,6 @@ def simulate(
         raise fail(str(exc)) from exc
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
-    steps = max(1, round(settings.duration / settings.dt))
-    settings = replace(settings, chunk=max(50, steps // 20))
 
     with Progress(
         TextColumn("[bold]simulate[/] {task.description}"),

@@ -31,7 +31,7 @@ def best_of(fn, repeat: int = 3) -> float:
 def main() -> None:
     scenario, base = load(DEFAULT_SCENARIO)
     loop, s0, settings = build(scenario, base)
-    settings = replace(settings, duration=10.0, chunk=100)
+    settings = replace(settings, duration=10.0)
     horizon = settings.duration
 
     start = time.perf_counter()
