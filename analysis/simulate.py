@@ -119,6 +119,7 @@ class Simulator:
         _, mapped, buffer, trigger = self._mapped
         inputs = [np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(states.T, dtype=float)]
         outputs = {k: np.empty((count, mapped.size1_out(i))) for i, k in enumerate(self.signal_names)}
+        assert all(mapped.nnz_out(i) == v.size for i, v in enumerate(outputs.values())), "signals must be dense"
         for i, value in enumerate(inputs):
             buffer.set_arg(i, memoryview(value))
         for i, value in enumerate(outputs.values()):

@@ -373,7 +373,8 @@ class ClosedLoop:
     def signals_function(self) -> cs.Function:
         """``(t, s) -> signals``: one output per entry of :attr:`signals`."""
         names = list(self.signals)
-        return cs.Function("signals", [self.t, self.state], list(self.signals.values()), ["t", "s"], names)
+        values = [cs.densify(v) for v in self.signals.values()]  # dense: structural zeros stored too
+        return cs.Function("signals", [self.t, self.state], values, ["t", "s"], names)
 
     def initial_state(self, q0: np.ndarray, qd0: np.ndarray, estimation_error: SE3) -> np.ndarray:
         """``s(0)`` with ``gbar(0) = g(0) g_ee(0)^-1`` for a given initial estimation error."""
