@@ -181,6 +181,32 @@ def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[flo
     return float(gamma_of(s)[0]), int(reason[0])
 
 
+SOLVERS = (cp.CLARABEL, cp.SCS)
+"""Conic solvers in the order tried: Clarabel (interior point, accurate), then SCS."""
+
+
+def solve(problem: cp.Problem, solver_options: dict | None = None) -> tuple[str | None, list[str]]:
+    """Solve with each of :data:`SOLVERS` until one reports a clean optimum.
+
+    Returns that solver's name (the problem then holds its solution) or None, and what
+    went wrong with the others. Inexact statuses (``optimal_inaccurate``, iteration
+    limits) count as failures: a certificate never rests on them.
+    """
+    failures = []
+    for solver in SOLVERS:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                problem.solve(solver=solver, **(solver_options or {}).get(solver, {}))
+        except cp.SolverError as exc:
+            failures.append(f"{solver}: {exc}".splitlines()[0])
+            continue
+        if problem.status == cp.OPTIMAL:
+            return solver, failures
+        failures.append(f"{solver}: status {problem.status}")
+    return None, failures
+
+
 def sdp_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray, solver_options: dict | None = None):
     """Smallest gamma by the SDP ``maximize s s.t. A - s W >= 0`` (Clarabel, then SCS).
 
@@ -190,21 +216,12 @@ def sdp_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray, solver_options
     a, w = theorem2_matrices(point, reference, r_ec)
     s = cp.Variable()
     problem = cp.Problem(cp.Maximize(s), [a - s * w >> 0])
-    failures = []
-    for solver in (cp.CLARABEL, cp.SCS):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)
-                problem.solve(solver=solver, **(solver_options or {}).get(solver, {}))
-        except cp.SolverError as exc:
-            failures.append(f"{solver}: {exc}".splitlines()[0])
-            continue
-        if problem.status == cp.OPTIMAL and s.value is not None:
-            if s.value <= 0:
-                return None, f"sdp-{solver.lower()}", "the SDP optimum has s <= 0: no gamma satisfies Theorem 2"
-            return float(1.0 / math.sqrt(2.0 * s.value)), f"sdp-{solver.lower()}", None
-        failures.append(f"{solver}: status {problem.status}")
-    return None, "sdp", "solver trouble: " + "; ".join(failures)
+    solver, failures = solve(problem, solver_options)
+    if solver is None or s.value is None:
+        return None, "sdp", "solver trouble: " + "; ".join(failures)
+    if s.value <= 0:
+        return None, f"sdp-{solver.lower()}", "the SDP optimum has s <= 0: no gamma satisfies Theorem 2"
+    return float(1.0 / math.sqrt(2.0 * s.value)), f"sdp-{solver.lower()}", None
 
 
 def _weights_row(point: GainPoint) -> np.ndarray:
@@ -269,32 +286,23 @@ def tight_gamma(point: GainPoint, reference: SE3, solver_options: dict | None = 
     alpha, g2 = cp.Variable(nonneg=True), cp.Variable(nonneg=True)
     lmi = cp.bmat([[alpha * a - 0.5 * np.eye(nx), -alpha / 2 * g], [-alpha / 2 * g.T, g2 / 2 * np.eye(nw)]])
     problem = cp.Problem(cp.Minimize(g2), [(lmi + lmi.T) / 2 >> 0])
-    failures = []
-    for solver in (cp.CLARABEL, cp.SCS):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)
-                problem.solve(solver=solver, **(solver_options or {}).get(solver, {}))
-        except cp.SolverError as exc:
-            failures.append(f"{solver}: {exc}".splitlines()[0])
-            continue
-        if problem.status != cp.OPTIMAL or g2.value is None or alpha.value is None:
-            failures.append(f"{solver}: status {problem.status}")
-            continue
-        a_alpha = float(alpha.value)
-        gamma = gamma_for_alpha(a, g, a_alpha)
-        if gamma is None:
-            failures.append(f"{solver}: alpha A - I/2 is not positive definite at the solver's alpha")
-            continue
-        gamma *= 1 + INFLATION
-        margin = float(np.linalg.eigvalsh(tight_lmi(sound, reference, a_alpha, gamma))[0])
-        method = f"scaled storage alpha V (fact 4), {solver.lower()}"
-        if margin < 0:
-            return TightCertificate(None, a_alpha, margin, method, "a posteriori check failed")
-        return TightCertificate(gamma, a_alpha, margin, method, None)
-    return TightCertificate(
-        None, None, None, "scaled storage alpha V (fact 4)", "solver trouble: " + "; ".join(failures)
-    )
+    solver, failures = solve(problem, solver_options)
+    if solver is None or alpha.value is None:
+        return TightCertificate(
+            None, None, None, "scaled storage alpha V (fact 4)", "solver trouble: " + "; ".join(failures)
+        )
+    method = f"scaled storage alpha V (fact 4), {solver.lower()}"
+    a_alpha = float(alpha.value)
+    gamma = gamma_for_alpha(a, g, a_alpha)
+    if gamma is None:
+        return TightCertificate(
+            None, a_alpha, None, method, "alpha A - I/2 is not positive definite at the solver's alpha"
+        )
+    gamma *= 1 + INFLATION
+    margin = float(np.linalg.eigvalsh(tight_lmi(sound, reference, a_alpha, gamma))[0])
+    if margin < 0:
+        return TightCertificate(None, a_alpha, margin, method, "a posteriori check failed")
+    return TightCertificate(gamma, a_alpha, margin, method, None)
 
 
 def random_rotations(count: int, theta_max: float, rng: np.random.Generator) -> np.ndarray:

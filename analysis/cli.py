@@ -15,7 +15,6 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
-import casadi as cs
 import numpy as np
 import tomli_w
 import typer
@@ -311,16 +310,7 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
     """
     workers, scheduler, resume, batch_size = how
     reference = spec.reference.se3()
-    grid = GridSpec(
-        point.k_xi,
-        point.k_c,
-        point.k_e,
-        np.array([point.weights.w_pc, point.weights.w_rc, point.weights.w_pe, point.weights.w_re], dtype=float),
-        np.asarray(cs.DM(reference.translation)).ravel(),
-        np.asarray(cs.DM(reference.rotation.matrix)),
-        tuple(axes),
-        spec.certify.gamma,
-    )
+    grid = GridSpec.around(point, reference, axes, spec.certify.gamma)
     if resume and not (directory / "sweep.json").exists():
         raise fail(f"--resume: no sweep to resume in {directory}")
     sha = provenance(scenario, [])["scenario_sha256"]

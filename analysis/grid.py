@@ -23,9 +23,10 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+import casadi as cs
 import numpy as np
 
-from analysis.certify import INFLATION, REASONS, exact_s, gamma_of, output_blocks
+from analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
 from analysis.output import atomic_write, json_text
 from models.lie import SE3, SO3
 
@@ -58,6 +59,16 @@ class GridSpec:
     r_d: np.ndarray
     axes: tuple[tuple[str, np.ndarray], ...]
     gamma_bound: float | None = None
+
+    @staticmethod
+    def around(point: GainPoint, reference: SE3, axes, gamma_bound: float | None = None) -> GridSpec:
+        """The grid of ``axes`` (name, values) around the design ``point``."""
+        w = point.weights
+        return GridSpec(
+            point.k_xi, point.k_c, point.k_e, np.array([w.w_pc, w.w_rc, w.w_pe, w.w_re], dtype=float),
+            np.asarray(cs.DM(reference.translation)).ravel(), np.asarray(cs.DM(reference.rotation.matrix)),
+            tuple(axes), gamma_bound,
+        )  # fmt: skip
 
     @property
     def shape(self) -> tuple[int, ...]:

@@ -17,13 +17,12 @@ Optionally the weights are searched on a log grid around the scenario's (outer l
 from __future__ import annotations
 
 import itertools
-import warnings
 from dataclasses import dataclass
 
 import cvxpy as cp
 import numpy as np
 
-from analysis.certify import Certificate, GainPoint, certify, output_blocks
+from analysis.certify import Certificate, GainPoint, certify, output_blocks, solve
 from models.lie import SE3
 from models.loop import Weights
 
@@ -69,20 +68,11 @@ def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target:
     ]  # fmt: skip
     objective = cp.Maximize(s) if gamma_target is None else cp.Minimize(cp.norm(cp.hstack([k_xi, k_ce])))
     problem = cp.Problem(objective, constraints)
-    for solver in (cp.CLARABEL, cp.SCS):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)
-                problem.solve(solver=solver)
-        except cp.SolverError:
-            continue
-        if problem.status == cp.OPTIMAL:
-            k_e = np.repeat([float(k_ep.value), float(k_er.value)], 3)
-            clip = lambda v, b: np.clip(np.asarray(v, dtype=float), *b)  # noqa: E731  (solver round-off)
-            return clip(k_xi.value, bounds.k_xi), clip(k_c.value, bounds.k_c), clip(k_e, bounds.k_e)
-        if problem.status == cp.INFEASIBLE:
-            return None
-    return None
+    if solve(problem)[0] is None:
+        return None
+    k_e = np.repeat([float(k_ep.value), float(k_er.value)], 3)
+    clip = lambda v, b: np.clip(np.asarray(v, dtype=float), *b)  # noqa: E731  (solver round-off)
+    return clip(k_xi.value, bounds.k_xi), clip(k_c.value, bounds.k_c), clip(k_e, bounds.k_e)
 
 
 def synthesize(

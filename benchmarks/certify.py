@@ -21,15 +21,8 @@ from models.loop import Weights
 def main() -> None:
     reference = SE3.from_xyz_rpy([0.0, 0.0, 0.35], [0.0, 0.0, 0.0])
     axes = (("k_c", np.geomspace(0.5, 10, 100)), ("k_e_p", np.linspace(1, 20, 50)), ("k_e_r", np.linspace(1, 20, 20)))
-    spec = GridSpec(
-        np.full(6, 20.0),
-        np.full(6, 3.0),
-        np.full(6, 10.0),
-        np.array([4.0, 1.0, 4.0, 1.0]),
-        np.array([0.0, 0.0, 0.35]),
-        np.eye(3),
-        axes,
-    )
+    design = GainPoint(np.full(6, 20.0), np.full(6, 3.0), np.full(6, 10.0), Weights(4, 1, 4, 1))
+    spec = GridSpec.around(design, reference, axes)
     size = spec.size
     certify_batch(spec, 0, 100)
     start = time.perf_counter()

@@ -37,6 +37,15 @@ def run(loop: ClosedLoop, s0: np.ndarray, settings: Settings, **changes) -> Traj
     return Simulator(loop, replace(settings, **changes)).run(s0)
 
 
+def torque_noise(seed: int, rms: float = 2.0) -> Callable[[dict], None]:
+    """An edit adding band-limited joint-torque noise (5 Hz) to the default scenario."""
+
+    def edit(data: dict) -> None:
+        data["disturbance"] = {"torque": [{"kind": "noise", "rms": rms, "bandwidth": 5.0, "seed": seed}]}
+
+    return edit
+
+
 def static_target(data: dict) -> None:
     data["target"]["motion"] = {"kind": "static"}
 

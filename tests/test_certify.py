@@ -22,7 +22,7 @@ from analysis.certify import (
 from analysis.simulate import identity_residuals
 from models.lie import SE3
 from models.loop import Weights, output_matrix
-from tests.conftest import build_loop, run
+from tests.conftest import build_loop, run, torque_noise
 
 REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
 I3 = np.eye(3)
@@ -131,10 +131,7 @@ def test_theorem_2_integral_inequality_on_trajectory():
     """(45): ``int |x|^2 <= gamma^2 int |w|^2 + 2 V(0)`` at every time of a run with a moving
     target and torque noise, gamma certified for the scenario's gains."""
 
-    def disturbed(data):
-        data["disturbance"] = {"torque": [{"kind": "noise", "rms": 2.0, "bandwidth": 5.0, "seed": 3}]}
-
-    loop, s0, settings = build_loop(disturbed)
+    loop, s0, settings = build_loop(torque_noise(3))
     g = loop.gains
     cert = certify(GainPoint(g.k_xi, g.k_c, g.k_e, loop.weights), loop.reference)
     traj = run(loop, s0, settings, duration=5.0)
@@ -182,10 +179,7 @@ def test_tight_integral_inequality_on_trajectory():
     """(45) for the storage alpha V: ``int |x|^2 <= gamma_t^2 int |w|^2 + 2 alpha V(0)`` along a
     disturbed run (moving target, torque noise)."""
 
-    def disturbed(data):
-        data["disturbance"] = {"torque": [{"kind": "noise", "rms": 2.0, "bandwidth": 5.0, "seed": 5}]}
-
-    loop, s0, settings = build_loop(disturbed)
+    loop, s0, settings = build_loop(torque_noise(5))
     g = loop.gains
     tight = tight_gamma(GainPoint(g.k_xi, g.k_c, g.k_e, loop.weights), loop.reference)
     traj = run(loop, s0, settings, duration=5.0)

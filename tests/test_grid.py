@@ -31,16 +31,8 @@ def small_grid(gamma_bound=None) -> GridSpec:
         ("k_e_p", np.array([2.0, 10.0])),
         ("w_pc", np.array([1.0, 4.0])),
     )
-    return GridSpec(
-        np.full(6, 20.0),
-        np.full(6, 3.0),
-        np.full(6, 10.0),
-        np.array([4.0, 1.0, 4.0, 1.0]),
-        np.array([0.0, 0.0, 0.35]),
-        np.eye(3),
-        axes,
-        gamma_bound,
-    )
+    design = GainPoint(np.full(6, 20.0), np.full(6, 3.0), np.full(6, 10.0), Weights(4, 1, 4, 1))
+    return GridSpec.around(design, REFERENCE, axes, gamma_bound)
 
 
 def read_rows(path: Path) -> list[str]:
