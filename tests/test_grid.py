@@ -137,3 +137,24 @@ def test_resume_of_another_grid_is_refused(tmp_path):
     other.write_text(scenario.read_text().replace("num = 50", "num = 49"))
     proc = cli(str(other), "--out", str(out), "--resume")
     assert proc.wait() == 2 and "another scenario or grid" in proc.stderr.read()
+
+
+def test_ctrl_c_stops_cleanly_and_says_how_to_resume(tmp_path):
+    """SIGINT mid-sweep: exit status 130, one line naming --resume, and the resumed sweep
+    equals an uninterrupted one."""
+    scenario = write_grid_scenario(tmp_path)
+    out = tmp_path / "interrupted"
+    proc = cli(str(scenario), "--out", str(out), "--batch-size", "200")
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        state = out / "sweep.json"
+        if state.exists() and json.loads(state.read_text() or "{}").get("done", 0) > 0:
+            proc.send_signal(signal.SIGINT)
+            break
+        time.sleep(0.005)
+    assert proc.wait() == 130
+    assert "--resume" in proc.stderr.read()
+    assert cli(str(scenario), "--out", str(out), "--resume").wait() in (0, 1)
+    reference = tmp_path / "reference"
+    assert cli(str(scenario), "--out", str(reference)).wait() in (0, 1)
+    assert (out / "points.csv").read_bytes() == (reference / "points.csv").read_bytes()
