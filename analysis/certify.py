@@ -198,8 +198,8 @@ def solve(problem: cp.Problem, solver_options: dict | None = None) -> tuple[str 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)
                 problem.solve(solver=solver, **(solver_options or {}).get(solver, {}))
-        except cp.SolverError as exc:
-            failures.append(f"{solver}: {exc}".splitlines()[0])
+        except Exception as exc:
+            failures.append(f"{solver}: {type(exc).__name__}: {exc}".splitlines()[0])
             continue
         if problem.status == cp.OPTIMAL:
             return solver, failures

@@ -34,7 +34,7 @@ from analysis.certify import (
 from analysis.grid import GridSpec, run_sweep
 from analysis.linearize import linearize, worst_case_disturbance
 from analysis.output import atomic_write, provenance, write_json
-from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, build_robot, gain_point, load
+from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import Simulator, summary
 from analysis.synthesize import Bounds, synthesize
 from analysis.verify import verify
@@ -84,6 +84,18 @@ def check_json_target(target: str | None) -> None:
         raise fail(f"--json: cannot write {target} (directory missing or not writable)")
 
 
+def load_scenario(path: Path, mode: str | None = None):
+    """Read, validate and build a scenario, or exit with status 2 and one line: every
+    command rejects the same bad input, whether or not it uses the faulty part."""
+    try:
+        spec, base = load(path)
+        loop, s0, settings = build(spec, base, mode=mode)
+        axes = spec.grid.axes() if spec.grid is not None else None
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    return spec, loop, s0, settings, axes
+
+
 ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (default: the built-in UR5 scenario).")]
 OutOpt = Annotated[Path | None, typer.Option("--out", help="Output directory (default: out/<scenario name>).")]
 JsonOpt = Annotated[str | None, typer.Option("--json", help="Write the JSON summary to FILE, or '-' for stdout.")]
@@ -97,11 +109,7 @@ def simulate(
     mode: Annotated[Mode | None, typer.Option(help="Override [simulation] mode.")] = None,
 ) -> None:
     """Simulate the closed loop (36), (42) and check its energy identities."""
-    try:
-        spec, base = load(scenario)
-        loop, s0, settings = build(spec, base, mode=mode.value if mode else None)
-    except ScenarioError as exc:
-        raise fail(str(exc)) from exc
+    spec, loop, s0, settings, _ = load_scenario(scenario, mode.value if mode else None)
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
 
@@ -223,12 +231,8 @@ def certify_command(
     """Certify Theorem 2 (L2 gain <= gamma) for the scenario's gains, or every point of its
     [grid], over the [certify] region. Exit 0: all certified; 1: some not; 2: bad input."""
     start = time.perf_counter()
-    try:
-        spec, base = load(scenario)
-        point = gain_point(spec, build_robot(spec.robot, base).n)
-        axes = spec.grid.axes() if spec.grid is not None else None
-    except ScenarioError as exc:
-        raise fail(str(exc)) from exc
+    spec, loop, s0, _, axes = load_scenario(scenario)
+    point = gain_point(spec, loop.robot.n)
     check_json_target(json_target)
     if axes is not None:
         size = int(np.prod([len(v) for _, v in axes], dtype=np.int64))
@@ -242,10 +246,6 @@ def certify_command(
     cert = certify(point, spec.reference.se3(), theta_max=theta_max, gamma_bound=spec.certify.gamma)
     record = point_record(point, cert, tight_gamma(point, spec.reference.se3()))
     if lower_bounds:
-        try:
-            loop, s0, _ = build(spec, base)
-        except ScenarioError as exc:
-            raise fail(str(exc)) from exc
         with err.status("measuring lower bounds on the L2 gain"):
             record.update(lower_bound_record(loop, s0, record))
     result = {
@@ -417,11 +417,8 @@ def synthesize_command(
     """Choose diagonal gains within the [synthesize] bounds that minimise the certified gamma
     (fact 6), or reach [synthesize] gamma with the smallest gains; write them as a scenario."""
     start = time.perf_counter()
-    try:
-        spec, base = load(scenario)
-        n = build_robot(spec.robot, base).n
-    except ScenarioError as exc:
-        raise fail(str(exc)) from exc
+    spec, loop, _, _, _ = load_scenario(scenario)
+    n = loop.robot.n
     check_json_target(json_target)
     target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
     prepare_out_dir(target.parent)
@@ -451,7 +448,7 @@ def synthesize_command(
         data["weights"] = {k: float(v) for k, v in record["point"]["weights"].items()}
         data.pop("grid", None)
         if "robot" in data and "urdf" in data["robot"]:
-            data["robot"]["urdf"] = str((base / data["robot"]["urdf"]).resolve())
+            data["robot"]["urdf"] = str(loop.robot.urdf)
         atomic_write(target, lambda h: h.write(tomli_w.dumps(data).encode()))
         record["scenario_file"] = str(target)
     if json_target is not None:
@@ -481,11 +478,7 @@ def verify_command(
     """Check every claim of the paper (Lemmas 1-2, Theorems 1-2, the passivity remarks, the
     Lyapunov derivative) on simulated trajectories; measure the image loop's gap."""
     start = time.perf_counter()
-    try:
-        spec, base = load(scenario)
-        loop, s0, settings = build(spec, base)
-    except ScenarioError as exc:
-        raise fail(str(exc)) from exc
+    spec, loop, s0, settings, _ = load_scenario(scenario)
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     g = loop.gains

@@ -7,12 +7,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import casadi as cs
 import numpy as np
 import pytest
 import tomli_w
 from typer.testing import CliRunner
 
 from analysis.cli import app
+from models.robot import Robot, builtin_urdf
 from tests.conftest import scenario_dict
 
 runner = CliRunner()
@@ -85,15 +87,69 @@ BAD_SCENARIOS = {
 }
 
 
+def camera_position_at_q0() -> list[float]:
+    robot = Robot(builtin_urdf("ur5"), "tool0")
+    q0 = scenario_dict()["robot"]["q0"]
+    return np.asarray(cs.Function("p", [robot.q], [robot.camera_pose.translation])(q0)).ravel().tolist()
+
+
+def garbage_urdf(data):
+    data["robot"].pop("model")
+    data["robot"]["urdf"] = "broken.urdf"
+    data["robot"]["camera_frame"] = "tool0"
+
+
+BAD_SCENARIOS.update({
+    "target at the camera centre": (lambda d: d["target"].update(xyz=camera_position_at_q0()), "target.points"),
+    "unparsable URDF": (garbage_urdf, "robot.urdf"),
+    "qd0 wrong length": (setter("robot.qd0", [0.0] * 7), "robot.qd0: expected 6 entries, got 7"),
+    "NaN in observer error": (setter("observer.error_rpy", [0.0, float("nan"), 0.0]), "observer.error_rpy"),
+    "dt above duration": (setter("simulation.dt", 5.0), "simulation"),
+    "missing weight": (remover("weights.w_re"), "weights.w_re: Field required"),
+    "disturbance of wrong length": (
+        setter("disturbance.torque", [{"kind": "sine", "amplitude": [1.0, 2.0], "frequency": 1.0}]),
+        "disturbance.torque.0.amplitude",
+    ),
+    "empty grid": (setter("grid", {}), "grid"),
+    "unknown grid axis": (setter("grid", {"k_z": [1.0]}), "unknown axis 'k_z'"),
+    "negative grid value": (setter("grid", {"k_c": [1.0, -2.0]}), "grid.k_c"),
+    "grid range of zero points": (setter("grid", {"k_c": {"start": 1.0, "stop": 2.0, "num": 0}}), "grid.k_c"),
+    "reversed synthesis bounds": (setter("synthesize.k_c", [5.0, 1.0]), "synthesize"),
+    "negative gamma requirement": (setter("certify.gamma", -1.0), "certify.gamma"),
+})  # fmt: skip
+
+COMMANDS = ("simulate", "certify", "verify", "synthesize")
+
+
+def invoke(command: str, scenario: Path, out: Path):
+    target = out / "s.toml" if command == "synthesize" else out
+    return runner.invoke(app, [command, str(scenario), "--out", str(target)])
+
+
+@pytest.mark.parametrize("command", COMMANDS)
 @pytest.mark.parametrize("case", BAD_SCENARIOS)
-def test_bad_scenario_is_one_line_exit_2(case, tmp_path):
+def test_bad_scenario_is_one_line_exit_2(case, command, tmp_path):
     edit, expected = BAD_SCENARIOS[case]
+    (tmp_path / "broken.urdf").write_text("<robot name='x'><link name=")
     out = tmp_path / "out"
-    result = runner.invoke(app, ["simulate", str(write(tmp_path, edit)), "--out", str(out)])
+    result = invoke(command, write(tmp_path, edit), out)
     assert result.exit_code == 2, result.output
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and expected in lines[0], result.stderr
     assert "Traceback" not in result.output and not out.exists()
+
+
+def test_huge_grid_needs_confirmation(tmp_path):
+    axis = {"start": 1.0, "stop": 2.0, "num": 1000}
+    scenario = write(tmp_path, setter("grid", {"k_c_p": axis, "k_c_r": axis, "k_e": axis}))
+    result = runner.invoke(app, ["certify", str(scenario), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "--large" in result.stderr and not (tmp_path / "out").exists()
+
+
+def test_resume_without_sweep_is_exit_2(tmp_path):
+    scenario = write(tmp_path, setter("grid", {"k_c": [1.0, 2.0]}))
+    result = runner.invoke(app, ["certify", str(scenario), "--out", str(tmp_path / "o"), "--resume"])
+    assert result.exit_code == 2 and "--resume" in result.stderr
 
 
 def test_missing_file_is_exit_2(tmp_path):
