@@ -105,7 +105,13 @@ class Simulator:
         if count not in self._integrators:
             st = self.settings
             grid = np.arange(1, count + 1) * st.dt
-            options = {"abstol": st.atol, "reltol": st.rtol, "quad_err_con": True, "max_num_steps": 100000}
+            options = {
+                "abstol": st.atol,
+                "reltol": st.rtol,
+                "quad_err_con": True,
+                "max_num_steps": 100000,
+                "min_step_size": 1e-12,  # a collapsing step ends the run at once instead of grinding
+            }
             self._integrators[count] = cs.integrator("closed_loop", "cvodes", self._dae, 0.0, grid, options)
         return self._integrators[count]
 
@@ -146,8 +152,13 @@ class Simulator:
             chunk_start = time.perf_counter()
             try:
                 result = integrator(x0=states[:, k], p=t[k])
-            except RuntimeError as exc:
-                status, message = "integrator_failure", f"CVODES failed after t = {t[k]:.4g} s: {exc}".splitlines()[0]
+            except RuntimeError:
+                reached = t[k] + float(integrator.stats().get("tcur", 0.0) or 0.0)
+                status = "integrator_failure"
+                message = (
+                    f"CVODES stopped at t = {reached:.4g} s: the step size collapsed or the step limit was reached "
+                    "(the run diverges or is too stiff)"
+                )
                 break
             per_step = (time.perf_counter() - chunk_start) / count
             size = max(st.chunk, int(CHUNK_SECONDS / max(per_step, 1e-9)) // st.chunk * st.chunk)

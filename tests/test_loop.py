@@ -174,3 +174,14 @@ def test_mapped_signals_equal_pointwise_evaluation():
         values = f(traj.t[k], traj["state"][k])
         for i, name in enumerate(f.name_out()):
             assert np.array_equal(np.asarray(values[i]).ravel(), traj[name][k]), name
+
+
+def test_diverging_run_stops_with_a_status(rng):
+    """Large open-loop inputs drive the arm away until CVODES gives up or a feature point
+    leaves the view: the run ends with a clear status and message, no exception, no hang."""
+    loop0, s0, settings = build_loop(static_target)
+    n = loop0.robot.n
+    loop = replace(loop0, inputs=smooth_inputs(rng, n + 12, np.full(n + 12, 50.0)))
+    traj = run(loop, s0, settings, duration=5.0, time_budget=60.0)
+    assert traj.status in ("integrator_failure", "diverged", "behind_camera") and traj.message
+    assert traj.t[-1] < 5.0 or traj.status == "behind_camera"
