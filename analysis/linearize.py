@@ -2,7 +2,8 @@
 
 1. The linearisation of the closed loop at its equilibrium, exported as a python-control
    ``StateSpace``: states ``z = [dq; dqd; dpbar; dthetabar; zeta]`` (``Rbar = Rbar* exp(dthetabar)``,
-   the target ``g_wo = g_wo* exp(zeta)`` moved by ``V_wo``), inputs ``w``, outputs ``x``. Its
+   the target ``g_wo = g_wo* exp(zeta)`` moved by ``V_wo``; :class:`DrivenTargetLoop`),
+   inputs ``w``, outputs ``x``. Its
    H-infinity norm is a lower bound on the nonlinear loop's L2 gain (small signals).
 2. A worst-case disturbance search on the nonlinear loop from ``x(0) = 0``: power iteration
    with adjoint sensitivities of CVODES over piecewise-constant disturbances;
@@ -14,7 +15,7 @@ Both are lower bounds: a certified gamma below either is a contradiction (a bug)
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 
 import casadi as cs
@@ -24,28 +25,6 @@ import numpy as np
 from models.lie import SE3, SO3, matrix_to_quaternion, quaternion_rate, quaternion_to_matrix
 from models.loop import ClosedLoop
 from models.target import TargetMotion
-
-
-class InputDisturbanceLoop(ClosedLoop):
-    """The loop with ``w`` a free input and the target's pose a state ``zeta`` (local
-    coordinates at its initial pose): the form in which (36) is linearised."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.zeta = cs.SX.sym("zeta", 6)
-        self.w_in = cs.SX.sym("w", self.robot.n + 6)
-
-    @cached_property
-    def relative_pose(self) -> SE3:
-        return self.robot.camera_pose.inverse() @ (self.target.start @ SE3.exp(self.zeta))
-
-    @cached_property
-    def tau_d(self):
-        return self.w_in[: self.robot.n]
-
-    @cached_property
-    def w(self):
-        return self.w_in
 
 
 @dataclass
@@ -85,6 +64,14 @@ class DrivenTargetLoop(ClosedLoop):
         return cs.vertcat(super().state_rate, target)
 
 
+def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX]) -> DrivenTargetLoop:
+    """``loop`` in ideal mode, its target at rest at ``g_wo(0)`` unless moved by
+    ``disturbance_input``, which supplies all of ``w``."""
+    fields = {f: getattr(loop, f) for f in ClosedLoop.__dataclass_fields__}
+    fields.update(target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None)
+    return DrivenTargetLoop(**fields, disturbance_input=disturbance_input)
+
+
 def equilibrium_state(loop: ClosedLoop, q_eq: np.ndarray) -> np.ndarray:
     """State of :class:`DrivenTargetLoop` at the equilibrium: ``x = 0``, target at ``g_wo(0)``."""
     quat = lambda g: matrix_to_quaternion(np.asarray(cs.DM(g.rotation.matrix)))  # noqa: E731
@@ -115,12 +102,9 @@ def worst_case_disturbance(
     """
     n = loop.robot.n
     w_sym = cs.SX.sym("w", n + 6)
-    static = replace(loop, target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None)
-    driven = DrivenTargetLoop(
-        **{f: getattr(static, f) for f in ClosedLoop.__dataclass_fields__}, disturbance_input=lambda t: w_sym
-    )
+    model = driven(loop, lambda t: w_sym)
     h = horizon / intervals
-    dae = {"x": driven.state, "t": driven.t, "p": w_sym, "ode": driven.state_rate, "quad": driven.x.T @ driven.x}
+    dae = {"x": model.state, "t": model.t, "p": w_sym, "ode": model.state_rate, "quad": model.x.T @ model.x}
     step = cs.integrator("interval", "cvodes", dae, 0.0, h, {"abstol": 1e-10, "reltol": 1e-10, "quad_err_con": True})
     w = cs.MX.sym("W", n + 6, intervals)
     state, energy = cs.DM(equilibrium_state(loop, lin.q_eq)), 0
@@ -176,30 +160,29 @@ class Linearization:
 
 def linearize(loop: ClosedLoop, q0: np.ndarray) -> Linearization:
     """Linearise the ideal loop at its equilibrium (static target at ``g_wo(0)``, ``x = 0``)."""
-    static = replace(loop, target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None)
-    q_eq = equilibrium_configuration(static, q0)
-    open_loop = InputDisturbanceLoop(**{f: getattr(static, f) for f in static.__dataclass_fields__})
+    q_eq = equilibrium_configuration(loop, q0)
     n = loop.robot.n
+    w = cs.SX.sym("w", n + 6)
+    model = driven(loop, lambda t: w)
     dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
-    z = cs.vertcat(dq, dqd, dp, dth, open_loop.zeta)
-    gbar = static.reference
-    quat_eq = matrix_to_quaternion(np.asarray(cs.DM(gbar.rotation.matrix)))
-    quat = _quaternion_product(quat_eq, cs.vertcat(1, dth / 2))
-    state = cs.vertcat(q_eq + dq, dqd, cs.DM(gbar.translation) + dp, quat)
-    local = cs.vertcat(
-        open_loop.qd,
-        open_loop.qdd,
-        open_loop.estimate_rate[0:3],
-        open_loop.estimate_velocity[3:6],
-        open_loop.w_in[n:],
+    zeta = cs.SX.sym("zeta", 6)
+    z = cs.vertcat(dq, dqd, dp, dth, zeta)
+    s_eq = equilibrium_state(loop, q_eq)
+    r_o = np.asarray(cs.DM(loop.target.start.rotation.matrix))
+    # local coordinates, exact to first order: Rbar = Rbar* exp(dth), g_wo = g_wo* exp(zeta)
+    state = cs.vertcat(
+        s_eq[: 2 * n] + cs.vertcat(dq, dqd),
+        s_eq[2 * n : 2 * n + 3] + dp,
+        _quaternion_product(s_eq[2 * n + 3 : 2 * n + 7], cs.vertcat(1, dth / 2)),
+        s_eq[2 * n + 7 : 2 * n + 10] + r_o @ zeta[0:3],
+        _quaternion_product(s_eq[2 * n + 10 :], cs.vertcat(1, zeta[3:6] / 2)),
     )
-    local = cs.substitute(local, open_loop.state, state)
-    output = cs.substitute(open_loop.x, open_loop.state, state)
-    zero_z, zero_w = np.zeros(z.shape[0]), np.zeros(open_loop.w_in.shape[0])
-    w = open_loop.w_in
+    local = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6], w[n:])
+    local = cs.substitute(local, model.state, state)
+    output = cs.substitute(model.x, model.state, state)
     jacobians = [cs.jacobian(local, z), cs.jacobian(local, w), cs.jacobian(output, z), cs.jacobian(output, w)]
-    f = cs.Function("lin", [z, w, open_loop.t], jacobians)
-    a, b, c, d = (np.asarray(m) for m in f(zero_z, zero_w, 0.0))
+    f = cs.Function("lin", [z, w, model.t], jacobians)
+    a, b, c, d = (np.asarray(m) for m in f(np.zeros(z.shape[0]), np.zeros(n + 6), 0.0))
     system = control.ss(a, b, c, d)
     reduced = observable_quotient(system)
     peak, omega, direction = frequency_peak(reduced)

@@ -3,18 +3,14 @@ small signals, and no certificate falls below a measured lower bound."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import casadi as cs
 import control
 import numpy as np
 import pytest
 
 from analysis.certify import GainPoint, certify, tight_gamma
-from analysis.linearize import DrivenTargetLoop, equilibrium_state, linearize, worst_case_disturbance
+from analysis.linearize import driven, equilibrium_state, linearize, worst_case_disturbance
 from analysis.simulate import Settings, Simulator
-from models.loop import ClosedLoop
-from models.target import TargetMotion
 from tests.conftest import build_loop
 
 
@@ -33,10 +29,8 @@ def test_linearization_matches_small_signal_response(default):
     d = rng.normal(size=12)
     d /= np.linalg.norm(d)
     eps, omega = 1e-4, 1.0
-    static = replace(loop, target=TargetMotion(loop.target.start), disturbances=[], mode="ideal")
-    fields = {f: getattr(static, f) for f in ClosedLoop.__dataclass_fields__}
-    driven = DrivenTargetLoop(**fields, disturbance_input=lambda t: eps * cs.DM(d) * cs.sin(omega * t))
-    traj = Simulator(driven, Settings(duration=3.0, dt=0.01)).run(equilibrium_state(loop, lin.q_eq))
+    model = driven(loop, lambda t: eps * cs.DM(d) * cs.sin(omega * t))
+    traj = Simulator(model, Settings(duration=3.0, dt=0.01)).run(equilibrium_state(loop, lin.q_eq))
     x_nl = np.hstack([traj["xi"], traj["e_c"], traj["e_e"]]) / eps
     u = np.outer(d, np.sin(omega * traj.t))
     x_lin = control.forced_response(lin.system, traj.t, u).outputs.T
