@@ -11,6 +11,7 @@ import os
 import sys
 import time
 import tomllib
+from collections.abc import Callable
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
@@ -84,6 +85,22 @@ def check_json_target(target: str | None) -> None:
         raise fail(f"--json: cannot write {target} (directory missing or not writable)")
 
 
+def emit(result: dict, saved: Path | None, json_target: str | None, show: Callable[[dict], None]) -> None:
+    """Write ``result`` to ``saved`` (atomically) and to ``--json``; show it to a person
+    unless the JSON goes to standard output."""
+    if saved is not None:
+        write_json(saved, result)
+    if json_target is not None:
+        write_json(json_target, result)
+    if json_target != "-":
+        show(result)
+
+
+def command_provenance(scenario: Path) -> dict:
+    """Provenance of this command line on ``scenario``."""
+    return provenance(scenario, ["dvfc", *sys.argv[1:]])
+
+
 def load_scenario(path: Path, mode: str | None = None):
     """Read, validate and build a scenario, or exit with status 2 and one line: every
     command rejects the same bad input, whether or not it uses the faulty part."""
@@ -132,15 +149,11 @@ def simulate(
         "mode": loop.mode,
         "summary": summary(trajectory),
         "outputs": {"trajectory": str(directory / "trajectory.npz"), "summary": str(directory / "summary.json")},
-        "provenance": provenance(scenario, ["dvfc", *sys.argv[1:]]),
+        "provenance": command_provenance(scenario),
     }
     arrays = {"t": trajectory.t, **trajectory.signals, **{f"int_{k}": v for k, v in trajectory.integrals.items()}}
     atomic_write(directory / "trajectory.npz", lambda h: np.savez_compressed(h, **arrays))
-    write_json(directory / "summary.json", result)
-    if json_target is not None:
-        write_json(json_target, result)
-    if json_target != "-":
-        show(result)
+    emit(result, directory / "summary.json", json_target, show)
     if trajectory.status != "ok":
         err.print(f"run stopped: {trajectory.message}", markup=False)
         raise typer.Exit(1)
@@ -260,14 +273,9 @@ def certify_command(
             "gamma_min": cert.gamma,
             "seconds": time.perf_counter() - start,
         },
-        "provenance": provenance(scenario, ["dvfc", *sys.argv[1:]]),
+        "provenance": command_provenance(scenario),
     }
-    if directory is not None:
-        write_json(directory / "certificate.json", result)
-    if json_target is not None:
-        write_json(json_target, result)
-    if json_target != "-":
-        show_certificate(result)
+    emit(result, directory / "certificate.json" if directory else None, json_target, show_certificate)
     if not cert.certified:
         raise typer.Exit(1)
 
@@ -372,36 +380,9 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
             "gamma_min": best["gamma"] if best else None,
             "seconds": time.perf_counter() - start,
         },
-        "provenance": provenance(scenario, ["dvfc", *sys.argv[1:]]),
+        "provenance": command_provenance(scenario),
     }
-    write_json(directory / "certificate.json", result)
-    if json_target is not None:
-        write_json(json_target, result)
-    if json_target != "-":
-        table = Table(title=f"Theorem 2 over the grid: {spec.name}")
-        for col in ("", "gamma", "k_xi", "k_c", "k_e", "w_pc, w_rc, w_pe, w_re", "certified"):
-            table.add_column(col)
-        for label, p in (("best", best), ("worst", worst)):
-            if p is not None:
-                g = p["gains"]
-                gamma = "-" if p["gamma"] is None else f"{p['gamma']:.6g}"
-                table.add_row(
-                    label,
-                    gamma,
-                    str(g["k_xi"][:3]) + "...",
-                    str(g["k_c"]),
-                    str(g["k_e"]),
-                    ", ".join(f"{v:g}" for v in p["weights"].values()),
-                    str(p["certified"]),
-                )
-        out.print(table)
-        out.print(
-            f"region: {result['region']}; method: exact closed form (fact 3), blockwise-minimum K_e (fact 5)",
-            markup=False,
-        )
-        out.print(
-            f"{state.certified} of {grid.size} points certified; results: {directory / 'points.csv'}", markup=False
-        )
+    emit(result, directory / "certificate.json", json_target, lambda r: show_grid(r, best, worst))
     if state.certified < grid.size:
         raise typer.Exit(1)
 
@@ -436,9 +417,10 @@ def synthesize_command(
         "bounds": {"k_xi": cfg.k_xi, "k_c": cfg.k_c, "k_e": cfg.k_e},
         "weights_tried": result.weights_tried,
         "point": None if result.point is None else point_record(result.point, result.certificate),
+        "region": None if result.certificate is None else result.certificate.region,
         "scenario_file": None,
         "seconds": time.perf_counter() - start,
-        "provenance": provenance(scenario, ["dvfc", *sys.argv[1:]]),
+        "provenance": command_provenance(scenario),
     }
     if result.point is not None:
         data = tomllib.loads(Path(scenario).read_text())
@@ -451,20 +433,7 @@ def synthesize_command(
             data["robot"]["urdf"] = str(loop.robot.urdf)
         atomic_write(target, lambda h: h.write(tomli_w.dumps(data).encode()))
         record["scenario_file"] = str(target)
-    if json_target is not None:
-        write_json(json_target, record)
-    if json_target != "-":
-        if result.point is None:
-            out.print(f"NOT SYNTHESIZED: {result.status}", markup=False)
-        else:
-            pr = record["point"]
-            out.print(
-                f"gains: k_xi = {pr['gains']['k_xi']}\n       k_c = {pr['gains']['k_c']}\n"
-                f"       k_e = {pr['gains']['k_e']}\n"
-                f"weights: {pr['weights']}\ncertified gamma = {pr['gamma']:.6g} over {result.certificate.region}\n"
-                f"scenario written: {target}",
-                markup=False,
-            )
+    emit(record, None, json_target, show_synthesis)
     if result.point is None:
         raise typer.Exit(1)
 
@@ -492,21 +461,59 @@ def verify_command(
         "claims": [c.as_dict() for c in claims],
         "summary": {"claims": sum(c.passed is not None for c in claims), "failed": len(failed),
                     "seconds": time.perf_counter() - start},
-        "provenance": provenance(scenario, ["dvfc", *sys.argv[1:]]),
+        "provenance": command_provenance(scenario),
     }  # fmt: skip
-    if directory is not None:
-        write_json(directory / "verification.json", result)
-    if json_target is not None:
-        write_json(json_target, result)
-    if json_target != "-":
-        table = Table(title=f"Claims of the paper on {spec.name}")
-        for col in ("paper", "claim", "value", "bound", "status"):
-            table.add_column(col)
-        for c in claims:
-            status = {True: "[green]PASS[/]", False: "[red]FAIL[/]", None: "measured"}[c.passed]
-            table.add_row(c.reference, c.name, f"{c.value:.3e}", c.bound, status)
-        out.print(table)
-        verdict = "every claim holds" if not failed else f"{len(failed)} claim(s) FAIL"
-        out.print(f"{verdict} ({result['summary']['claims']} checked)", markup=False)
+    emit(result, directory / "verification.json" if directory else None, json_target, lambda r: show_claims(r, claims))
     if failed:
         raise typer.Exit(1)
+
+
+def show_grid(result: dict, best: dict | None, worst: dict | None) -> None:
+    """Human output of a grid sweep: the best and worst points, the region, the count."""
+    table = Table(title=f"Theorem 2 over the grid: {result['scenario']}")
+    for col in ("", "gamma", "k_xi", "k_c", "k_e", "w_pc, w_rc, w_pe, w_re", "certified"):
+        table.add_column(col)
+    for label, p in (("best", best), ("worst", worst)):
+        if p is not None:
+            g = p["gains"]
+            gamma = "-" if p["gamma"] is None else f"{p['gamma']:.6g}"
+            weights = ", ".join(f"{v:g}" for v in p["weights"].values())
+            table.add_row(label, gamma, str(g["k_xi"][:3]) + "...", str(g["k_c"]), str(g["k_e"]), weights,
+                          str(p["certified"]))  # fmt: skip
+    out.print(table)
+    out.print(
+        f"region: {result['region']}; method: exact closed form (fact 3), blockwise-minimum K_e (fact 5)",
+        markup=False,
+    )
+    summary_ = result["summary"]
+    out.print(f"{summary_['certified']} of {summary_['points']} points certified; results: {result['points_file']}",
+              markup=False)  # fmt: skip
+
+
+def show_synthesis(record: dict) -> None:
+    """Human output of ``synthesize``: the gains, the certified gamma, the file written."""
+    p = record["point"]
+    if p is None:
+        out.print(f"NOT SYNTHESIZED: {record['status']}", markup=False)
+        return
+    g = p["gains"]
+    out.print(
+        f"gains: k_xi = {g['k_xi']}\n       k_c = {g['k_c']}\n       k_e = {g['k_e']}\n"
+        f"weights: {p['weights']}\ncertified gamma = {p['gamma']:.6g} over {record['region']}\n"
+        f"scenario written: {record['scenario_file']}",
+        markup=False,
+    )
+
+
+def show_claims(result: dict, claims: list) -> None:
+    """Human output of ``verify``: each claim with its equation and PASS/FAIL, a verdict."""
+    table = Table(title=f"Claims of the paper on {result['scenario']}")
+    for col in ("paper", "claim", "value", "bound", "status"):
+        table.add_column(col)
+    for c in claims:
+        status = {True: "[green]PASS[/]", False: "[red]FAIL[/]", None: "measured"}[c.passed]
+        table.add_row(c.reference, c.name, f"{c.value:.3e}", c.bound, status)
+    out.print(table)
+    failed = result["summary"]["failed"]
+    verdict = "every claim holds" if not failed else f"{failed} claim(s) FAIL"
+    out.print(f"{verdict} ({result['summary']['claims']} checked)", markup=False)

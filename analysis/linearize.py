@@ -22,7 +22,7 @@ import casadi as cs
 import control
 import numpy as np
 
-from models.lie import SE3, SO3, matrix_to_quaternion, quaternion_rate, quaternion_to_matrix
+from models.lie import SE3, SO3, quaternion_rate, quaternion_to_matrix
 from models.loop import ClosedLoop
 from models.target import TargetMotion
 
@@ -74,11 +74,8 @@ def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX]) -> Dri
 
 def equilibrium_state(loop: ClosedLoop, q_eq: np.ndarray) -> np.ndarray:
     """State of :class:`DrivenTargetLoop` at the equilibrium: ``x = 0``, target at ``g_wo(0)``."""
-    quat = lambda g: matrix_to_quaternion(np.asarray(cs.DM(g.rotation.matrix)))  # noqa: E731
-    flat = lambda v: np.asarray(cs.DM(v)).ravel()  # noqa: E731
-    ref, start = loop.reference, loop.target.start
-    n = loop.robot.n
-    return np.concatenate([q_eq, np.zeros(n), flat(ref.translation), quat(ref), flat(start.translation), quat(start)])
+    poses = [loop.reference.position_quaternion(), loop.target.start.position_quaternion()]
+    return np.concatenate([q_eq, np.zeros(loop.robot.n), *poses])
 
 
 def worst_case_disturbance(

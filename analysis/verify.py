@@ -19,7 +19,7 @@ import numpy as np
 from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals
 from models.disturbance import BandLimitedNoise
 from models.kinematic import VisualFeedbackSystem
-from models.lie import SE3, matrix_to_quaternion
+from models.lie import SE3
 from models.loop import ClosedLoop
 from models.target import TargetMotion
 
@@ -127,13 +127,9 @@ def kinematic_claims(loop: ClosedLoop, seed: int = 2, duration: float = 3.0) -> 
     integrator = cs.integrator("vfs", "cvodes", {"x": system.state, "t": system.t, "ode": system.state_rate,
                                                  "quad": quad}, 0.0, grid,
                                {"abstol": 1e-10, "reltol": 1e-10, "quad_err_con": True})  # fmt: skip
-    g_d = np.asarray(cs.DM(loop.reference.as_matrix()))
-    start = SE3.from_matrix(g_d) @ SE3.from_xyz_rpy([0.02, -0.01, 0.03], [0.1, -0.05, 0.2])
-    est = SE3.from_matrix(g_d) @ SE3.from_xyz_rpy([-0.01, 0.02, 0.0], [0.0, 0.1, -0.1])
-    x0 = np.concatenate([
-        np.asarray(cs.DM(start.translation)).ravel(), matrix_to_quaternion(np.asarray(cs.DM(start.rotation.matrix))),
-        np.asarray(cs.DM(est.translation)).ravel(), matrix_to_quaternion(np.asarray(cs.DM(est.rotation.matrix))),
-    ])  # fmt: skip
+    start = loop.reference @ SE3.from_xyz_rpy([0.02, -0.01, 0.03], [0.1, -0.05, 0.2])
+    est = loop.reference @ SE3.from_xyz_rpy([-0.01, 0.02, 0.0], [0.0, 0.1, -0.1])
+    x0 = np.concatenate([start.position_quaternion(), est.position_quaternion()])
     result = integrator(x0=x0)
     states = np.hstack([x0[:, None], np.asarray(result["xf"])])
     integrals = np.hstack([np.zeros((3, 1)), np.asarray(result["qf"])])

@@ -237,6 +237,12 @@ class SE3:
         top = cs.horzcat(self.rotation.matrix, self.translation)
         return cs.vertcat(top, cs.horzcat(cs.DM.zeros(1, 3), 1))
 
+    def position_quaternion(self) -> np.ndarray:
+        """``[p; q]`` of a numeric motion: position and unit quaternion ``[qw, qx, qy, qz]``
+        (the way simulation states carry a pose)."""
+        p = np.asarray(cs.DM(self.translation)).ravel()
+        return np.concatenate([p, matrix_to_quaternion(np.asarray(cs.DM(self.rotation.matrix)))])
+
     def adjoint(self) -> Matrix:
         """``Ad_g = [[R, hat(p) R], [0, R]]``: ``hat(Ad_g V) = g hat(V) g^-1``."""
         r = self.rotation.matrix

@@ -30,7 +30,7 @@ import numpy as np
 
 from models.camera import Camera
 from models.disturbance import Disturbance, torque
-from models.lie import SE3, SO3, Matrix, matrix_to_quaternion, quaternion_rate, quaternion_to_matrix
+from models.lie import SE3, SO3, Matrix, quaternion_rate, quaternion_to_matrix
 from models.robot import Robot
 from models.target import TargetMotion
 
@@ -380,7 +380,4 @@ class ClosedLoop:
         """``s(0)`` with ``gbar(0) = g(0) g_ee(0)^-1`` for a given initial estimation error."""
         pose = cs.Function("g0", [self.q, self.t], [self.relative_pose.as_matrix()])
         g0 = SE3.from_matrix(pose(q0, 0.0))
-        gbar0 = g0 @ estimation_error.inverse()
-        rbar = np.asarray(cs.DM(gbar0.rotation.matrix))
-        pbar = np.asarray(cs.DM(gbar0.translation)).ravel()
-        return np.concatenate([q0, qd0, pbar, matrix_to_quaternion(rbar)])
+        return np.concatenate([q0, qd0, (g0 @ estimation_error.inverse()).position_quaternion()])
