@@ -25,20 +25,16 @@ from rich.table import Table
 
 from analysis.certify import (
     ASSUMPTIONS,
-    Certificate,
     GainPoint,
-    TightCertificate,
     certify,
     region_text,
-    tight_gamma,
 )
 from analysis.grid import GridSpec, run_sweep
-from analysis.linearize import linearize, worst_case_disturbance
 from analysis.output import atomic_write, provenance, write_json
+from analysis.results import certificate_result, point_record, verification_result
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import Simulator, summary
 from analysis.synthesize import Bounds, synthesize
-from analysis.verify import verify
 from models.loop import Weights
 
 app = typer.Typer(
@@ -182,43 +178,6 @@ def show(result: dict) -> None:
     out.print(f"trajectory: {result['outputs']['trajectory']}\nsummary:    {result['outputs']['summary']}")
 
 
-def lower_bound_record(loop, s0, record: dict) -> dict:
-    """Lower bounds on the true L2 gain and how far the certificates sit above them."""
-    try:
-        lin = linearize(loop, s0[: loop.robot.n])
-    except ValueError as exc:
-        return {"gamma_lower": None, "lower_bound_reason": str(exc)}
-    nonlinear, disturbance = worst_case_disturbance(loop, lin)
-    lower = max(lin.peak_gain, nonlinear)
-    ratio = lambda g: None if g is None else g / lower  # noqa: E731
-    return {
-        "gamma_lower_linear": lin.peak_gain,
-        "hinf_python_control": lin.hinf,
-        "gamma_lower_nonlinear": nonlinear,
-        "worst_disturbance": disturbance,
-        "gamma_lower": lower,
-        "tightness": ratio(record["gamma"]),
-        "tightness_tight": ratio(record.get("gamma_tight")),
-    }
-
-
-def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:
-    """One gain point of the ``certify`` JSON (with the fact-4 bound when computed)."""
-    w = point.weights
-    extra = {} if tight is None else {"gamma_tight": tight.gamma, "alpha": tight.alpha, "tight_reason": tight.reason}
-    return {
-        "gains": {"k_xi": point.k_xi.tolist(), "k_c": point.k_c.tolist(), "k_e": point.k_e.tolist()},
-        "weights": {"w_pc": w.w_pc, "w_rc": w.w_rc, "w_pe": w.w_pe, "w_re": w.w_re},
-        "certified": cert.certified,
-        "gamma": cert.gamma,
-        "method": cert.method,
-        "margin": cert.margin,
-        "reason": cert.reason,
-        "worst_rotation": cert.worst_rotation,
-        "gamma_worst_found": cert.gamma_worst_found,
-        "gap": cert.gap,
-        **extra,
-    }
 
 
 MAX_GRID_POINTS = 10**8
@@ -255,26 +214,8 @@ def certify_command(
         sweep(spec, scenario, point, axes, directory, json_target, (workers, scheduler, resume, batch_size), start)
         return
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
-    theta_max = math.radians(spec.certify.theta_max_deg)
-    cert = certify(point, spec.reference.se3(), theta_max=theta_max, gamma_bound=spec.certify.gamma)
-    record = point_record(point, cert, tight_gamma(point, spec.reference.se3()))
-    if lower_bounds:
-        with err.status("measuring lower bounds on the L2 gain"):
-            record.update(lower_bound_record(loop, s0, record))
-    result = {
-        "scenario": spec.name,
-        "region": cert.region,
-        "assumptions": list(ASSUMPTIONS),
-        "gamma_required": spec.certify.gamma,
-        "points": [record],
-        "summary": {
-            "points": 1,
-            "certified": int(cert.certified),
-            "gamma_min": cert.gamma,
-            "seconds": time.perf_counter() - start,
-        },
-        "provenance": command_provenance(scenario),
-    }
+    with err.status("certifying and measuring lower bounds on the L2 gain"):
+        result, cert = certificate_result(spec, loop, s0, command_provenance(scenario), lower_bounds=lower_bounds)
     emit(result, directory / "certificate.json" if directory else None, json_target, show_certificate)
     if not cert.certified:
         raise typer.Exit(1)
@@ -446,23 +387,12 @@ def verify_command(
 ) -> None:
     """Check every claim of the paper (Lemmas 1-2, Theorems 1-2, the passivity remarks, the
     Lyapunov derivative) on simulated trajectories; measure the image loop's gap."""
-    start = time.perf_counter()
     spec, loop, s0, settings, _ = load_scenario(scenario)
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
-    g = loop.gains
-    cert = certify(GainPoint(g.k_xi, g.k_c, g.k_e, loop.weights), loop.reference, with_sdp=False)
     with err.status("simulating and checking the claims"):
-        claims = verify(loop, s0, settings, cert.gamma)
-    failed = [c for c in claims if c.passed is False]
-    result = {
-        "scenario": spec.name,
-        "gamma": cert.gamma,
-        "claims": [c.as_dict() for c in claims],
-        "summary": {"claims": sum(c.passed is not None for c in claims), "failed": len(failed),
-                    "seconds": time.perf_counter() - start},
-        "provenance": command_provenance(scenario),
-    }  # fmt: skip
+        result, claims = verification_result(spec, loop, s0, settings, command_provenance(scenario))
+    failed = result["summary"]["failed"]
     emit(result, directory / "verification.json" if directory else None, json_target, lambda r: show_claims(r, claims))
     if failed:
         raise typer.Exit(1)
