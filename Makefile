@@ -1,11 +1,11 @@
 # make demo: create .venv, install, run the default scenario end to end.
-# make test: same install, then ruff and every test.
+# make test: same install plus the browser and PDF tools of the report tests, then ruff and every test.
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 PYTHON ?= python3
 
-.PHONY: install demo test lint bench clean
+.PHONY: install system-deps demo test lint bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -15,17 +15,24 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# Headless Chromium and poppler-utils (pdftoppm) for the report tests (Debian packages).
+system-deps:
+	@command -v chromium >/dev/null && command -v pdftoppm >/dev/null || { \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq chromium poppler-utils >/dev/null; }
+
 demo: install
 	$(BIN)/dvfc simulate examples/ur5_circle.toml --out out/demo
 	$(BIN)/dvfc certify examples/ur5_circle.toml --out out/demo
 	$(BIN)/dvfc verify examples/ur5_circle.toml --out out/demo
-	@echo "demo outputs in out/demo: trajectory.npz, summary.json, certificate.json, verification.json"
+	$(BIN)/dvfc report examples/ur5_circle.toml --out out/demo
+	@echo "demo outputs in out/demo: report.html, report.pdf, trajectory.npz, summary.json, certificate.json, verification.json"
 
 lint: install
 	$(BIN)/ruff check .
 
-test: lint
-	$(BIN)/pytest -q
+test: lint system-deps
+	$(BIN)/pytest -q --nbmake tests notebooks
 
 bench: install
 	$(BIN)/python benchmarks/simulate.py

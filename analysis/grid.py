@@ -326,3 +326,69 @@ class BatchRunner:
     def __exit__(self, *exc) -> None:
         for close in self.closers:
             close()
+
+
+@dataclass(frozen=True)
+class GainMap:
+    """The certified gamma over one or two swept axes, every other gain at the design.
+
+    ``gamma`` and ``certified`` have shape ``(len(y), len(x))`` (one row for a single axis).
+    """
+
+    x_axis: str
+    y_axis: str | None
+    x: np.ndarray
+    y: np.ndarray
+    gamma: np.ndarray
+    certified: np.ndarray
+    note: str
+
+    def best(self) -> dict[str, float]:
+        """The certified point of smallest gamma: axis values and gamma."""
+        gamma = np.where(self.certified, self.gamma, np.inf)
+        if not np.isfinite(gamma).any():
+            raise ValueError("no point of the map is certified")
+        row, col = np.unravel_index(np.argmin(gamma), gamma.shape)
+        point = {self.x_axis: float(self.x[col]), "gamma": float(gamma[row, col])}
+        if self.y_axis is not None:
+            point[self.y_axis] = float(self.y[row])
+        return point
+
+
+MAP_RESOLUTION = 81
+"""Largest number of values per axis of a :class:`GainMap` (longer axes are subsampled)."""
+
+
+def gain_map(
+    point: GainPoint, reference: SE3, axes=None, gamma_bound: float | None = None, resolution: int = MAP_RESOLUTION
+) -> GainMap:
+    """Certify the plane of the first two of ``axes`` (name, values) through the design
+    ``point``; without axes, ``k_c`` and ``k_e`` from a tenth to ten times their mean."""
+    if not axes:
+        axes = [(name, np.geomspace(v.mean() / 10, v.mean() * 10, resolution))
+                for name, v in (("k_c", point.k_c), ("k_e", point.k_e))]  # fmt: skip
+        note = "scenario without [grid]: k_c and k_e (all six entries) from 1/10 to 10 times the design's mean"
+    else:
+        note = "the first two [grid] axes" if len(axes) > 1 else "the [grid] axis"
+        if len(axes) > 2:
+            note += f"; {', '.join(name for name, _ in axes[2:])} at the design's value"
+    plane = []
+    for name, values in axes[:2]:
+        pick = np.unique(np.linspace(0, len(values) - 1, min(len(values), resolution)).round().astype(int))
+        plane.append((name, np.asarray(values, dtype=float)[pick]))
+    spec = GridSpec.around(point, reference, plane[::-1], gamma_bound)  # last axis fastest: x
+    result = certify_batch(spec, 0, spec.size)
+    x_name, x = plane[0]
+    y_name, y = plane[1] if len(plane) > 1 else (None, np.zeros(1))
+    shape = (len(y), len(x))
+    return GainMap(x_name, y_name, x, y, result["gamma"].reshape(shape), result["certified"].reshape(shape), note)
+
+
+def axis_value(point: GainPoint, name: str) -> float:
+    """The design's value on a sweepable axis (the mean of the entries it sets)."""
+    target, where = AXES[name]
+    if target == "w":
+        w = point.weights
+        return float((w.w_pc, w.w_rc, w.w_pe, w.w_re)[where])
+    values = getattr(point, target)
+    return float(np.mean(values if where is None else values[where]))

@@ -13,7 +13,10 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import IO, Any
 
-DEPENDENCIES = ("casadi", "numpy", "scipy", "cvxpy", "clarabel", "adam-robotics", "example-robot-data")
+DEPENDENCIES = (
+    "casadi", "numpy", "scipy", "cvxpy", "clarabel", "scs", "control", "adam-robotics", "example-robot-data",
+    "matplotlib", "pydantic", "jinja2", "weasyprint",
+)  # fmt: skip
 
 
 def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:

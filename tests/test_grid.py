@@ -16,7 +16,7 @@ import pytest
 import tomli_w
 
 from analysis.certify import GainPoint, certify
-from analysis.grid import GridSpec, run_sweep
+from analysis.grid import GridSpec, axis_value, gain_map, run_sweep
 from models.lie import SE3
 from models.loop import Weights
 from tests.conftest import scenario_dict
@@ -158,3 +158,33 @@ def test_ctrl_c_stops_cleanly_and_says_how_to_resume(tmp_path):
     reference = tmp_path / "reference"
     assert cli(str(scenario), "--out", str(reference)).wait() in (0, 1)
     assert (out / "points.csv").read_bytes() == (reference / "points.csv").read_bytes()
+
+
+DESIGN = GainPoint(np.full(6, 20.0), np.full(6, 3.0), np.full(6, 10.0), Weights(4, 1, 4, 1))
+
+
+def test_gain_map_cell_is_the_single_point_certificate():
+    """Every cell of the map is the single-point certificate of its gains (the other gains
+    at the design), and the axes run x = first axis along the columns."""
+    k_c, k_xi = np.array([0.5, 3.0, 8.0]), np.array([5.0, 20.0])
+    m = gain_map(DESIGN, REFERENCE, [("k_c", k_c), ("k_xi", k_xi)])
+    assert m.gamma.shape == (2, 3) and m.x_axis == "k_c" and m.y_axis == "k_xi"
+    for row, kx in enumerate(k_xi):
+        for col, kc in enumerate(k_c):
+            single = certify(GainPoint(np.full(6, kx), np.full(6, kc), DESIGN.k_e, DESIGN.weights), REFERENCE,
+                             with_sdp=False)  # fmt: skip
+            assert m.certified[row, col] == single.certified
+            if single.certified:
+                assert m.gamma[row, col] == pytest.approx(single.gamma, rel=1e-12)
+
+
+def test_gain_map_best_is_the_smallest_certified_gamma():
+    m = gain_map(DESIGN, REFERENCE)
+    best = m.best()
+    assert best["gamma"] == np.nanmin(np.where(m.certified, m.gamma, np.nan))
+    assert m.x[0] == pytest.approx(axis_value(DESIGN, "k_c") / 10) and m.y[-1] == pytest.approx(10 * 10.0)
+
+
+def test_gain_map_subsamples_long_axes():
+    m = gain_map(DESIGN, REFERENCE, [("k_c", np.geomspace(0.1, 10, 1000))], resolution=50)
+    assert m.y_axis is None and len(m.x) == 50 and m.x[0] == 0.1 and m.x[-1] == 10

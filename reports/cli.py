@@ -1,0 +1,43 @@
+"""The full ``dvfc`` command line: the analysis commands plus ``dvfc report``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+from analysis.cli import (
+    DEFAULT_SCENARIO,
+    OutOpt,
+    ScenarioArg,
+    app,
+    command_provenance,
+    err,
+    load_scenario,
+    out,
+    prepare_out_dir,
+)
+from reports.document import STEPS, assemble, write
+
+
+@app.command()
+def report(scenario: ScenarioArg = DEFAULT_SCENARIO, out_dir: OutOpt = None) -> None:
+    """Write the design-review report of a scenario: report.html (self-contained) and report.pdf."""
+    spec, loop, s0, settings, _ = load_scenario(scenario)
+    directory = prepare_out_dir(out_dir or Path("out") / spec.name)
+    columns = (
+        SpinnerColumn(),
+        TextColumn("[bold]report[/] {task.description}"),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeElapsedColumn(),
+    )
+    with Progress(*columns, console=err, transient=True) as bar:
+        task = bar.add_task("", total=len(STEPS) + 1)
+
+        def step(name: str) -> None:
+            bar.update(task, description=name, completed=STEPS.index(name))
+
+        data = assemble(spec, loop, s0, settings, command_provenance(scenario), progress=step)
+        bar.update(task, description="HTML and PDF", completed=len(STEPS))
+        html, pdf = write(data, directory)
+    out.print(f"report: {html}\n        {pdf}", markup=False)

@@ -1,0 +1,131 @@
+"""The design-review report of a scenario: one self-contained HTML file and its PDF.
+
+:func:`assemble` runs the jobs a review signs off on (simulation of (36), the
+Theorem 2 certificate with its lower bounds, the verification of every claim, the gain
+map); :func:`render` turns them into HTML (figures inline as SVG, CSS inline, nothing
+fetched); :func:`write` saves ``report.html`` and ``report.pdf`` (WeasyPrint) atomically.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from jinja2 import Environment, PackageLoader, StrictUndefined
+
+from analysis.certify import ASSUMPTIONS, region_text
+from analysis.grid import GainMap, axis_value, gain_map
+from analysis.output import atomic_write
+from analysis.results import certificate_result, verification_result
+from analysis.scenario import Scenario, gain_point
+from analysis.simulate import Settings, Simulator, Trajectory, summary
+from models.loop import ClosedLoop
+from reports import figures
+
+STEPS = ("simulation", "certificate and lower bounds", "verification", "gain map", "figures")
+"""The stages of :func:`assemble`, in order (reported to ``progress``)."""
+
+
+@dataclass
+class ReportData:
+    """Everything the report shows."""
+
+    spec: Scenario
+    loop: ClosedLoop
+    trajectory: Trajectory
+    summary: dict
+    certificate: dict
+    verification: dict
+    gain_map: GainMap
+    design: dict[str, float]
+    figures: dict[str, str]
+    provenance: dict
+
+
+def assemble(
+    spec: Scenario,
+    loop: ClosedLoop,
+    s0: np.ndarray,
+    settings: Settings,
+    provenance: dict,
+    progress: Callable[[str], None] = lambda step: None,
+) -> ReportData:
+    """Run every job of the review on the scenario; ``progress`` is told each step of :data:`STEPS`."""
+    progress(STEPS[0])
+    trajectory = Simulator(loop, settings).run(s0)
+    progress(STEPS[1])
+    certificate, cert = certificate_result(spec, loop, s0, provenance)
+    progress(STEPS[2])
+    verification, _ = verification_result(spec, loop, s0, settings, provenance)
+    progress(STEPS[3])
+    point = gain_point(spec, loop.robot.n)
+    axes = spec.grid.axes() if spec.grid is not None else None
+    gmap = gain_map(point, spec.reference.se3(), axes, spec.certify.gamma)
+    names = [n for n in (gmap.x_axis, gmap.y_axis) if n is not None]
+    design = {name: axis_value(point, name) for name in names} | {"gamma": cert.gamma}
+    progress(STEPS[4])
+    gamma = verification["gamma"]
+    drawn = {
+        "paths": figures.paths(trajectory),
+        "image": figures.image_plane(trajectory, loop.camera.focal_length),
+        "errors": figures.errors(trajectory),
+        "storage": figures.storage(trajectory),
+        "torques": figures.torques(trajectory),
+        "supply": figures.supply(trajectory),
+        "l2": figures.l2_inequality(trajectory, gamma) if gamma is not None else None,
+        "map": figures.gain_map(gmap, design),
+    }
+    return ReportData(
+        spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance
+    )
+
+
+def _number(value: float | None, digits: int = 6) -> str:
+    """A number for the page: ``-`` when absent, ``digits`` significant figures."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return f"{value:.{digits}g}"
+
+
+def _vector(values, digits: int = 4) -> str:
+    return "[" + ", ".join(_number(float(v), digits) for v in values) + "]"
+
+
+def render(data: ReportData) -> str:
+    """The report as one HTML document."""
+    env = Environment(loader=PackageLoader("reports"), autoescape=True, undefined=StrictUndefined)
+    env.filters["num"] = _number
+    env.filters["vec"] = _vector
+    spec = data.spec
+    point = data.certificate["points"][0]
+    return env.get_template("report.html.j2").render(
+        spec=spec,
+        robot=data.loop.robot,
+        n=data.loop.robot.n,
+        point=point,
+        certificate=data.certificate,
+        region=region_text(math.radians(spec.certify.theta_max_deg)),
+        assumptions=ASSUMPTIONS,
+        verification=data.verification,
+        summary=data.summary,
+        map=data.gain_map,
+        design=data.design,
+        best=data.gain_map.best() if data.gain_map.certified.any() else None,
+        figures=data.figures,
+        provenance=data.provenance,
+    )
+
+
+def write(data: ReportData, directory: Path) -> tuple[Path, Path]:
+    """Write ``report.html`` and ``report.pdf`` into ``directory`` (each atomically)."""
+    from weasyprint import HTML  # imported here: loading pango takes a second
+
+    html = render(data)
+    html_path, pdf_path = directory / "report.html", directory / "report.pdf"
+    pdf = HTML(string=html, base_url=str(directory)).write_pdf()
+    atomic_write(html_path, lambda h: h.write(html.encode()))
+    atomic_write(pdf_path, lambda h: h.write(pdf))
+    return html_path, pdf_path

@@ -1,0 +1,185 @@
+"""Figures of a design review, drawn with matplotlib and returned as inline SVG.
+
+Colours are fixed across figures: the control error and the camera in blue, the
+estimation error and the target in orange, the certificate's bound in green, the
+quantity it bounds in red; vector components keep one colour each (x, y, z).
+"""
+
+from __future__ import annotations
+
+import io
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
+
+from analysis.grid import GainMap
+from analysis.simulate import Trajectory
+
+CONTROL, ESTIMATE, BOUND, BOUNDED = "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728"
+COMPONENTS = ("#1f77b4", "#d62728", "#2ca02c")
+"""Colours of the x, y, z components (and of the rotation-error components 1, 2, 3)."""
+
+plt.rcParams.update({
+    "font.size": 9, "axes.grid": True, "grid.alpha": 0.3, "legend.fontsize": 8, "svg.fonttype": "none",
+    "figure.dpi": 100,
+})  # fmt: skip
+
+
+def svg(fig: Figure) -> str:
+    """The figure as an ``<svg>`` element (no XML prolog; its size in pt, so every figure
+    shares one font scale)."""
+    buffer = io.StringIO()
+    fig.savefig(buffer, format="svg", bbox_inches="tight")
+    plt.close(fig)
+    text = buffer.getvalue()
+    return text[text.index("<svg") :]
+
+
+def _translation(vec_pose: np.ndarray) -> np.ndarray:
+    """Positions from column-major vectorised 4x4 poses ``(T, 16)``."""
+    return vec_pose[:, 12:15]
+
+
+def paths(traj: Trajectory) -> str:
+    """Camera and target positions in the world frame (3D)."""
+    fig = plt.figure(figsize=(6.4, 4.6))
+    ax = fig.add_subplot(projection="3d")
+    for name, signal, colour in (("camera", "g_wc", CONTROL), ("target", "g_wo", ESTIMATE)):
+        p = _translation(traj[signal])
+        ax.plot(*p.T, color=colour, label=f"{name} path")
+        ax.scatter(*p[0], color=colour, marker="o", s=20, label=f"{name} at t = 0")
+        ax.scatter(*p[-1], color=colour, marker="s", s=20, label=f"{name} at t = {traj.t[-1]:.3g} s")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.set_title("Camera and target in the world frame")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.05, 1.0))
+    return svg(fig)
+
+
+def image_plane(traj: Trajectory, focal_length: float) -> str:
+    """Feature points in the image plane: actual ``f`` and estimated ``fbar`` (14), (18)."""
+    fig, ax = plt.subplots(figsize=(6.0, 4.8))
+    f, fbar = traj["f"], traj["fbar"]
+    for i in range(f.shape[1] // 2):
+        first = i == 0
+        ax.plot(f[:, 2 * i], f[:, 2 * i + 1], color=CONTROL, label="actual f" if first else None)
+        ax.plot(fbar[:, 2 * i], fbar[:, 2 * i + 1], "--", color=ESTIMATE, label="estimated fbar" if first else None)
+        ax.plot(*f[0, 2 * i : 2 * i + 2], "o", color=CONTROL, ms=4, label="t = 0" if first else None)
+        ax.plot(*f[-1, 2 * i : 2 * i + 2], "s", color=CONTROL, ms=4, label="final" if first else None)
+        ax.annotate(f"{i + 1}", f[-1, 2 * i : 2 * i + 2], textcoords="offset points", xytext=(5, 5))
+    ax.set_xlabel("image x [px]")
+    ax.set_ylabel("image y [px]")
+    ax.set_title(f"Feature points (focal length {focal_length:g} px)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend()
+    return svg(fig)
+
+
+def errors(traj: Trajectory) -> str:
+    """Components of the control error ``e_c`` (8) and the estimation error ``e_e`` (15)."""
+    fig, axes = plt.subplots(2, 2, figsize=(7.0, 5.6), sharex=True)
+    for row, (name, label) in enumerate((("e_c", "control error e_c"), ("e_e", "estimation error e_e"))):
+        e = traj[name]
+        for col, (part, unit, symbol) in enumerate((("position", "m", "p"), ("rotation", "-", "e_R"))):
+            ax = axes[row, col]
+            for k in range(3):
+                ax.plot(traj.t, e[:, 3 * col + k], color=COMPONENTS[k], label=f"{symbol}_{'xyz'[k]}")
+            ax.set_title(f"{label}: {part}")
+            ax.set_ylabel(f"{part} [{unit}]")
+            ax.legend(ncol=3)
+    for ax in axes[1]:
+        ax.set_xlabel("time [s]")
+    fig.tight_layout()
+    return svg(fig)
+
+
+def storage(traj: Trajectory) -> str:
+    """The storage function ``V`` (38) along the run."""
+    fig, ax = plt.subplots(figsize=(6.0, 3.4))
+    ax.semilogy(traj.t, np.maximum(traj["V"][:, 0], np.finfo(float).tiny), color=CONTROL, label="V(t)")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("V [J] (kinetic energy + weighted pose errors)")
+    ax.set_title("Storage function V (38)")
+    ax.legend()
+    return svg(fig)
+
+
+def torques(traj: Trajectory) -> str:
+    """Joint torques ``tau`` (35)."""
+    fig, ax = plt.subplots(figsize=(6.0, 3.4))
+    tau = traj["tau"]
+    colours = plt.get_cmap("tab10")
+    for j in range(tau.shape[1]):
+        ax.plot(traj.t, tau[:, j], color=colours(j), label=f"joint {j + 1}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("torque [N m]")
+    ax.set_title("Joint torques tau (35)")
+    ax.legend(ncol=min(tau.shape[1], 4))
+    return svg(fig)
+
+
+def supply(traj: Trajectory) -> str:
+    """The passivity integral ``int u^T nu`` of Lemma 2 against its bound ``-V(0)`` (37)."""
+    fig, ax = plt.subplots(figsize=(6.0, 3.4))
+    ax.plot(traj.t, traj.integrals["supply_u_nu"], color=BOUNDED, label="int_0^t u^T nu dt")
+    ax.axhline(-traj["V"][0, 0], color=BOUND, ls="--", label="-beta = -V(0)")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("supplied energy [J]")
+    ax.set_title("Lemma 2: int u^T nu >= -beta (37)")
+    ax.legend()
+    return svg(fig)
+
+
+def l2_inequality(traj: Trajectory, gamma: float) -> str:
+    """Both sides of (45) over time: ``int |x|^2`` and ``gamma^2 int |w|^2 + 2 V(0)``."""
+    fig, ax = plt.subplots(figsize=(6.0, 3.4))
+    left = traj.integrals["x_squared"]
+    right = gamma**2 * traj.integrals["w_squared"] + 2 * traj["V"][0, 0]
+    ax.semilogy(traj.t[1:], left[1:], color=BOUNDED, label="int_0^t |x|^2 dt")
+    ax.semilogy(traj.t, right, color=BOUND, ls="--", label=f"gamma^2 int_0^t |w|^2 dt + 2 V(0), gamma = {gamma:.4g}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("integral [-]")
+    ax.set_title("Theorem 2: L2-gain inequality (45)")
+    ax.legend()
+    return svg(fig)
+
+
+def gain_map(m: GainMap, design: dict[str, float]) -> str:
+    """Certified gamma over the map's axes, the certified region outlined, the scenario's
+    design marked (``design`` holds its value on each axis and its ``gamma``)."""
+    fig, ax = plt.subplots(figsize=(6.0, 4.6))
+    gamma = np.where(m.certified, m.gamma, np.nan)
+    if m.y_axis is None:
+        ax.plot(m.x, gamma[0], color=BOUND, label="certified gamma")
+        ax.set_ylabel("certified gamma [-]")
+        ax.set_yscale("log")
+        marker = (design[m.x_axis], design["gamma"])
+    else:
+        finite = gamma[np.isfinite(gamma)]
+        norm = LogNorm(finite.min(), finite.max()) if finite.size and finite.max() > finite.min() else None
+        mesh = ax.pcolormesh(m.x, m.y, gamma, shading="nearest", cmap="viridis_r", norm=norm)
+        fig.colorbar(mesh, ax=ax, label="certified gamma [-] (blank: not certified)")
+        if m.certified.any() and not m.certified.all():
+            ax.contour(m.x, m.y, m.certified.astype(float), levels=[0.5], colors="k", linewidths=1.5)
+            ax.plot([], [], color="k", label="edge of the certified region")
+        ax.set_ylabel(f"{m.y_axis} [-]")
+        ax.set_yscale("log" if _spread(m.y) else "linear")
+        marker = (design[m.x_axis], design[m.y_axis])
+    ax.plot(*marker, "r*", ms=12, label="scenario's design")
+    ax.set_xscale("log" if _spread(m.x) else "linear")
+    ax.set_xlabel(f"{m.x_axis} [-]")
+    ax.set_title("Theorem 2: certified gamma over the gains")
+    ax.legend(loc="upper right")
+    return svg(fig)
+
+
+def _spread(values: np.ndarray) -> bool:
+    """Whether positive ``values`` span more than a decade (then a log axis reads better)."""
+    return bool(values.min() > 0 and values.max() / values.min() > 10)

@@ -1,0 +1,132 @@
+"""``dvfc report``: the HTML opens in a real browser, the PDF renders, both tell the same gamma."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from analysis.scenario import DEFAULT_SCENARIO
+from reports.cli import app
+
+CHROMIUM = shutil.which("chromium")
+POPPLER = shutil.which("pdftoppm")
+FIGURES = ("fig-map", "fig-paths", "fig-image", "fig-errors", "fig-storage", "fig-torques", "fig-supply", "fig-l2")
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory) -> tuple[Path, Path, str]:
+    """The report of the default scenario, made by the installed command line."""
+    out = tmp_path_factory.mktemp("report")
+    proc = subprocess.run([sys.executable, "-m", "reports", "report", str(DEFAULT_SCENARIO), "--out", str(out)],
+                          capture_output=True, text=True)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    return out / "report.html", out / "report.pdf", proc.stdout
+
+
+def certified_gamma(html: str) -> str:
+    match = re.search(r'<span id="gamma">([^<]+)</span>', html)
+    assert match, "the verdict prints no certified gamma"
+    return match.group(1)
+
+
+def test_paths_printed(report):
+    html, pdf, stdout = report
+    assert str(html) in stdout and str(pdf) in stdout
+
+
+def test_gamma_is_the_certificates(report, tmp_path):
+    """The gamma in the verdict is the one ``dvfc certify`` certifies for the same scenario."""
+    runner = CliRunner()
+    target = tmp_path / "c.json"
+    runner.invoke(app, ["certify", str(DEFAULT_SCENARIO), "--no-lower-bounds", "--json", str(target)])
+    gamma = json.loads(target.read_text())["points"][0]["gamma"]
+    assert certified_gamma(report[0].read_text()) == f"{gamma:.6g}"
+
+
+def test_html_self_contained(report):
+    """Nothing is fetched: references are in-page anchors or data URIs; no link, no script;
+    every figure is inline SVG."""
+    html = report[0].read_text()
+    assert not re.search(r'\b(src|href)\s*=\s*"(?!#|data:)', html)
+    assert "<link" not in html and "<script" not in html and not re.search(r"url\((?!#)", html)
+    for figure in FIGURES:
+        assert re.search(rf'<figure id="{figure}"><svg', html), figure
+
+
+def test_every_claim_listed(report):
+    """The checklist has a row per claim of ``verify`` with a status."""
+    rows = re.findall(r'<span class="(PASS|FAIL|MEASURED)">', report[0].read_text())
+    assert len(rows) == 18 and "FAIL" not in rows
+
+
+def test_html_renders_in_chromium(report, tmp_path):
+    """Headless Chromium loads the page with no console error and no failed request, every
+    figure draws at a real size with content, and the screenshot is not blank."""
+    assert CHROMIUM, "chromium is missing: make test installs it (system-deps)"
+    from playwright.sync_api import sync_playwright
+
+    messages: list[str] = []
+    failed: list[str] = []
+    args = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync"]  # fmt: skip
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=args)
+        page = browser.new_page(viewport={"width": 1200, "height": 900})
+        page.on("console", lambda m: messages.append(m.text) if m.type in ("error", "warning") else None)
+        page.on("pageerror", lambda e: messages.append(str(e)))
+        page.on("requestfailed", lambda r: failed.append(r.url))
+        page.goto(report[0].as_uri(), wait_until="load")
+        sizes = page.evaluate(
+            """ids => ids.map(id => {
+                const s = document.querySelector('#' + id + ' svg');
+                if (!s) return null;
+                const r = s.getBoundingClientRect();
+                return [r.width, r.height, s.querySelectorAll('path').length];
+            })""",
+            list(FIGURES),
+        )
+        broken = page.evaluate("Array.from(document.images).filter(i => !i.complete || i.naturalWidth === 0).length")
+        shot = tmp_path / "shot.png"
+        page.screenshot(path=str(shot), full_page=True)
+        browser.close()
+    assert not messages and not failed and broken == 0
+    for figure, size in zip(FIGURES, sizes, strict=True):
+        assert size is not None and size[0] > 200 and size[1] > 150 and size[2] > 10, (figure, size)
+    pixels = mpimg.imread(shot)[..., :3]
+    assert pixels.std() > 0.05 and (pixels < 0.5).mean() > 0.005
+
+
+def test_pdf_renders(report, tmp_path):
+    """Every page of the PDF rasterises, not blank; the page count is plausible; the text
+    holds the certified gamma printed in the HTML."""
+    assert POPPLER, "poppler-utils is missing: make test installs it (system-deps)"
+    html, pdf, _ = report
+    info = subprocess.run(["pdfinfo", str(pdf)], capture_output=True, text=True, check=True).stdout
+    pages = int(re.search(r"Pages:\s+(\d+)", info).group(1))
+    assert 4 <= pages <= 15
+    subprocess.run([POPPLER, "-r", "30", "-png", str(pdf), str(tmp_path / "page")], check=True)
+    images = sorted(tmp_path.glob("page-*.png"))
+    assert len(images) == pages
+    for image in images:
+        assert np.asarray(mpimg.imread(image))[..., :3].std() > 0.02, image.name
+    text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
+    assert f"L2 gain ≤ {certified_gamma(html.read_text())}" in " ".join(text.split())
+
+
+def test_bad_scenario_writes_nothing(tmp_path):
+    """Bad input: one line naming the field, status 2, no report file."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text(DEFAULT_SCENARIO.read_text().replace("focal_length = 800.0", "focal_length = -1.0"))
+    result = CliRunner().invoke(app, ["report", str(bad), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert result.stderr.strip().startswith("error: camera.focal_length")
+    assert not (tmp_path / "out" / "report.html").exists() and not (tmp_path / "out" / "report.pdf").exists()
