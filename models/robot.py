@@ -22,10 +22,18 @@ from adam.casadi import KinDynComputations
 from models.lie import SE3, Matrix, vee
 
 _ERD = "cmeel.prefix/share/example-robot-data/robots"
-BUILTIN_URDF = {"ur5": f"{_ERD}/ur_description/urdf/ur5_robot.urdf"}
-"""Built-in arms: name -> URDF path inside the example-robot-data distribution."""
+_SHIPPED = Path(__file__).parent / "urdf"
 
-BUILTIN_CAMERA_FRAME = {"ur5": "tool0"}
+BUILTIN_URDF = {
+    "ur5": f"{_ERD}/ur_description/urdf/ur5_robot.urdf",
+    "panda": f"{_ERD}/panda_description/urdf/panda.urdf",
+    "puma560": _SHIPPED / "puma560.urdf",
+    "planar2dd": _SHIPPED / "planar2dd.urdf",
+}
+"""Built-in arms: name -> URDF, a path inside the example-robot-data distribution (``str``)
+or a file shipped with this package (``Path``)."""
+
+BUILTIN_CAMERA_FRAME = {"ur5": "tool0", "panda": "panda_link8", "puma560": "link6", "planar2dd": "camera_link"}
 
 
 class RobotModelError(ValueError):
@@ -33,24 +41,29 @@ class RobotModelError(ValueError):
 
 
 def builtin_urdf(name: str) -> Path:
-    """Path of a built-in arm's URDF (shipped by example-robot-data, nothing downloaded)."""
+    """Path of a built-in arm's URDF (from example-robot-data or this package; nothing downloaded)."""
     if name not in BUILTIN_URDF:
         raise RobotModelError(f"unknown robot model {name!r}; built-in models: {', '.join(sorted(BUILTIN_URDF))}")
+    where = BUILTIN_URDF[name]
     try:
-        path = Path(distribution("example-robot-data").locate_file(BUILTIN_URDF[name]))
+        path = where if isinstance(where, Path) else Path(distribution("example-robot-data").locate_file(where))
     except PackageNotFoundError as exc:
         raise RobotModelError("the package example-robot-data is not installed") from exc
     if not path.is_file():
-        raise RobotModelError(f"the URDF of {name!r} is missing from example-robot-data: {path}")
+        raise RobotModelError(f"the URDF of {name!r} is missing: {path}")
     return path
+
+
+def _parse(urdf: Path) -> ET.Element:
+    try:
+        return ET.parse(urdf).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise RobotModelError(f"cannot read URDF {urdf}: {exc}") from exc
 
 
 def chain_joints(urdf: Path, frame: str) -> list[str]:
     """Names of the movable joints from the URDF's root to ``frame``, root first."""
-    try:
-        root = ET.parse(urdf).getroot()
-    except (ET.ParseError, OSError) as exc:
-        raise RobotModelError(f"cannot read URDF {urdf}: {exc}") from exc
+    root = _parse(urdf)
     links = {link.get("name") for link in root.iter("link")}
     if frame not in links:
         raise RobotModelError(f"URDF {urdf.name} has no link named {frame!r}")
@@ -65,6 +78,20 @@ def chain_joints(urdf: Path, frame: str) -> list[str]:
     if not names:
         raise RobotModelError(f"no movable joint between the root of {urdf.name} and {frame!r}")
     return names[::-1]
+
+
+def frozen_urdf(urdf: Path, joints: list[str]) -> str:
+    """The URDF with every movable joint outside ``joints`` (a gripper's fingers, say) fixed at
+    zero and without ``mimic`` and ``dynamics`` tags (not rigid-body data): the arm's dynamics
+    then carry those links as rigid loads."""
+    root = _parse(urdf)
+    for joint in root.iter("joint"):
+        for tag in ("mimic", "dynamics"):
+            for child in joint.findall(tag):
+                joint.remove(child)
+        if joint.get("name") not in joints and joint.get("type") != "fixed":
+            joint.set("type", "fixed")
+    return ET.tostring(root, encoding="unicode")
 
 
 @dataclass
@@ -89,7 +116,7 @@ class Robot:
         self.urdf = Path(self.urdf)
         self.joints = chain_joints(self.urdf, self.frame)
         try:
-            self._kindyn = KinDynComputations(str(self.urdf), self.joints)
+            self._kindyn = KinDynComputations(frozen_urdf(self.urdf, self.joints), self.joints)
         except Exception as exc:  # adam raises bare exceptions on malformed files
             raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {exc}") from exc
         self.q = cs.SX.sym("q", self.n)

@@ -1,6 +1,10 @@
-"""Manipulator dynamics (33) and body Jacobian (34) of the UR5 (URDF from example-robot-data)."""
+"""Manipulator dynamics (33) and body Jacobian (34) of every built-in arm: the UR5 and the
+Franka Panda (example-robot-data), the Puma 560 and the planar direct-drive testbed (URDFs
+shipped with the package)."""
 
 from __future__ import annotations
+
+import xml.etree.ElementTree as ET
 
 import casadi as cs
 import numpy as np
@@ -8,63 +12,99 @@ import pytest
 from adam.core.constants import Representations
 
 from models.lie import SE3, vee
-from models.robot import Robot, RobotModelError, builtin_urdf, chain_joints
+from models.robot import BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, RobotModelError, builtin_urdf, chain_joints
+
+MOUNT = SE3.from_xyz_rpy([0.01, 0.02, 0.05], [0.0, 0.1, 0.2])
 
 
-@pytest.fixture(scope="module")
-def ur5() -> Robot:
-    return Robot(builtin_urdf("ur5"), "tool0", SE3.from_xyz_rpy([0.01, 0.02, 0.05], [0.0, 0.1, 0.2]))
+@pytest.fixture(scope="module", params=sorted(BUILTIN_URDF))
+def arm(request) -> Robot:
+    """Each built-in arm with a camera mounted off its flange."""
+    return Robot(builtin_urdf(request.param), BUILTIN_CAMERA_FRAME[request.param], MOUNT)
 
 
-def states(rng, count=5):
-    return [(rng.uniform(-np.pi, np.pi, 6), rng.normal(size=6)) for _ in range(count)]
+def states(rng, n, count=5):
+    return [(rng.uniform(-np.pi, np.pi, n), rng.normal(size=n)) for _ in range(count)]
 
 
-def test_mass_matrix_is_symmetric_positive_definite(ur5, rng):
-    m_fun = ur5.function("M", ur5.mass_matrix)
-    for q, qd in states(rng):
+def test_mass_matrix_is_symmetric_positive_definite(arm, rng):
+    m_fun = arm.function("M", arm.mass_matrix)
+    for q, qd in states(rng, arm.n):
         m = np.asarray(m_fun(q, qd))
         assert np.allclose(m, m.T, atol=1e-14) and np.linalg.eigvalsh(m).min() > 0
 
 
-def test_mdot_minus_2c_is_skew_symmetric(ur5, rng):
+def test_mdot_minus_2c_is_skew_symmetric(arm, rng):
     """``Mdot - 2C`` skew (passivity of (33)); ``Mdot`` by AD, ``C`` by Christoffel symbols."""
-    f = cs.Function("f", [ur5.q, ur5.qd], [ur5.mass_matrix_dot - 2 * ur5.coriolis])
-    for q, qd in states(rng):
+    f = cs.Function("f", [arm.q, arm.qd], [arm.mass_matrix_dot - 2 * arm.coriolis])
+    for q, qd in states(rng, arm.n):
         s = np.asarray(f(q, qd))
         assert np.abs(s + s.T).max() <= 1e-12 * max(1.0, np.abs(s).max())
 
 
-def test_coriolis_matches_recursive_newton_euler(ur5, rng):
+def test_coriolis_matches_recursive_newton_euler(arm, rng):
     """``C(q, qd) qd + g(q)`` equals adam's bias force (RNEA), an independent algorithm."""
-    bias = ur5._kindyn.bias_force(cs.SX.eye(4), ur5.q, cs.SX.zeros(6), ur5.qd)[6:]
-    f = cs.Function("f", [ur5.q, ur5.qd], [ur5.coriolis @ ur5.qd + ur5.gravity - bias])
-    for q, qd in states(rng):
+    bias = arm._kindyn.bias_force(cs.SX.eye(4), arm.q, cs.SX.zeros(6), arm.qd)[6:]
+    f = cs.Function("f", [arm.q, arm.qd], [arm.coriolis @ arm.qd + arm.gravity - bias])
+    for q, qd in states(rng, arm.n):
         assert np.abs(np.asarray(f(q, qd))).max() < 1e-10
 
 
-def test_gravity_is_gradient_of_potential(ur5, rng):
+def test_gravity_is_gradient_of_potential(arm, rng):
     """``g(q) = dU/dq`` checked by central differences (h = 1e-6; error ~1e-9 N m)."""
-    g_fun = ur5.function("g", ur5.gravity)
-    u_fun = cs.Function("U", [ur5.q], [ur5.potential_energy()])
+    g_fun = arm.function("g", arm.gravity)
+    u_fun = cs.Function("U", [arm.q], [arm.potential_energy()])
     h = 1e-6
-    for q, _ in states(rng):
-        fd = [(float(u_fun(q + h * e)) - float(u_fun(q - h * e))) / (2 * h) for e in np.eye(6)]
+    for q, _ in states(rng, arm.n):
+        fd = [(float(u_fun(q + h * e)) - float(u_fun(q - h * e))) / (2 * h) for e in np.eye(arm.n)]
         assert np.allclose(np.asarray(g_fun(q, 0)).ravel(), fd, atol=1e-7)
 
 
-def test_body_jacobian_matches_forward_kinematics(ur5, rng):
+def test_body_jacobian_matches_forward_kinematics(arm, rng):
     """Column i of ``J_b`` equals ``(g^-1 dg/dq_i)^vee`` by central differences (h = 1e-6)."""
-    fk = cs.Function("g", [ur5.q], [ur5.camera_pose.as_matrix()])
-    jb = cs.Function("J", [ur5.q], [ur5.body_jacobian])
+    fk = cs.Function("g", [arm.q], [arm.camera_pose.as_matrix()])
+    jb = cs.Function("J", [arm.q], [arm.body_jacobian])
     h = 1e-6
-    for q, _ in states(rng):
+    for q, _ in states(rng, arm.n):
         g_inv = np.linalg.inv(np.asarray(fk(q)))
         cols = [
             np.asarray(vee(g_inv @ (np.asarray(fk(q + h * e)) - np.asarray(fk(q - h * e))) / (2 * h))).ravel()
-            for e in np.eye(6)
+            for e in np.eye(arm.n)
         ]
         assert np.allclose(np.asarray(jb(q)), np.array(cols).T, atol=1e-8)
+
+
+def test_planar_testbed_moves_in_a_horizontal_plane(rng):
+    """The testbed's joint axes are vertical: no gravity torque, the camera keeps its height
+    and looks straight down (optical axis -z of the world) in every configuration."""
+    arm = Robot(builtin_urdf("planar2dd"), "camera_link")
+    g = arm.function("g", arm.gravity)
+    fk = cs.Function("g", [arm.q], [arm.camera_pose.as_matrix()])
+    for q, _ in states(rng, 2):
+        pose = np.asarray(fk(q))
+        assert np.abs(np.asarray(g(q, 0))).max() == 0.0
+        assert pose[2, 3] == pytest.approx(-0.05, abs=1e-15)
+        assert np.allclose(pose[:3, 2], [0.0, 0.0, -1.0], atol=1e-15)
+
+
+def test_puma560_matches_the_robotics_toolbox(rng):
+    """The shipped Puma 560 URDF reproduces the Robotics Toolbox's DH model of the same
+    published parameters (motor inertia and friction removed there; gravity 9.80665 here
+    and 9.81 there, so its gravity load is rescaled): mass matrix, gravity, and the flange pose
+    up to the 0.672 m pedestal the toolbox puts into d_1."""
+    import roboticstoolbox as rtb
+    puma = rtb.models.DH.Puma560().nofriction(coulomb=True, viscous=True)
+    for link in puma.links:
+        link.Jm = 0.0
+    arm = Robot(builtin_urdf("puma560"), "link6")
+    m, g = arm.function("M", arm.mass_matrix), arm.function("g", arm.gravity)
+    fk = cs.Function("g", [arm.q], [arm.camera_pose.as_matrix()])
+    pedestal = np.zeros((4, 4))
+    pedestal[2, 3] = puma.links[0].d
+    for q, _ in states(rng, 6):
+        assert np.allclose(np.asarray(m(q, 0)), puma.inertia(q), atol=1e-12)
+        assert np.allclose(np.asarray(g(q, 0)).ravel(), puma.gravload(q) * 9.80665 / 9.81, atol=1e-10)
+        assert np.allclose(np.asarray(fk(q)) + pedestal, puma.fkine(q).A, atol=1e-12)
 
 
 def test_body_jacobian_matches_adam_body_fixed_jacobian(rng):
@@ -73,7 +113,7 @@ def test_body_jacobian_matches_adam_body_fixed_jacobian(rng):
     robot._kindyn.set_frame_velocity_representation(Representations.BODY_FIXED_REPRESENTATION)
     adam_jac = robot._kindyn.jacobian("tool0", cs.SX.eye(4), robot.q)[:, 6:]
     f = cs.Function("f", [robot.q], [robot.body_jacobian - adam_jac])
-    for q, _ in states(rng):
+    for q, _ in states(rng, 6):
         assert np.abs(np.asarray(f(q))).max() < 1e-12
 
 
@@ -96,3 +136,20 @@ def test_missing_frame_is_an_error():
 def test_unknown_builtin_is_an_error():
     with pytest.raises(RobotModelError, match="unknown robot model"):
         builtin_urdf("r2d2")
+
+
+def test_joints_outside_the_camera_chain_are_frozen():
+    """The Panda's fingers are not in the chain to the flange: the arm has 7 joints and the
+    hand and fingers ride on it as rigid loads: the model's mass is every link's of the URDF."""
+    urdf = builtin_urdf("panda")
+    arm = Robot(urdf, "panda_link8")
+    assert arm.joints == [f"panda_joint{i}" for i in range(1, 8)]
+    masses = [float(m.get("value")) for m in ET.parse(urdf).getroot().iter("mass")]
+    assert float(arm._kindyn.get_total_mass()) == pytest.approx(sum(masses), rel=1e-12)
+
+
+def test_unparsable_urdf_is_an_error(tmp_path):
+    bad = tmp_path / "bad.urdf"
+    bad.write_text("<robot name='x'><link name='a'></robot>")
+    with pytest.raises(RobotModelError, match="cannot read URDF"):
+        Robot(bad, "a")
