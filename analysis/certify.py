@@ -39,6 +39,7 @@ from scipy.spatial.transform import Rotation
 
 from models.lie import SE3, SO3
 from models.loop import Weights, disturbance_matrix, disturbance_weight, output_matrix
+from models.planar import TASK, planar_disturbance_matrix, planar_output_matrix
 
 INFLATION = 1e-6
 """Relative inflation of a computed gamma before the a posteriori check: at the exact
@@ -116,20 +117,22 @@ def output_blocks(weights: np.ndarray, reference: SE3, rotations: np.ndarray) ->
 def exact_s(n_ce: np.ndarray, k_xi_min: np.ndarray, k_c: np.ndarray, k_e: np.ndarray, w_e: np.ndarray):
     """Largest ``s = 1/(2 gamma^2)`` with ``A - s W >= 0`` (MATH fact 3), batched.
 
-    Parameters are batches: ``n_ce`` (B, 12, 12), ``k_xi_min`` (B,), ``k_c``, ``k_e`` (B, 6),
-    ``w_e`` (B, 2) as (w_pe, w_re). Returns ``(s, reason)``: ``s`` (B,) with ``-inf``
-    where ``A_cc`` is not positive definite, and a reason code per point (0 fine,
+    Parameters are batches, for a task of ``t`` entries (6 for the paper's loop, 2 for the
+    planar one): ``n_ce`` (B, 2t, 2t), ``k_xi_min`` (B,), ``k_c``, ``k_e`` (B, t), ``w_e``
+    (B, t) the diagonal of ``W_e``. Returns ``(s, reason, A)``: ``s`` (B,) with ``-inf``
+    where ``A_cc`` is not positive definite, a reason code per point (0 fine,
     1 ``k_xi <= 1/2``, 2 ``A_cc`` not positive definite, 3 Schur complement not positive),
-    and ``A = N^T K N - I/2`` on ``(e_c, e_e)`` (B, 12, 12).
+    and ``A = N^T K N - I/2`` on ``(e_c, e_e)`` (B, 2t, 2t).
     """
-    a = nkn(n_ce, np.concatenate([k_c, k_e], axis=1)) - 0.5 * np.eye(12)
-    a_cc, a_ce, a_ee = a[:, :6, :6], a[:, :6, 6:], a[:, 6:, 6:]
+    t = n_ce.shape[1] // 2
+    a = nkn(n_ce, np.concatenate([k_c, k_e], axis=1)) - 0.5 * np.eye(2 * t)
+    a_cc, a_ce, a_ee = a[:, :t, :t], a[:, :t, t:], a[:, t:, t:]
     cc_min = np.linalg.eigvalsh(a_cc)[:, 0]
     ok = cc_min > 0
     s = np.full(len(a), -np.inf)
     if ok.any():
         schur = a_ee[ok] - np.einsum("bji,bjk->bik", a_ce[ok], np.linalg.solve(a_cc[ok], a_ce[ok]))
-        d = np.repeat(1.0 / w_e[ok], 3, axis=1)  # D^-1/2 = W_e^-1
+        d = 1.0 / w_e[ok]  # D^-1/2 = W_e^-1
         s[ok] = np.linalg.eigvalsh(d[:, :, None] * schur * d[:, None, :])[:, 0]
     s = np.minimum(s, k_xi_min - 0.5)
     reason = np.where(k_xi_min <= 0.5, 1, np.where(~ok, 2, np.where(s <= 0, 3, 0)))
@@ -176,9 +179,14 @@ def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[flo
         np.array([point.k_xi.min()]),
         point.k_c[None],
         point.k_e[None],
-        np.array([[point.weights.w_pe, point.weights.w_re]]),
+        _w_e_diagonal(point)[None],
     )
     return float(gamma_of(s)[0]), int(reason[0])
+
+
+def _w_e_diagonal(point: GainPoint) -> np.ndarray:
+    """The diagonal of ``W_e = diag(w_pe I3, w_re I3)``."""
+    return np.repeat([point.weights.w_pe, point.weights.w_re], 3)
 
 
 SOLVERS = (cp.CLARABEL, cp.SCS)
@@ -213,7 +221,11 @@ def sdp_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray, solver_options
     Returns ``(gamma or None, method, reason or None)``: anything but a clean optimum of
     one of the solvers is "uncertified" with the solver's status as reason.
     """
-    a, w = theorem2_matrices(point, reference, r_ec)
+    return sdp_gamma_of(*theorem2_matrices(point, reference, r_ec), solver_options)
+
+
+def sdp_gamma_of(a: np.ndarray, w: np.ndarray, solver_options: dict | None = None):
+    """:func:`sdp_gamma` for given ``A = N^T K N - I/2`` and ``W``."""
     s = cp.Variable()
     problem = cp.Problem(cp.Maximize(s), [a - s * w >> 0])
     solver, failures = solve(problem, solver_options)
@@ -248,7 +260,11 @@ def tight_lmi(point: GainPoint, reference: SE3, alpha: float, gamma: float) -> n
     It gives ``d(alpha V)/dt + |x|^2/2 - gamma^2 |w|^2/2 <= 0`` and so
     ``int |x|^2 <= gamma^2 int |w|^2 + 2 alpha V(0)``; ``alpha = 1`` is Theorem 2's ``P``.
     """
-    a, g = _tight_blocks(point, reference)
+    return tight_lmi_of(*_tight_blocks(point, reference), alpha, gamma)
+
+
+def tight_lmi_of(a: np.ndarray, g: np.ndarray, alpha: float, gamma: float) -> np.ndarray:
+    """:func:`tight_lmi` for given ``N^T K N`` and ``G``."""
     half = 0.5 * np.eye(a.shape[0])
     return np.block([[alpha * a - half, -alpha / 2 * g], [-alpha / 2 * g.T, gamma**2 / 2 * np.eye(g.shape[1])]])
 
@@ -281,7 +297,11 @@ def tight_gamma(point: GainPoint, reference: SE3, solver_options: dict | None = 
     ``K_e`` gives a bound sound for every rotation (the LMI is monotone in ``K``).
     """
     sound = point if point.isotropic else point.with_k_e(np.repeat([point.k_e[:3].min(), point.k_e[3:].min()], 3))
-    a, g = _tight_blocks(sound, reference)
+    return tight_gamma_of(*_tight_blocks(sound, reference), solver_options)
+
+
+def tight_gamma_of(a: np.ndarray, g: np.ndarray, solver_options: dict | None = None) -> TightCertificate:
+    """:func:`tight_gamma` for given ``N^T K N`` and ``G``."""
     nx, nw = g.shape
     alpha, g2 = cp.Variable(nonneg=True), cp.Variable(nonneg=True)
     lmi = cp.bmat([[alpha * a - 0.5 * np.eye(nx), -alpha / 2 * g], [-alpha / 2 * g.T, g2 / 2 * np.eye(nw)]])
@@ -299,7 +319,7 @@ def tight_gamma(point: GainPoint, reference: SE3, solver_options: dict | None = 
             None, a_alpha, None, method, "alpha A - I/2 is not positive definite at the solver's alpha"
         )
     gamma *= 1 + INFLATION
-    margin = float(np.linalg.eigvalsh(tight_lmi(sound, reference, a_alpha, gamma))[0])
+    margin = float(np.linalg.eigvalsh(tight_lmi_of(a, g, a_alpha, gamma))[0])
     if margin < 0:
         return TightCertificate(None, a_alpha, margin, method, "a posteriori check failed")
     return TightCertificate(gamma, a_alpha, margin, method, None)
@@ -321,7 +341,7 @@ def gammas_over_rotations(point: GainPoint, reference: SE3, rotations: np.ndarra
         np.full(b, point.k_xi.min()),
         np.tile(point.k_c, (b, 1)),
         np.tile(point.k_e, (b, 1)),
-        np.tile([point.weights.w_pe, point.weights.w_re], (b, 1)),
+        np.tile(_w_e_diagonal(point), (b, 1)),
     )
     return gamma_of(s)
 
@@ -364,6 +384,57 @@ def region_text(theta_max: float) -> str:
     return f"every rotation R_ec with |theta_ec| <= {math.degrees(theta_max):.6g} deg"
 
 
+NOT_APPLICABLE = (
+    "n = {n} < 6: J_b pinv(J_b) != I, so Lemma 2's cancellation fails and Theorem 2 does not apply to "
+    "this arm (use the reduced planar loop, loop = \"planar\")"
+)
+
+PLANAR_REGION = "every state of the reduced planar loop (N is constant: no rotation enters)"
+
+PLANAR_ASSUMPTIONS = (
+    "planar arm in a horizontal plane, camera looking straight down, target moving without rotating "
+    "in a parallel plane (models.planar)",
+    "exact estimation error e_e: from the image it is exact when every feature keeps its depth (P12)",
+    "J_p of full row rank (away from the arm's singularities)",
+    "feature points in front of the camera",
+)
+
+
+def planar_blocks(point: GainPoint) -> tuple[np.ndarray, np.ndarray]:
+    """``N^T K N`` and ``G`` of the reduced planar loop (P9)-(P11)."""
+    w, n = point.weights, len(point.k_xi)
+    nmat = planar_output_matrix(w.w_pc, w.w_pe, n)
+    k = np.concatenate([point.k_xi, point.k_c, point.k_e])
+    return nmat.T @ (k[:, None] * nmat), planar_disturbance_matrix(w.w_pe, n)
+
+
+def certify_planar(
+    point: GainPoint, *, gamma_bound: float | None = None, with_sdp: bool = True, solver_options: dict | None = None
+) -> Certificate:
+    """Theorem 2 for the reduced planar loop (P11): the same closed form (fact 3, with a task
+    of 2 entries), SDP cross-check and a posteriori check as :func:`certify`."""
+    w = point.weights
+    s, code, _ = exact_s(
+        planar_output_matrix(w.w_pc, w.w_pe, 0)[None],
+        np.array([point.k_xi.min()]),
+        point.k_c[None],
+        point.k_e[None],
+        np.full((1, TASK), w.w_pe),
+    )
+    result = Certificate(False, None, "exact (planar loop, fact 3)", None, None, PLANAR_REGION)
+    if code[0]:
+        result.reason = REASONS[int(code[0])]
+        return result
+    nkn_, g = planar_blocks(point)
+    a = nkn_ - 0.5 * np.eye(len(nkn_))
+    return _confirm(result, float(gamma_of(s)[0]), a, g @ g.T, gamma_bound, with_sdp, solver_options)
+
+
+def tight_gamma_planar(point: GainPoint, solver_options: dict | None = None) -> TightCertificate:
+    """Fact 4 for the reduced planar loop."""
+    return tight_gamma_of(*planar_blocks(point), solver_options)
+
+
 def certify(
     point: GainPoint,
     reference: SE3,
@@ -381,6 +452,8 @@ def certify(
     """
     region = region_text(theta_max)
     identity = np.eye(3)
+    if len(point.k_xi) < 6:
+        return Certificate(False, None, "not applicable", None, NOT_APPLICABLE.format(n=len(point.k_xi)), region)
     if point.isotropic:
         sound_point, method = point, "exact (isotropic K_e: R_ec = I decides, fact 2)"
     else:
@@ -395,18 +468,26 @@ def certify(
         result.gamma_worst_found = found
         result.worst_rotation = rotation.tolist()
         result.gap = gamma_exact / found - 1.0
+    a, w = theorem2_matrices(sound_point, reference, identity)
+    return _confirm(result, gamma_exact, a, w, gamma_bound, with_sdp, solver_options)
+
+
+def _confirm(result: Certificate, gamma_exact: float, a: np.ndarray, w: np.ndarray, gamma_bound: float | None,
+             with_sdp: bool, solver_options: dict | None) -> Certificate:
+    """Cross-check the closed-form gamma with the SDP, inflate it, re-check ``P >= 0`` on the
+    literal ``A - W/(2 gamma^2)`` and compare with the required bound."""  # fmt: skip
     if with_sdp:
-        gamma_sdp, sdp_method, trouble = sdp_gamma(sound_point, reference, identity, solver_options)
+        gamma_sdp, sdp_method, trouble = sdp_gamma_of(a, w, solver_options)
         if trouble is not None:
             result.reason = trouble
-            result.method = f"{method}; {sdp_method}"
+            result.method = f"{result.method}; {sdp_method}"
             return result
         if abs(gamma_sdp - gamma_exact) > 1e-5 * gamma_exact:
             result.reason = f"exact ({gamma_exact:.9g}) and SDP ({gamma_sdp:.9g}) disagree"
             return result
-        result.method = f"{method}; cross-checked by {sdp_method}"
+        result.method = f"{result.method}; cross-checked by {sdp_method}"
     gamma = gamma_exact * (1 + INFLATION)
-    margin = p_min_eigenvalue(sound_point, reference, identity, gamma)
+    margin = float(np.linalg.eigvalsh(a - w / (2 * gamma**2))[0])
     result.margin = margin
     if margin < 0:
         result.reason = f"a posteriori check failed: lambda_min(P) = {margin:.3g} < 0"

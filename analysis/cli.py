@@ -25,13 +25,15 @@ from rich.table import Table
 
 from analysis.certify import (
     ASSUMPTIONS,
+    NOT_APPLICABLE,
+    PLANAR_ASSUMPTIONS,
+    PLANAR_REGION,
     GainPoint,
-    certify,
     region_text,
 )
 from analysis.grid import GridSpec, run_sweep
 from analysis.output import atomic_write, provenance, write_json
-from analysis.results import certificate_result, point_record, verification_result
+from analysis.results import certificate_for, certificate_result, point_record, verification_result
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import Simulator, summary
 from analysis.synthesize import Bounds, synthesize
@@ -155,6 +157,10 @@ def simulate(
         raise typer.Exit(1)
 
 
+def _number(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3e}"
+
+
 def show(result: dict) -> None:
     """A short human summary of a simulation."""
     s = result["summary"]
@@ -164,8 +170,8 @@ def show(result: dict) -> None:
     rows = [
         ("status", s["status"]),
         ("horizon", f"{s['t_final']:.3g} s in {s['wall_time']:.3g} s wall"),
-        ("final |p_ec|, |e_R(R_ec)|", f"{f['e_c_position']:.3e} m, {f['e_c_rotation']:.3e}"),
-        ("final |p_ee|, |e_R(R_ee)|", f"{f['e_e_position']:.3e} m, {f['e_e_rotation']:.3e}"),
+        ("final |p_ec|, |e_R(R_ec)|", f"{f['e_c_position']:.3e} m, {_number(f['e_c_rotation'])}"),
+        ("final |p_ee|, |e_R(R_ee)|", f"{f['e_e_position']:.3e} m, {_number(f['e_e_rotation'])}"),
         ("V(0) -> V(T)", f"{s['V0']:.4g} -> {s['VT']:.4g}"),
         ("max |tau|", f"{s['max_torque']:.4g} N m"),
         ("Lemma 2 identity residual", f"{r['passivity']:.2e}"),
@@ -206,6 +212,9 @@ def certify_command(
     spec, loop, s0, _, axes = load_scenario(scenario)
     point = gain_point(spec, loop.robot.n)
     check_json_target(json_target)
+    if axes is not None and spec.loop == "paper" and loop.robot.n < 6:
+        err.print(f"NOT CERTIFIED: {NOT_APPLICABLE.format(n=loop.robot.n)}", markup=False)
+        raise typer.Exit(1)
     if axes is not None:
         size = int(np.prod([len(v) for _, v in axes], dtype=np.int64))
         if size > MAX_GRID_POINTS and not large:
@@ -258,8 +267,10 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
     ``how`` is ``(workers, scheduler, resume, batch_size)``.
     """
     workers, scheduler, resume, batch_size = how
-    reference = spec.reference.se3()
-    grid = GridSpec.around(point, reference, axes, spec.certify.gamma)
+    try:
+        grid = GridSpec.around(point, spec.reference.se3(), axes, spec.certify.gamma)
+    except ValueError as exc:
+        raise fail(str(exc)) from exc
     if resume and not (directory / "sweep.json").exists():
         raise fail(f"--resume: no sweep to resume in {directory}")
     sha = provenance(scenario, [])["scenario_sha256"]
@@ -300,16 +311,15 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
             return None
         d = grid.designs(entry[1], entry[1] + 1)
         gp = GainPoint(d["k_xi"][0], d["k_c"][0], d["k_e"][0], Weights(*d["w"][0]))
-        single = certify(
-            gp, reference, theta_max=math.radians(spec.certify.theta_max_deg), gamma_bound=spec.certify.gamma
-        )
-        return {"index": entry[1], **point_record(gp, single)}
+        return {"index": entry[1], **point_record(gp, certificate_for(spec, gp))}
 
     best, worst = record(state.best), record(state.worst)
+    planar = spec.loop == "planar"
     result = {
         "scenario": spec.name,
-        "region": region_text(math.radians(spec.certify.theta_max_deg)),
-        "assumptions": list(ASSUMPTIONS),
+        "loop": spec.loop,
+        "region": PLANAR_REGION if planar else region_text(math.radians(spec.certify.theta_max_deg)),
+        "assumptions": list(PLANAR_ASSUMPTIONS if planar else ASSUMPTIONS),
         "gamma_required": spec.certify.gamma,
         "grid": {name: values.tolist() if len(values) <= 1000 else f"{len(values)} values" for name, values in axes},
         "points": [p for p in (best, worst) if p is not None],
@@ -341,6 +351,8 @@ def synthesize_command(
     start = time.perf_counter()
     spec, loop, _, _, _ = load_scenario(scenario)
     n = loop.robot.n
+    if spec.loop != "paper" or n < 6:
+        raise fail(f"loop: gain synthesis is for the paper's loop with n >= 6 joints (this is {spec.loop}, n = {n})")
     check_json_target(json_target)
     target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
     prepare_out_dir(target.parent)

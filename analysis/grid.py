@@ -29,6 +29,7 @@ import numpy as np
 from analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
 from analysis.output import atomic_write, json_text
 from models.lie import SE3, SO3
+from models.planar import TASK, planar_output_matrix
 
 AXES = {
     "k_xi": ("k_xi", None),
@@ -46,6 +47,9 @@ AXES = {
 """Sweepable names: a gain vector (all entries), its translational (``_p``) or
 rotational (``_r``) half, or one weight."""
 
+PAPER_ONLY_AXES = ("k_c_r", "k_e_r", "w_rc", "w_re")
+"""Axes without meaning for the planar loop (it has no rotational task)."""
+
 
 @dataclass(frozen=True)
 class GridSpec:
@@ -60,10 +64,20 @@ class GridSpec:
     axes: tuple[tuple[str, np.ndarray], ...]
     gamma_bound: float | None = None
 
+    @property
+    def planar(self) -> bool:
+        """The reduced planar loop (:mod:`models.planar`): two-entry ``K_c``, ``K_e``."""
+        return len(self.k_c) == TASK
+
     @staticmethod
     def around(point: GainPoint, reference: SE3, axes, gamma_bound: float | None = None) -> GridSpec:
-        """The grid of ``axes`` (name, values) around the design ``point``."""
+        """The grid of ``axes`` (name, values) around the design ``point`` (of the paper's
+        loop, or of the planar loop when its ``K_c`` has two entries)."""
         w = point.weights
+        if len(point.k_c) == TASK:
+            unused = [name for name, _ in axes if name in PAPER_ONLY_AXES]
+            if unused:
+                raise ValueError(f"grid.{unused[0]}: the planar loop has no rotational gains or weights to sweep")
         return GridSpec(
             point.k_xi, point.k_c, point.k_e, np.array([w.w_pc, w.w_rc, w.w_pe, w.w_re], dtype=float),
             np.asarray(cs.DM(reference.translation)).ravel(), np.asarray(cs.DM(reference.rotation.matrix)),
@@ -108,18 +122,23 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     (0 fine, 1-3 as :data:`analysis.certify.REASONS`, 4 failed re-check, 5 above the bound)."""
     d = spec.designs(start, stop)
     b = stop - start
-    k_e_sound = np.repeat(np.stack([d["k_e"][:, :3].min(1), d["k_e"][:, 3:].min(1)], axis=1), 3, axis=1)
-    reference = SE3(spec.p_d, SO3(spec.r_d))
     weights, which = np.unique(d["w"], axis=0, return_inverse=True)  # N depends on the weights only
-    n_ce = output_blocks(weights, reference, np.tile(np.eye(3), (len(weights), 1, 1)))[which.ravel()]
+    if spec.planar:
+        k_e_sound, w_e = d["k_e"], np.repeat(d["w"][:, 2:3], TASK, axis=1)
+        n_ce = np.stack([planar_output_matrix(w[0], w[2], 0) for w in weights])[which.ravel()]
+    else:
+        k_e_sound = np.repeat(np.stack([d["k_e"][:, :3].min(1), d["k_e"][:, 3:].min(1)], axis=1), 3, axis=1)
+        w_e = np.repeat(d["w"][:, 2:], 3, axis=1)
+        reference = SE3(spec.p_d, SO3(spec.r_d))
+        n_ce = output_blocks(weights, reference, np.tile(np.eye(3), (len(weights), 1, 1)))[which.ravel()]
     k_xi_min = d["k_xi"].min(axis=1)
-    s, reason, a = exact_s(n_ce, k_xi_min, d["k_c"], k_e_sound, d["w"][:, 2:])
+    s, reason, a = exact_s(n_ce, k_xi_min, d["k_c"], k_e_sound, w_e)
     gamma = gamma_of(s) * (1 + INFLATION)
     finite = np.isfinite(gamma)
     s_check = np.where(finite, 1.0 / (2 * np.where(finite, gamma, 1.0) ** 2), 0.0)
-    w_ce = np.zeros((b, 12))
-    w_ce[:, 6:] = np.repeat(d["w"][:, 2:] ** 2, 3, axis=1)
-    p = a - s_check[:, None, None] * (w_ce[:, :, None] * np.eye(12))
+    t = w_e.shape[1]
+    w_ce = np.concatenate([np.zeros((b, t)), w_e**2], axis=1)
+    p = a - s_check[:, None, None] * (w_ce[:, :, None] * np.eye(2 * t))
     margin = np.minimum(np.linalg.eigvalsh((p + p.transpose(0, 2, 1)) / 2)[:, 0], k_xi_min - 0.5 - s_check)
     margin = np.where(finite, margin, np.nan)
     reason = np.where((reason == 0) & (margin < 0), 4, reason)

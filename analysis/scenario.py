@@ -23,7 +23,8 @@ from models.camera import Camera
 from models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
 from models.lie import SE3
 from models.loop import ClosedLoop, Gains, Weights
-from models.robot import BUILTIN_CAMERA_FRAME, Robot, RobotModelError, builtin_urdf
+from models.planar import TASK, PlanarLoop
+from models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, Robot, RobotModelError, builtin_urdf
 from models.target import TargetMotion
 
 DEFAULT_SCENARIO = Path(__file__).parent / "scenarios" / "ur5_circle.toml"
@@ -58,6 +59,7 @@ class RobotSection(_Strict):
     q0: list[Finite]
     qd0: list[Finite] | None = None
     mount: Pose = Pose()
+    armature: list[Annotated[float, Field(ge=0, allow_inf_nan=False)]] | None = None
 
     @model_validator(mode="after")
     def _one_source(self) -> RobotSection:
@@ -169,6 +171,7 @@ class SimulationSection(_Strict):
     atol: Annotated[float, Field(gt=0, lt=1)] = 1e-10
     jit: bool = False
     time_budget: Positive = 600.0
+    sigma_min: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.02
 
     @model_validator(mode="after")
     def _grid(self) -> SimulationSection:
@@ -259,9 +262,11 @@ class GridSection(_Strict):
 
 
 class Scenario(_Strict):
-    """The whole scenario file."""
+    """The whole scenario file. ``loop`` selects the paper's 6-D loop or the reduced planar
+    loop of :mod:`models.planar` (arms with fewer than six joints moving in a horizontal plane)."""
 
     name: str = "scenario"
+    loop: Literal["paper", "planar"] = "paper"
     robot: RobotSection
     camera: CameraSection
     target: TargetSection
@@ -316,6 +321,7 @@ def build_robot(section: RobotSection, base: Path) -> Robot:
         if section.model is not None:
             urdf = builtin_urdf(section.model)
             frame = section.camera_frame or BUILTIN_CAMERA_FRAME[section.model]
+            armature = BUILTIN_ARMATURE.get(section.model, ())
         else:
             urdf = (base / section.urdf).resolve()
             if not urdf.is_file():
@@ -323,11 +329,16 @@ def build_robot(section: RobotSection, base: Path) -> Robot:
             if section.camera_frame is None:
                 raise ScenarioError("robot.camera_frame: required with robot.urdf")
             frame = section.camera_frame
-        return Robot(urdf, frame, section.mount.se3())
+            armature = ()
+        if section.armature is not None:
+            armature = tuple(section.armature)
+        return Robot(urdf, frame, section.mount.se3(), armature)
     except RobotModelError as exc:
         field = "robot.model" if "unknown robot model" in str(exc) else "robot.urdf"
         if "no link named" in str(exc):
             field = "robot.camera_frame"
+        elif str(exc).startswith("armature"):
+            field = "robot"
         raise ScenarioError(f"{field}: {exc}") from exc
 
 
@@ -345,10 +356,28 @@ def disturbances(section: DisturbancesSection, n: int) -> list[Disturbance]:
     return out
 
 
+def _check_planar(scenario: Scenario, robot: Robot) -> None:
+    """The reduced loop's assumptions that the file decides (:mod:`models.planar`)."""
+    motion = scenario.target.motion
+    if motion.kind == "circle_spin" or motion.spin_rate != 0:
+        raise ScenarioError("target.motion.kind: the planar loop needs a target that does not rotate")
+    if motion.kind == "circle" and list(motion.normal) != [0.0, 0.0, 1.0]:
+        raise ScenarioError("target.motion.normal: the planar loop needs motion in a horizontal plane, [0, 0, 1]")
+    if any(scenario.reference.rpy):
+        raise ScenarioError("reference.rpy: the planar loop controls the position only; give [0, 0, 0]")
+    if any(scenario.observer.error_rpy):
+        raise ScenarioError("observer.error_rpy: the planar loop estimates the position only; give [0, 0, 0]")
+    if robot.n < TASK:
+        raise ScenarioError(f"robot: the planar loop needs at least {TASK} joints, the arm has {robot.n}")
+
+
 def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[ClosedLoop, np.ndarray, Settings]:
-    """The closed loop, its initial state and the simulation settings of a scenario."""
+    """The closed loop (the paper's, or the reduced planar one), its initial state and the
+    simulation settings of a scenario."""
     robot = build_robot(scenario.robot, base)
     n = robot.n
+    if scenario.loop == "planar":
+        _check_planar(scenario, robot)
     q0 = _vector(scenario.robot.q0, n, "robot.q0")
     qd0 = _vector(scenario.robot.qd0 or 0.0, n, "robot.qd0")
     t = scenario.target
@@ -357,7 +386,8 @@ def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[C
         SE3.from_xyz_rpy(t.xyz, t.rpy), m.radius, m.period, tuple(m.normal), tuple(m.spin_axis), m.spin_rate
     )
     point = gain_point(scenario, n)
-    loop = ClosedLoop(
+    kind = PlanarLoop if scenario.loop == "planar" else ClosedLoop
+    loop = kind(
         robot=robot,
         camera=Camera(scenario.camera.focal_length, np.asarray(t.points, dtype=float)),
         target=target,
@@ -369,30 +399,33 @@ def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[C
     )
     o = scenario.observer
     s0 = loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
-    _check_initial_view(loop, s0)
+    _check_initial_view(loop, s0, scenario.simulation.sigma_min)
     sim = scenario.simulation
-    settings = Settings(sim.duration, sim.dt, sim.rtol, sim.atol, sim.jit, sim.time_budget)
+    settings = Settings(sim.duration, sim.dt, sim.rtol, sim.atol, sim.jit, sim.time_budget, sigma_min=sim.sigma_min)
     return loop, s0, settings
 
 
 def gain_point(scenario: Scenario, n: int) -> GainPoint:
-    """The scenario's gains and weights as a certifier point (``n`` joints)."""
+    """The scenario's gains and weights as a certifier point (``n`` joints; ``K_c``, ``K_e``
+    of 6 entries, or 2 for the planar loop)."""
     g = scenario.gains
+    task = TASK if scenario.loop == "planar" else 6
     return GainPoint(
         _vector(g.k_xi, n, "gains.k_xi"),
-        _vector(g.k_c, 6, "gains.k_c"),
-        _vector(g.k_e, 6, "gains.k_e"),
+        _vector(g.k_c, task, "gains.k_c"),
+        _vector(g.k_e, task, "gains.k_e"),
         Weights(**scenario.weights.model_dump()),
     )
 
 
-def _check_initial_view(loop: ClosedLoop, s0: np.ndarray) -> None:
-    """At t = 0 every point must be in front of the camera (actual and estimated) and
-    ``J(gbar)`` must have full column rank."""
+def _check_initial_view(loop: ClosedLoop, s0: np.ndarray, threshold: float) -> None:
+    """At t = 0 every point must be in front of the camera (actual and estimated), the image
+    Jacobian must have full column rank and the arm's Jacobian must not be near-singular."""
     cam = loop.camera
-    outputs = [cam.depths(loop.relative_pose), cam.depths(loop.estimate), cam.jacobian(loop.estimate)]
+    (arm_name, arm), (image_name, image) = loop.conditioning.items()
+    outputs = [cam.depths(loop.relative_pose), cam.depths(loop.estimate), image, arm]
     check = cs.Function("view", [loop.t, loop.state], outputs)
-    depth, depth_bar, jac = (np.asarray(v) for v in check(0.0, s0))
+    depth, depth_bar, jac, arm_jac = (np.asarray(v) for v in check(0.0, s0))
     for name, z in (("target.points", depth), ("observer", depth_bar)):
         bad = np.flatnonzero(~(z.ravel() > 1e-9))
         if bad.size:
@@ -403,4 +436,7 @@ def _check_initial_view(loop: ClosedLoop, s0: np.ndarray) -> None:
             )
     s = np.linalg.svd(jac, compute_uv=False)
     if s[-1] < 1e-9 * s[0]:
-        raise ScenarioError("target.points: J(gbar) is rank-deficient at t = 0 (degenerate feature layout)")
+        raise ScenarioError(f"target.points: {image_name} is rank-deficient at t = 0 (degenerate feature layout)")
+    sigma = np.linalg.svd(arm_jac, compute_uv=False)[-1]
+    if sigma < threshold:
+        raise ScenarioError(f"robot.q0: {arm_name} is near-singular at q0 (sigma_min = {sigma:.3g} < {threshold:g})")

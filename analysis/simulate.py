@@ -34,6 +34,12 @@ class Settings:
         Compile the right-hand side and its Jacobian to C (cached on disk).
     time_budget
         Wall-clock seconds after which the run stops with status ``"time_budget"``.
+    sigma_min
+        The run stops with status ``"singular"`` when the smallest singular value of the
+        arm's Jacobian (``J_b``, or ``J_p`` of the planar loop) falls below this: the law's
+        ``pinv`` would divide by it. Near a singularity the law drives the arm into it
+        within milliseconds, so the default (about a tenth of the built-in arms' values in
+        their working poses) catches it at the output step before the integrator collapses.
     chunk
         Output steps of the first CVODES call; later calls are sized to take about
         :data:`CHUNK_SECONDS` of wall time each (CVODES restarts at every call, so
@@ -47,10 +53,15 @@ class Settings:
     jit: bool = False
     time_budget: float = 600.0
     chunk: int = 100
+    sigma_min: float = 0.02
 
 
 CHUNK_SECONDS = 0.5
 """Target wall time of one integration call after the first."""
+
+CONDITION_MAX = 1e6
+"""In image mode a run stops when the condition number of the image Jacobian the law
+inverts exceeds this."""
 
 
 @dataclass
@@ -99,6 +110,9 @@ class Simulator:
         self._mapped = None
         signals = loop.signals_function()
         self.signal_function = compiled(signals, jacobian=False) if settings.jit else signals
+        arm, image = loop.conditioning.items()
+        self._monitored = (arm[0], image[0])
+        self._monitor = cs.Function("monitor", [loop.t, loop.state], [arm[1], image[1]])
 
     def integrator(self, count: int) -> cs.Function:
         """CVODES over ``count`` output steps (built once per size)."""
@@ -133,6 +147,30 @@ class Simulator:
         trigger()
         return outputs
 
+    def conditioning(self, t: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Smallest singular value of the arm's Jacobian and condition number of the image
+        Jacobian at times ``t`` (``states``: one column per time)."""
+        arm, image = (np.asarray(v) for v in self._monitor.map(len(t))(t[None, :], states))
+        rows_arm, rows_image = self._monitor.size1_out(0), self._monitor.size1_out(1)
+        arm = arm.reshape(rows_arm, len(t), -1).transpose(1, 0, 2)
+        image = image.reshape(rows_image, len(t), -1).transpose(1, 0, 2)
+        return np.linalg.svd(arm, compute_uv=False)[:, -1], np.linalg.cond(image)
+
+    def _singularity(self, t: np.ndarray, states: np.ndarray) -> tuple[int, str] | None:
+        """The first time the law would divide by a near-zero, with a message, or None."""
+        sigma, cond = self.conditioning(t, states)
+        arm, image = self._monitored
+        bad_arm = np.flatnonzero(~(sigma >= self.settings.sigma_min))
+        bad_image = np.flatnonzero(~(cond <= CONDITION_MAX)) if self.loop.mode == "image" else np.array([], int)
+        first = min([*bad_arm[:1], *bad_image[:1]], default=None)
+        if first is None:
+            return None
+        if bad_arm.size and bad_arm[0] == first:
+            what = f"{arm} is near-singular: sigma_min({arm}) = {sigma[first]:.3g} < {self.settings.sigma_min:g}"
+        else:
+            what = f"{image} is ill-conditioned: cond({image}) = {cond[first]:.3g} > {CONDITION_MAX:g}"
+        return first, f"stopped at t = {t[first]:.4g} s: {what} (the law would divide by it)"
+
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
         """Integrate from ``s0`` over the settings' horizon."""
         st = self.settings
@@ -146,6 +184,7 @@ class Simulator:
         k = 0
         n_steps = 0
         size = st.chunk
+        refining = False  # after a failed chunk: one output step at a time, to locate the failure
         while k < steps:
             count = min(size, steps - k)
             integrator = self.integrator(count)
@@ -153,15 +192,21 @@ class Simulator:
             try:
                 result = integrator(x0=states[:, k], p=t[k])
             except RuntimeError:
+                if count > 1:
+                    refining, size = True, 1
+                    continue
                 reached = t[k] + float(integrator.stats().get("tcur", 0.0) or 0.0)
                 status = "integrator_failure"
+                sigma, cond = self.conditioning(t[k : k + 1], states[:, k : k + 1])
+                arm, image = self._monitored
                 message = (
                     f"CVODES stopped at t = {reached:.4g} s: the step size collapsed or the step limit was reached "
-                    "(the run diverges or is too stiff)"
+                    f"(the run diverges or is too stiff); at t = {t[k]:.4g} s sigma_min({arm}) = {sigma[0]:.3g}, "
+                    f"cond({image}) = {cond[0]:.3g}"
                 )
                 break
             per_step = (time.perf_counter() - chunk_start) / count
-            size = max(st.chunk, int(CHUNK_SECONDS / max(per_step, 1e-9)) // st.chunk * st.chunk)
+            size = 1 if refining else max(st.chunk, int(CHUNK_SECONDS / max(per_step, 1e-9)) // st.chunk * st.chunk)
             n_steps += int(integrator.stats().get("nsteps", 0))
             xf = np.asarray(result["xf"])[:, :count]
             qf = np.asarray(result["qf"])[:, :count]
@@ -172,6 +217,11 @@ class Simulator:
                 xf[q] /= np.linalg.norm(xf[q], axis=0)
             states[:, k + 1 : k + 1 + count] = xf
             integrals[:, k + 1 : k + 1 + count] = integrals[:, k : k + 1] + qf
+            singular = self._singularity(t[k + 1 : k + 1 + count], xf)
+            if singular is not None:
+                k += singular[0] + 1
+                status, message = "singular", singular[1]
+                break
             k += count
             if progress is not None:
                 progress(t[k])
@@ -184,6 +234,8 @@ class Simulator:
         t, states, integrals = t[: k + 1], states[:, : k + 1], integrals[:, : k + 1]
         signals = self.evaluate_signals(t, states)
         signals["state"] = states.T
+        sigma, cond = self.conditioning(t, states)
+        signals["sigma_min_arm_jacobian"], signals["cond_image_jacobian"] = sigma[:, None], cond[:, None]
         behind = np.flatnonzero(np.any(signals["depth"] <= 0, axis=1))
         if status == "ok" and behind.size:
             i = int(behind[0])
@@ -232,9 +284,9 @@ def summary(traj: Trajectory) -> dict:
         "t_final": float(traj.t[-1]),
         "final": {
             "e_c_position": float(np.linalg.norm(e_c[-1, :3])),
-            "e_c_rotation": float(np.linalg.norm(e_c[-1, 3:])),
+            "e_c_rotation": float(np.linalg.norm(e_c[-1, 3:])) if e_c.shape[1] == 6 else None,
             "e_e_position": float(np.linalg.norm(e_e[-1, :3])),
-            "e_e_rotation": float(np.linalg.norm(e_e[-1, 3:])),
+            "e_e_rotation": float(np.linalg.norm(e_e[-1, 3:])) if e_e.shape[1] == 6 else None,
             "x_norm": float(np.linalg.norm(np.hstack([traj["xi"][-1], e_c[-1], e_e[-1]]))),
         },
         "max_torque": float(np.abs(traj["tau"]).max()),
@@ -244,6 +296,8 @@ def summary(traj: Trajectory) -> dict:
         "integrals": {k: float(val[-1]) for k, val in traj.integrals.items()},
         "identity_residuals": identity_residuals(traj),
         "image_estimate_gap_max": float(gap.max()),
+        "min_sigma_arm_jacobian": float(traj["sigma_min_arm_jacobian"].min()),
+        "max_cond_image_jacobian": float(traj["cond_image_jacobian"].max()),
         "wall_time": traj.wall_time,
         "integrator_steps": traj.stats.get("steps", 0),
     }

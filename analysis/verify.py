@@ -21,6 +21,7 @@ from models.disturbance import BandLimitedNoise
 from models.kinematic import VisualFeedbackSystem
 from models.lie import SE3
 from models.loop import ClosedLoop
+from models.planar import PlanarLoop
 from models.target import TargetMotion
 
 IDENTITY_TOL = 1e-6
@@ -100,9 +101,9 @@ def lyapunov_derivative(loop: ClosedLoop, s0: np.ndarray, settings: Settings) ->
 
 
 def lemma_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, seed: int = 1) -> list[Claim]:
-    n = loop.robot.n
-    amplitude = np.concatenate([np.full(n, 0.5), np.full(6, 0.02), np.full(6, 0.02)])
-    driven = replace(static(loop), inputs=smooth_signal(seed, n + 12, amplitude))
+    n, task = loop.robot.n, loop.task_dim
+    amplitude = np.concatenate([np.full(n, 0.5), np.full(2 * task, 0.02)])
+    driven = replace(static(loop), inputs=smooth_signal(seed, n + 2 * task, amplitude))
     traj = Simulator(driven, replace(settings, duration=min(settings.duration, 3.0))).run(s0)
     residual = identity_residuals(traj)["passivity"]
     beta = traj["V"][0, 0]
@@ -151,25 +152,37 @@ def kinematic_claims(loop: ClosedLoop, seed: int = 2, duration: float = 3.0) -> 
     return claims
 
 
+def conditioning_claim(traj: Trajectory, threshold: float) -> Claim:
+    """The arm's Jacobian stays away from singularity along a run (the law uses its pinv)."""
+    sigma = float(traj["sigma_min_arm_jacobian"].min())
+    return Claim("no singularity: min sigma_min of the arm's Jacobian along the run", "Section V-A, pinv",
+                 sigma, f">= {threshold:g}", traj.status != "singular" and sigma >= threshold,
+                 traj.message)  # fmt: skip
+
+
 def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None) -> list[Claim]:
-    """(44) pointwise and (45) along a run with the scenario's target motion and torque
-    disturbances (band-limited noise of 1 N m RMS added if the scenario has none)."""
+    """(43) with disturbances, (44) pointwise and (45) along a run with the scenario's target
+    motion and torque disturbances (band-limited noise of 1 N m RMS added if it has none)."""
     disturbed = loop if loop.disturbances else replace(
         loop, disturbances=[BandLimitedNoise(np.ones(loop.robot.n), 5.0, seed=0)]
     )  # fmt: skip
     traj = Simulator(replace(disturbed, mode="ideal"), settings).run(s0)
+    residual = identity_residuals(traj)["dissipation"]
+    claims = [
+        conditioning_claim(traj, settings.sigma_min),
+        Claim("V(T) - V(0) = int (-nu^T K nu + x^T G w)", "(43) with w", residual, f"<= {IDENTITY_TOL:g}",
+              traj.status == "ok" and residual <= IDENTITY_TOL, traj.message),
+    ]  # fmt: skip
     if gamma is None:
-        return [Claim("dissipation inequality at the certified gamma", "Theorem 2, (44)-(45)", float("nan"),
-                      "a certified gamma", False, "no gamma certified for these gains")]  # fmt: skip
+        return [*claims, Claim("dissipation inequality at the certified gamma", "Theorem 2, (44)-(45)",
+                               float("nan"), "a gamma from P >= 0", False, "P >= 0 holds for no gamma")]  # fmt: skip
     x, w = _error_state(traj), traj["w"]
     vdot = traj["Vdot"][:, 0]
     lhs44 = vdot + 0.5 * (x * x).sum(1) - 0.5 * gamma**2 * (w * w).sum(1)
     tol = 1e-9 * max(1.0, traj["V"][0, 0])
     slack45 = gamma**2 * traj.integrals["w_squared"] + 2 * traj["V"][0, 0] - traj.integrals["x_squared"]
-    residual = identity_residuals(traj)["dissipation"]
     return [
-        Claim("V(T) - V(0) = int (-nu^T K nu + x^T G w)", "(43) with w", residual, f"<= {IDENTITY_TOL:g}",
-              traj.status == "ok" and residual <= IDENTITY_TOL, traj.message),
+        *claims,
         Claim("dV/dt + |x|^2/2 - gamma^2 |w|^2/2 <= 0 pointwise", "Theorem 2, (44)", float(lhs44.max()),
               f"<= {tol:.1e}", bool(lhs44.max() <= tol), f"gamma = {gamma:.6g}"),
         Claim("int |x|^2 <= gamma^2 int |w|^2 + 2 V(0)", "Theorem 2, (45)", float(slack45.min()), "slack >= 0",
@@ -178,13 +191,21 @@ def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float
 
 
 def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Claim]:
-    """The loop run on ``e_e`` from the image (21): measurements, not claims of the paper."""
+    """The loop run on ``e_e`` from the image: for the paper's loop the first-order estimate
+    (21), a measurement, not a claim; for the planar loop the exact map (P12), a claim."""
     traj = Simulator(replace(loop, mode="image"), settings).run(s0)
     gap = float(np.linalg.norm(traj["e_e_image"] - traj["e_e"], axis=1).max())
-    m = loop.camera.m
-    jac = traj["image_jacobian"].reshape(-1, 6, 2 * m).transpose(0, 2, 1)
-    cond = float(np.linalg.cond(jac).max())
+    cond = float(traj["cond_image_jacobian"].max())
     residual = identity_residuals(traj)["dissipation"]
+    if isinstance(loop, PlanarLoop):
+        scale = float(np.abs(traj["e_e"]).max())
+        return [
+            Claim("max |pinv(A)(f - fbar) - e_e| / max |e_e|", "(P12)", gap / scale, "<= 1e-9",
+                  traj.status == "ok" and gap <= 1e-9 * scale, traj.message),
+            Claim("(43) identity with e_e from the image", "(P10), image loop", residual, f"<= {IDENTITY_TOL:g}",
+                  residual <= IDENTITY_TOL),
+            Claim("max condition number of A", "(P12)", cond, "measured", None),
+        ]  # fmt: skip
     return [
         Claim("max |pinv(J)(f - fbar) - e_e|", "(21) vs (15)", gap, "measured", None),
         Claim("(43) identity residual with e_e from the image", "(43), image loop", residual, "measured", None),
@@ -197,7 +218,7 @@ def verify(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | 
     right-hand sides are evaluated by CasADi's virtual machine rather than compiled."""
     settings = replace(settings, jit=False)
     return [
-        *kinematic_claims(loop),
+        *([] if isinstance(loop, PlanarLoop) else kinematic_claims(loop)),
         *lemma_2(loop, s0, settings),
         *theorem_1(loop, s0, settings),
         lyapunov_derivative(loop, s0, settings),

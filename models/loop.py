@@ -154,6 +154,9 @@ class ClosedLoop:
     disturbances: list[Disturbance] = field(default_factory=list)
     inputs: Callable[[cs.SX], Matrix] | None = None
 
+    task_dim = 6
+    """Entries of ``e_c``, ``e_e``, ``u_d`` and ``u_e``."""
+
     def __post_init__(self) -> None:
         n = self.robot.n
         self.t = cs.SX.sym("t")
@@ -306,6 +309,12 @@ class ClosedLoop:
     def state_rate(self) -> Matrix:
         """``ds/dt`` for ``s = [q; qd; pbar; quat]``."""
         return cs.vertcat(self.qd, self.qdd, self.estimate_rate)
+
+    @cached_property
+    def conditioning(self) -> dict[str, Matrix]:
+        """Matrices the law inverts: ``J_b`` (``pinv(J_b)``, Section V-A) and, in image mode,
+        ``J(gbar)`` (21)."""
+        return {"J_b": self.robot.body_jacobian, "J(gbar)": self.camera.jacobian(self.estimate)}
 
     # --- storage and supply -----------------------------------------------------
     @cached_property

@@ -35,6 +35,20 @@ or a file shipped with this package (``Path``)."""
 
 BUILTIN_CAMERA_FRAME = {"ur5": "tool0", "panda": "panda_link8", "puma560": "link6", "planar2dd": "camera_link"}
 
+BUILTIN_ARMATURE = {
+    "puma560": tuple(
+        jm * g**2
+        for jm, g in zip(
+            (200e-6, 200e-6, 200e-6, 33e-6, 33e-6, 33e-6),
+            (-62.6111, 107.815, -53.7063, 76.0364, 71.923, 76.686),
+            strict=True,
+        )
+    ),
+}
+"""Reflected motor inertias ``G_i^2 J_m,i`` (kg m^2) added to the diagonal of ``M(q)``: not
+rigid-body data, so not in the URDF. Puma 560: motor inertias ``J_m`` and gear ratios ``G``
+of Armstrong et al. (1986) as in Corke's Robotics Toolbox (they dominate the wrist)."""
+
 
 class RobotModelError(ValueError):
     """The URDF cannot be read, or it does not have the frame or joints asked for."""
@@ -106,11 +120,14 @@ class Robot:
         Link carrying the camera.
     mount
         Fixed transform from that link to the camera frame (optical axis = z).
+    armature
+        Reflected motor inertias added to the diagonal of ``M(q)`` (one per joint), or empty.
     """
 
     urdf: Path
     frame: str
     mount: SE3 = field(default_factory=SE3.identity)
+    armature: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         self.urdf = Path(self.urdf)
@@ -119,6 +136,8 @@ class Robot:
             self._kindyn = KinDynComputations(frozen_urdf(self.urdf, self.joints), self.joints)
         except Exception as exc:  # adam raises bare exceptions on malformed files
             raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {exc}") from exc
+        if self.armature and len(self.armature) != self.n:
+            raise RobotModelError(f"armature: expected {self.n} entries (one per joint), got {len(self.armature)}")
         self.q = cs.SX.sym("q", self.n)
         self.qd = cs.SX.sym("qd", self.n)
 
@@ -133,8 +152,9 @@ class Robot:
 
     @cached_property
     def mass_matrix(self) -> Matrix:
-        """``M(q)`` of (33), symbolic in :attr:`q`."""
-        return self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self.q))
+        """``M(q)`` of (33), symbolic in :attr:`q` (rigid body plus :attr:`armature`)."""
+        rigid = self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self.q))
+        return rigid + cs.diag(cs.DM(self.armature)) if self.armature else rigid
 
     @cached_property
     def gravity(self) -> Matrix:

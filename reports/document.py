@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
-from analysis.certify import ASSUMPTIONS, region_text
 from analysis.grid import GainMap, axis_value, gain_map
 from analysis.output import atomic_write
 from analysis.results import certificate_result, verification_result
@@ -39,7 +38,7 @@ class ReportData:
     summary: dict
     certificate: dict
     verification: dict
-    gain_map: GainMap
+    gain_map: GainMap | None
     design: dict[str, float]
     figures: dict[str, str]
     provenance: dict
@@ -63,9 +62,10 @@ def assemble(
     progress(STEPS[3])
     point = gain_point(spec, loop.robot.n)
     axes = spec.grid.axes() if spec.grid is not None else None
-    gmap = gain_map(point, spec.reference.se3(), axes, spec.certify.gamma)
-    names = [n for n in (gmap.x_axis, gmap.y_axis) if n is not None]
-    design = {name: axis_value(point, name) for name in names} | {"gamma": cert.gamma}
+    gmap, design = None, {"gamma": cert.gamma}
+    if cert.gamma is not None:  # no map where Theorem 2 does not apply (the paper's loop with n < 6)
+        gmap = gain_map(point, spec.reference.se3(), axes, spec.certify.gamma)
+        design |= {name: axis_value(point, name) for name in (gmap.x_axis, gmap.y_axis) if name is not None}
     progress(STEPS[4])
     gamma = verification["gamma"]
     drawn = {
@@ -76,7 +76,7 @@ def assemble(
         "torques": figures.torques(trajectory),
         "supply": figures.supply(trajectory),
         "l2": figures.l2_inequality(trajectory, gamma) if gamma is not None else None,
-        "map": figures.gain_map(gmap, design),
+        "map": figures.gain_map(gmap, design) if gmap is not None else None,
     }
     return ReportData(
         spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance
@@ -107,13 +107,13 @@ def render(data: ReportData) -> str:
         n=data.loop.robot.n,
         point=point,
         certificate=data.certificate,
-        region=region_text(math.radians(spec.certify.theta_max_deg)),
-        assumptions=ASSUMPTIONS,
+        region=data.certificate["region"],
+        assumptions=data.certificate["assumptions"],
         verification=data.verification,
         summary=data.summary,
         map=data.gain_map,
         design=data.design,
-        best=data.gain_map.best() if data.gain_map.certified.any() else None,
+        best=data.gain_map.best() if data.gain_map is not None and data.gain_map.certified.any() else None,
         figures=data.figures,
         provenance=data.provenance,
     )

@@ -83,13 +83,15 @@ def image_plane(traj: Trajectory, focal_length: float) -> str:
 
 
 def errors(traj: Trajectory) -> str:
-    """Components of the control error ``e_c`` (8) and the estimation error ``e_e`` (15)."""
-    fig, axes = plt.subplots(2, 2, figsize=(7.0, 5.6), sharex=True)
+    """Components of the control error ``e_c`` (8) and the estimation error ``e_e`` (15):
+    position and rotation parts, or the position alone for the planar loop."""
+    parts = (("position", "m", "p"), ("rotation", "-", "e_R"))[: 2 if traj["e_c"].shape[1] == 6 else 1]
+    fig, axes = plt.subplots(2, len(parts), figsize=(3.5 * len(parts), 5.6), sharex=True, squeeze=False)
     for row, (name, label) in enumerate((("e_c", "control error e_c"), ("e_e", "estimation error e_e"))):
         e = traj[name]
-        for col, (part, unit, symbol) in enumerate((("position", "m", "p"), ("rotation", "-", "e_R"))):
+        for col, (part, unit, symbol) in enumerate(parts):
             ax = axes[row, col]
-            for k in range(3):
+            for k in range(min(3, e.shape[1])):
                 ax.plot(traj.t, e[:, 3 * col + k], color=COMPONENTS[k], label=f"{symbol}_{'xyz'[k]}")
             ax.set_title(f"{label}: {part}")
             ax.set_ylabel(f"{part} [{unit}]")

@@ -152,8 +152,9 @@ def test_ctrl_c_stops_cleanly_and_says_how_to_resume(tmp_path):
             proc.send_signal(signal.SIGINT)
             break
         time.sleep(0.005)
-    assert proc.wait() == 130
-    assert "--resume" in proc.stderr.read()
+    code, stderr = proc.wait(), proc.stderr.read()
+    assert code == 130, stderr
+    assert "--resume" in stderr
     assert cli(str(scenario), "--out", str(out), "--resume").wait() in (0, 1)
     reference = tmp_path / "reference"
     assert cli(str(scenario), "--out", str(reference)).wait() in (0, 1)

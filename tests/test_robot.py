@@ -12,7 +12,15 @@ import pytest
 from adam.core.constants import Representations
 
 from models.lie import SE3, vee
-from models.robot import BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, RobotModelError, builtin_urdf, chain_joints
+from models.robot import (
+    BUILTIN_ARMATURE,
+    BUILTIN_CAMERA_FRAME,
+    BUILTIN_URDF,
+    Robot,
+    RobotModelError,
+    builtin_urdf,
+    chain_joints,
+)
 
 MOUNT = SE3.from_xyz_rpy([0.01, 0.02, 0.05], [0.0, 0.1, 0.2])
 
@@ -88,15 +96,13 @@ def test_planar_testbed_moves_in_a_horizontal_plane(rng):
 
 
 def test_puma560_matches_the_robotics_toolbox(rng):
-    """The shipped Puma 560 URDF reproduces the Robotics Toolbox's DH model of the same
-    published parameters (motor inertia and friction removed there; gravity 9.80665 here
+    """The shipped Puma 560 URDF with its reflected motor inertias reproduces the Robotics
+    Toolbox's DH model of the same published parameters (friction removed; gravity 9.80665 here
     and 9.81 there, so its gravity load is rescaled): mass matrix, gravity, and the flange pose
     up to the 0.672 m pedestal the toolbox puts into d_1."""
     import roboticstoolbox as rtb
     puma = rtb.models.DH.Puma560().nofriction(coulomb=True, viscous=True)
-    for link in puma.links:
-        link.Jm = 0.0
-    arm = Robot(builtin_urdf("puma560"), "link6")
+    arm = Robot(builtin_urdf("puma560"), "link6", armature=BUILTIN_ARMATURE["puma560"])
     m, g = arm.function("M", arm.mass_matrix), arm.function("g", arm.gravity)
     fk = cs.Function("g", [arm.q], [arm.camera_pose.as_matrix()])
     pedestal = np.zeros((4, 4))

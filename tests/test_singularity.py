@@ -1,0 +1,69 @@
+"""Singularities: the run stops with the time, the matrix and its value instead of
+producing NaNs; ``verify`` reports it; a singular start is bad input."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+
+from analysis.results import verification_result
+from analysis.scenario import ScenarioError, build, load
+from analysis.simulate import Simulator
+from tests.conftest import build_loop
+
+EXAMPLE = Path(__file__).parent.parent / "examples" / "planar2dd_reduced.toml"
+
+
+def planar(tmp_path: Path, **robot_or_target) -> Path:
+    """The planar testbed with the target (or arm) moved, without JIT."""
+    data = tomllib.loads(EXAMPLE.read_text())
+    data["simulation"]["jit"] = False
+    for section, values in robot_or_target.items():
+        data[section].update(values)
+    path = tmp_path / "planar.toml"
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def out_of_reach(tmp_path: Path):
+    """Target at rest 0.75 m from the shoulder, beyond the arm's 0.70 m reach: the law
+    stretches the arm into its elbow singularity."""
+    spec, base = load(planar(tmp_path, target={"xyz": [0.72, 0.20, -0.45], "motion": {"kind": "static"}}))
+    return spec, *build(spec, base)
+
+
+def test_run_stops_at_the_singularity(tmp_path):
+    _, loop, s0, settings = out_of_reach(tmp_path)
+    traj = Simulator(loop, settings).run(s0)
+    sigma = traj["sigma_min_arm_jacobian"][:, 0]
+    assert traj.status == "singular" and traj.t[-1] < settings.duration
+    assert "J_p is near-singular" in traj.message and f"t = {traj.t[-1]:.4g} s" in traj.message
+    assert sigma[-1] < settings.sigma_min <= sigma[:-1].min()
+    assert all(np.all(np.isfinite(v)) for v in traj.signals.values())
+
+
+def test_verify_reports_the_singularity(tmp_path):
+    spec, loop, s0, settings = out_of_reach(tmp_path)
+    result, _ = verification_result(spec, loop, s0, settings, {})
+    claim = next(c for c in result["claims"] if c["claim"].startswith("no singularity"))
+    assert claim["status"] == "FAIL" and "near-singular" in claim["detail"]
+
+
+def test_wrist_singularity_of_the_ur5_is_detected():
+    """At ``q_5 = 0`` the UR5's wrist axes 4 and 6 align: ``sigma_min(J_b)`` vanishes."""
+    loop, s0, settings = build_loop()
+    simulator = Simulator(loop, settings)
+    singular = s0.copy()
+    singular[4] = 0.0
+    sigma, _ = simulator.conditioning(np.zeros(2), np.stack([s0, singular], axis=1))
+    assert sigma[0] > 0.1 and sigma[1] < 1e-12
+
+
+def test_singular_start_is_bad_input(tmp_path):
+    spec, base = load(planar(tmp_path, robot={"q0": [0.3, 0.0]}))
+    with pytest.raises(ScenarioError, match=r"^robot.q0: J_p is near-singular at q0 \(sigma_min = "):
+        build(spec, base)
