@@ -43,6 +43,14 @@ def test_simulate_runs_and_keeps_the_identities(name, tmp_path):
     assert s["min_sigma_arm_jacobian"] > 1e-3
 
 
+def test_paper_law_on_two_joints_simulates_without_its_identity(tmp_path):
+    """n = 2: the run completes, but V(t) - V(0) = int (u^T nu + x^T G w) is off by far more
+    than the integration error."""
+    code, result = run("simulate", str(short("planar2dd_paper", tmp_path, 3.0)), "--out", str(tmp_path / "out"))
+    s = result["summary"]
+    assert code == 0 and s["status"] == "ok" and s["identity_residuals"]["passivity"] > 1e-3
+
+
 @pytest.mark.parametrize("name", ["panda_circle", "puma560_circle", "planar2dd_reduced"])
 def test_certify_each_arm(name, tmp_path):
     """Theorem 2 (P11 for the planar loop) is certified with the SDP cross-check."""
