@@ -254,8 +254,10 @@ def show_certificate(result: dict) -> None:
         table.add_row(name, str(value))
     out.print(table)
     if p["certified"]:
+        target = "v_o" if result["loop"] == "planar" else "V_wo"
         out.print(
-            f"CERTIFIED: L2 gain <= {p['gamma']:.6g} from w = [tau_d; V_wo] to x over {result['region']}.", markup=False
+            f"CERTIFIED: L2 gain <= {p['gamma']:.6g} from w = [tau_d; {target}] to x over {result['region']}.",
+            markup=False,
         )
     else:
         out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)

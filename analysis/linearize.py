@@ -24,6 +24,7 @@ import numpy as np
 
 from models.lie import SE3, SO3, quaternion_rate, quaternion_to_matrix
 from models.loop import ClosedLoop
+from models.planar import TASK, PlanarLoop
 from models.target import TargetMotion
 
 
@@ -64,12 +65,14 @@ class DrivenTargetLoop(ClosedLoop):
         return cs.vertcat(super().state_rate, target)
 
 
-def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX]) -> DrivenTargetLoop:
+def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX]) -> ClosedLoop:
     """``loop`` in ideal mode, its target at rest at ``g_wo(0)`` unless moved by
-    ``disturbance_input``, which supplies all of ``w``."""
+    ``disturbance_input``, which supplies all of ``w`` (a :class:`DrivenTargetLoop`, or a
+    :class:`DrivenPlanarLoop` for the planar loop)."""
     fields = {f: getattr(loop, f) for f in ClosedLoop.__dataclass_fields__}
     fields.update(target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None)
-    return DrivenTargetLoop(**fields, disturbance_input=disturbance_input)
+    kind = DrivenPlanarLoop if isinstance(loop, PlanarLoop) else DrivenTargetLoop
+    return kind(**fields, disturbance_input=disturbance_input)
 
 
 def equilibrium_state(loop: ClosedLoop, q_eq: np.ndarray) -> np.ndarray:
@@ -98,13 +101,13 @@ def worst_case_disturbance(
     ``sqrt(J / int |w|^2)`` met and the disturbance that gave it.
     """
     n = loop.robot.n
-    w_sym = cs.SX.sym("w", n + 6)
-    model = driven(loop, lambda t: w_sym)
+    w_sym = cs.SX.sym("w", n + loop.task_dim)
+    model, s_eq = driven_at_rest(loop, w_sym, lin.q_eq)
     h = horizon / intervals
     dae = {"x": model.state, "t": model.t, "p": w_sym, "ode": model.state_rate, "quad": model.x.T @ model.x}
     step = cs.integrator("interval", "cvodes", dae, 0.0, h, {"abstol": 1e-10, "reltol": 1e-10, "quad_err_con": True})
-    w = cs.MX.sym("W", n + 6, intervals)
-    state, energy = cs.DM(equilibrium_state(loop, lin.q_eq)), 0
+    w = cs.MX.sym("W", n + loop.task_dim, intervals)
+    state, energy = cs.DM(s_eq), 0
     for k in range(intervals):
         result = step(x0=state, p=w[:, k])
         state, energy = result["xf"], energy + result["qf"]
@@ -177,13 +180,89 @@ def linearize(loop: ClosedLoop, q0: np.ndarray) -> Linearization:
     local = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6], w[n:])
     local = cs.substitute(local, model.state, state)
     output = cs.substitute(model.x, model.state, state)
-    jacobians = [cs.jacobian(local, z), cs.jacobian(local, w), cs.jacobian(output, z), cs.jacobian(output, w)]
-    f = cs.Function("lin", [z, w, model.t], jacobians)
-    a, b, c, d = (np.asarray(m) for m in f(np.zeros(z.shape[0]), np.zeros(n + 6), 0.0))
+    return _linearization(local, output, z, w, model.t, q_eq)
+
+
+def _linearization(rate, output, z, w, t, q_eq: np.ndarray) -> Linearization:
+    """The Jacobians of ``dz/dt = rate(z, w)`` and ``x = output(z, w)`` at ``z = 0, w = 0``,
+    as a python-control system, with its H-infinity norm and frequency peak."""
+    jacobians = [cs.jacobian(rate, z), cs.jacobian(rate, w), cs.jacobian(output, z), cs.jacobian(output, w)]
+    f = cs.Function("lin", [z, w, t], jacobians)
+    a, b, c, d = (np.asarray(m) for m in f(np.zeros(z.shape[0]), np.zeros(w.shape[0]), 0.0))
     system = control.ss(a, b, c, d)
     reduced = observable_quotient(system)
     peak, omega, direction = frequency_peak(reduced)
     return Linearization(system, reduced, q_eq, hinf_norm(reduced), peak, omega, direction)
+
+
+@dataclass
+class DrivenPlanarLoop(PlanarLoop):
+    """The reduced planar loop driven by ``w(t) = [tau_d; v_o]``: the target's horizontal
+    position ``o`` is a state moved by ``v_o``."""
+
+    disturbance_input: Callable[[cs.SX], cs.SX] | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.o = cs.SX.sym("o", TASK)
+        self.state = cs.vertcat(self.state, self.o)
+        self.n_state += TASK
+
+    @cached_property
+    def target_position(self):
+        return self.o
+
+    @cached_property
+    def w(self):
+        return self.disturbance_input(self.t)
+
+    @cached_property
+    def tau_d(self):
+        return self.w[: self.robot.n]
+
+    @cached_property
+    def state_rate(self):
+        return cs.vertcat(super().state_rate, self.w[self.robot.n :])
+
+
+def _planar_rest(loop: PlanarLoop) -> tuple[np.ndarray, np.ndarray]:
+    """The target's horizontal position ``o(0)`` and the desired offset ``p_d``."""
+    o0 = np.asarray(cs.DM(loop.target.start.translation)).ravel()[:TASK]
+    return o0, np.asarray(cs.DM(loop.reference.translation)).ravel()[:TASK]
+
+
+def driven_at_rest(loop: ClosedLoop, w: cs.SX, q_eq: np.ndarray) -> tuple[ClosedLoop, np.ndarray]:
+    """``loop`` (the paper's or the planar one) driven by the disturbance symbol ``w``, and its
+    state at the equilibrium with joint angles ``q_eq``."""
+    model = driven(loop, lambda t: w)
+    if not isinstance(loop, PlanarLoop):
+        return model, equilibrium_state(loop, q_eq)
+    o0, p_d = _planar_rest(loop)
+    return model, np.concatenate([q_eq, np.zeros(loop.robot.n), p_d, o0])
+
+
+def linearize_planar(loop: PlanarLoop, q0: np.ndarray, iterations: int = 50) -> Linearization:
+    """Linearise the reduced planar loop at its equilibrium: target at rest at ``o(0)``, camera
+    at ``o(0) - p_d`` (joint angles by Newton's method with ``pinv(J_p)`` from ``q0``), ``x = 0``."""
+    n = loop.robot.n
+    w = cs.SX.sym("w", n + TASK)
+    model, _ = driven_at_rest(loop, w, np.asarray(q0, dtype=float))
+    o0, p_d = _planar_rest(loop)
+    error = cs.DM(o0 - p_d) - model.camera_position
+    step = cs.Function("step", [model.q], [cs.pinv(model.task_jacobian) @ error, error])
+    q = np.array(q0, dtype=float)
+    for _ in range(iterations):
+        dq, err = (np.asarray(v).ravel() for v in step(q))
+        q = q + dq
+        if np.linalg.norm(err) < 1e-13:
+            break
+    if np.linalg.norm(np.asarray(step(q)[1])) > 1e-9:
+        raise ValueError("no equilibrium configuration found from q0 (the target is out of reach)")
+    z = cs.SX.sym("z", model.n_state)
+    state = cs.DM(driven_at_rest(loop, w, q)[1]) + z
+    rate = cs.substitute(model.state_rate, model.state, state)
+    output = cs.substitute(model.x, model.state, state)
+    return _linearization(rate, output, z, w, model.t, q)
 
 
 def _quaternion_product(p: np.ndarray, q):

@@ -19,11 +19,12 @@ from analysis.certify import (
     tight_gamma,
     tight_gamma_planar,
 )
-from analysis.linearize import linearize, worst_case_disturbance
+from analysis.linearize import linearize, linearize_planar, worst_case_disturbance
 from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings
 from analysis.verify import Claim, verify
 from models.loop import ClosedLoop
+from models.planar import PlanarLoop
 
 
 def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:
@@ -48,7 +49,7 @@ def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | 
 def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
     """Lower bounds on the true L2 gain and how far the certificates sit above them."""
     try:
-        lin = linearize(loop, s0[: loop.robot.n])
+        lin = (linearize_planar if isinstance(loop, PlanarLoop) else linearize)(loop, s0[: loop.robot.n])
     except ValueError as exc:
         return {"gamma_lower": None, "lower_bound_reason": str(exc)}
     nonlinear, disturbance = worst_case_disturbance(loop, lin)
@@ -86,9 +87,7 @@ def certificate_result(
     cert = certificate_for(spec, point)
     tight = tight_gamma_planar(point) if planar else tight_gamma(point, spec.reference.se3())
     record = point_record(point, cert, tight if cert.gamma is not None else None)
-    if lower_bounds and planar:
-        record.update(gamma_lower=None, lower_bound_reason="lower bounds are measured on the paper's loop only")
-    elif lower_bounds:
+    if lower_bounds:
         record.update(lower_bound_record(loop, s0, record))
     result = {
         "scenario": spec.name,
