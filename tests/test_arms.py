@@ -7,10 +7,14 @@ import json
 import tomllib
 from pathlib import Path
 
+import casadi as cs
+import numpy as np
 import pytest
 import tomli_w
 from typer.testing import CliRunner
 
+from models.loop import pseudo_inverse
+from models.robot import Robot, builtin_urdf
 from reports.cli import app
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
@@ -88,6 +92,21 @@ def test_planar_image_estimate_is_exact(tmp_path):
     assert gap["status"] == "PASS" and gap["value"] < 1e-12
 
 
+@pytest.mark.parametrize(
+    ("name", "frame", "identity"), [("panda", "panda_link8", True), ("planar2dd", "camera_link", False)]
+)
+def test_pinv_of_the_body_jacobian_is_a_right_inverse_only_for_n_at_least_6(name, frame, identity, rng):
+    """``J_b pinv(J_b) = I_6`` for the 7-joint Panda (full row rank): Lemma 2's cancellation
+    holds. For the 2-joint testbed it is a rank-2 projector, not the identity."""
+    arm = Robot(builtin_urdf(name), frame)
+    f = cs.Function("f", [arm.q], [arm.body_jacobian @ pseudo_inverse(arm.body_jacobian)])
+    for q in rng.uniform(-2.5, 2.5, (5, arm.n)):
+        product = np.asarray(f(q))
+        assert np.allclose(product, product @ product, atol=1e-10)  # a projector either way
+        assert (np.abs(product - np.eye(6)).max() < 1e-10) == identity
+        assert round(np.trace(product)) == min(arm.n, 6)
+
+
 def test_paper_law_on_two_joints_is_not_certified(tmp_path):
     """n = 2: the certifier refuses (Lemma 2 does not hold), exit status 1, with the reason."""
     code, result = run("certify", str(short("planar2dd_paper", tmp_path)), "--no-lower-bounds")
@@ -139,8 +158,6 @@ def test_planar_grid_point_equals_single_certificate(tmp_path):
 
 def test_user_urdf_by_path(tmp_path):
     """Any URDF works by path with the camera frame named; a missing frame is one line."""
-    from models.robot import builtin_urdf
-
     path = short("planar2dd_reduced", tmp_path, 1.0)
     data = tomllib.loads(path.read_text())
     data["robot"] = {"urdf": str(builtin_urdf("planar2dd")), "camera_frame": "camera_link", "q0": [0.3, 1.2]}

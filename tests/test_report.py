@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 from analysis.scenario import DEFAULT_SCENARIO
 from reports.cli import app
 
+EXAMPLES = Path(__file__).parent.parent / "examples"
 CHROMIUM = shutil.which("chromium")
 POPPLER = shutil.which("pdftoppm")
 FIGURES = ("fig-map", "fig-paths", "fig-image", "fig-errors", "fig-storage", "fig-torques", "fig-supply", "fig-l2")
@@ -131,3 +132,17 @@ def test_bad_scenario_writes_nothing(tmp_path):
     assert result.exit_code == 2
     assert result.stderr.strip().startswith("error: camera.focal_length")
     assert not (tmp_path / "out" / "report.html").exists() and not (tmp_path / "out" / "report.pdf").exists()
+
+
+def test_grid_scenario_maps_its_first_two_axes(tmp_path):
+    """With a [grid], the map is gamma over its first two axes (the others at the design),
+    with the certified region outlined: its edge is drawn when some cells are not certified."""
+    text = (EXAMPLES / "ur5_grid.toml").read_text()  # edited as text: the axes keep their order
+    scenario = tmp_path / "grid.toml"
+    scenario.write_text(text.replace("duration = 10.0", "duration = 2.0").replace("jit = true", "jit = false"))
+    result = CliRunner().invoke(app, ["report", str(scenario), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.stderr
+    html = (tmp_path / "out" / "report.html").read_text()
+    figure = html[html.index('<figure id="fig-map">') : html.index("</figure>", html.index('<figure id="fig-map">'))]
+    assert "Certified gamma over k_c and k_e (the first two [grid] axes; w_pc at the design" in figure
+    assert "edge of the certified region" in figure
