@@ -95,6 +95,23 @@ def dynamics_function(loop: ClosedLoop) -> cs.Function:
     )
 
 
+def _singular_values(j: np.ndarray) -> np.ndarray:
+    """Singular values of a batch ``(T, r, c)``, ascending, from the smaller Gram matrix."""
+    gram = j @ j.transpose(0, 2, 1) if j.shape[1] <= j.shape[2] else j.transpose(0, 2, 1) @ j
+    return np.sqrt(np.maximum(np.linalg.eigvalsh(gram), 0.0))
+
+
+def conditioning_of(flat: np.ndarray, shapes) -> tuple[np.ndarray, np.ndarray]:
+    """``sigma_min`` of the arm's Jacobian and the condition number of the image Jacobian from
+    their column-major vectorisations side by side (``flat``: one row per time)."""
+    (ra, ca), (ri, ci) = shapes
+    arm = flat[:, : ra * ca].reshape(-1, ca, ra).transpose(0, 2, 1)
+    image = flat[:, ra * ca :].reshape(-1, ci, ri).transpose(0, 2, 1)
+    s_image = _singular_values(image)
+    with np.errstate(divide="ignore"):
+        return _singular_values(arm)[:, 0], s_image[:, -1] / s_image[:, 0]
+
+
 class Simulator:
     """CVODES integrator and signal evaluator for one closed loop."""
 
@@ -107,12 +124,12 @@ class Simulator:
         self._dae = dae
         self._integrators: dict[int, cs.Function] = {}
         self.signal_names = list(loop.signals)
-        self._mapped = None
+        self._mapped: dict[int, tuple] = {}
         signals = loop.signals_function()
         self.signal_function = compiled(signals, jacobian=False) if settings.jit else signals
-        arm, image = loop.conditioning.items()
-        self._monitored = (arm[0], image[0])
-        self._monitor = cs.Function("monitor", [loop.t, loop.state], [arm[1], image[1]])
+        (arm, arm_jac), (image, image_jac) = loop.conditioning.items()
+        self._monitored = (arm, image)
+        self._shapes = (arm_jac.shape, image_jac.shape)
 
     def integrator(self, count: int) -> cs.Function:
         """CVODES over ``count`` output steps (built once per size)."""
@@ -133,10 +150,10 @@ class Simulator:
         """All signals at times ``t`` (``states``: one column per time), evaluated in one
         mapped call writing straight into NumPy arrays (CasADi's buffer interface)."""
         count = len(t)
-        if self._mapped is None or self._mapped[0] != count:
+        if count not in self._mapped:
             mapped = self.signal_function.map(count)
-            self._mapped = (count, mapped, *mapped.buffer())
-        _, mapped, buffer, trigger = self._mapped
+            self._mapped[count] = (mapped, *mapped.buffer())
+        mapped, buffer, trigger = self._mapped[count]
         inputs = [np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(states.T, dtype=float)]
         outputs = {k: np.empty((count, mapped.size1_out(i))) for i, k in enumerate(self.signal_names)}
         assert all(mapped.nnz_out(i) == v.size for i, v in enumerate(outputs.values())), "signals must be dense"
@@ -150,15 +167,20 @@ class Simulator:
     def conditioning(self, t: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Smallest singular value of the arm's Jacobian and condition number of the image
         Jacobian at times ``t`` (``states``: one column per time)."""
-        arm, image = (np.asarray(v) for v in self._monitor.map(len(t))(t[None, :], states))
-        rows_arm, rows_image = self._monitor.size1_out(0), self._monitor.size1_out(1)
-        arm = arm.reshape(rows_arm, len(t), -1).transpose(1, 0, 2)
-        image = image.reshape(rows_image, len(t), -1).transpose(1, 0, 2)
-        return np.linalg.svd(arm, compute_uv=False)[:, -1], np.linalg.cond(image)
+        signals = self._signals(t, states)
+        return signals["sigma_min_arm_jacobian"][:, 0], signals["cond_image_jacobian"][:, 0]
 
-    def _singularity(self, t: np.ndarray, states: np.ndarray) -> tuple[int, str] | None:
-        """The first time the law would divide by a near-zero, with a message, or None."""
-        sigma, cond = self.conditioning(t, states)
+    def _signals(self, t: np.ndarray, states: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`evaluate_signals` with the conditioning of the two Jacobians the law inverts."""
+        signals = self.evaluate_signals(t, states)
+        flat = np.hstack([signals["body_jacobian"], signals["image_jacobian"]])
+        sigma, cond = conditioning_of(flat, self._shapes)
+        signals["sigma_min_arm_jacobian"], signals["cond_image_jacobian"] = sigma[:, None], cond[:, None]
+        return signals
+
+    def _singularity(self, t: np.ndarray, sigma: np.ndarray, cond: np.ndarray) -> tuple[int, str] | None:
+        """The first of the times ``t`` where the law would divide by a near-zero (``sigma``,
+        ``cond`` from :func:`conditioning_of`), with a message, or None."""
         arm, image = self._monitored
         bad_arm = np.flatnonzero(~(sigma >= self.settings.sigma_min))
         bad_image = np.flatnonzero(~(cond <= CONDITION_MAX)) if self.loop.mode == "image" else np.array([], int)
@@ -179,6 +201,7 @@ class Simulator:
         states = np.empty((self.loop.n_state, steps + 1))
         integrals = np.zeros((len(QUADRATURES), steps + 1))
         states[:, 0] = s0
+        chunks = [self._signals(t[:1], states[:, :1])]  # signals, evaluated as the run goes
         status, message = "ok", ""
         start = time.perf_counter()
         k = 0
@@ -197,7 +220,7 @@ class Simulator:
                     continue
                 reached = t[k] + float(integrator.stats().get("tcur", 0.0) or 0.0)
                 status = "integrator_failure"
-                sigma, cond = self.conditioning(t[k : k + 1], states[:, k : k + 1])
+                sigma, cond = chunks[-1]["sigma_min_arm_jacobian"][-1], chunks[-1]["cond_image_jacobian"][-1]  # (1,)
                 arm, image = self._monitored
                 message = (
                     f"CVODES stopped at t = {reached:.4g} s: the step size collapsed or the step limit was reached "
@@ -217,11 +240,16 @@ class Simulator:
                 xf[q] /= np.linalg.norm(xf[q], axis=0)
             states[:, k + 1 : k + 1 + count] = xf
             integrals[:, k + 1 : k + 1 + count] = integrals[:, k : k + 1] + qf
-            singular = self._singularity(t[k + 1 : k + 1 + count], xf)
+            chunk = self._signals(t[k + 1 : k + 1 + count], xf)
+            singular = self._singularity(
+                t[k + 1 : k + 1 + count], chunk["sigma_min_arm_jacobian"][:, 0], chunk["cond_image_jacobian"][:, 0]
+            )
             if singular is not None:
+                chunks.append({name: v[: singular[0] + 1] for name, v in chunk.items()})
                 k += singular[0] + 1
                 status, message = "singular", singular[1]
                 break
+            chunks.append(chunk)
             k += count
             if progress is not None:
                 progress(t[k])
@@ -232,10 +260,8 @@ class Simulator:
                 )
                 break
         t, states, integrals = t[: k + 1], states[:, : k + 1], integrals[:, : k + 1]
-        signals = self.evaluate_signals(t, states)
+        signals = {name: np.concatenate([c[name] for c in chunks]) for name in chunks[0]}
         signals["state"] = states.T
-        sigma, cond = self.conditioning(t, states)
-        signals["sigma_min_arm_jacobian"], signals["cond_image_jacobian"] = sigma[:, None], cond[:, None]
         behind = np.flatnonzero(np.any(signals["depth"] <= 0, axis=1))
         if status == "ok" and behind.size:
             i = int(behind[0])

@@ -156,6 +156,8 @@ class ClosedLoop:
 
     task_dim = 6
     """Entries of ``e_c``, ``e_e``, ``u_d`` and ``u_e``."""
+    _arm_matrix, _image_matrix = "J_b", "J(gbar)"
+    """Keys of :attr:`conditioning`: the arm's Jacobian and the image Jacobian the law inverts."""
 
     def __post_init__(self) -> None:
         n = self.robot.n
@@ -369,8 +371,8 @@ class ClosedLoop:
             "Vdot": self.storage_rate,
             "depth": self.camera.depths(self.relative_pose),
             "depth_bar": self.camera.depths(self.estimate),
-            "image_jacobian": cs.vec(self.camera.jacobian(self.estimate)),
-            "body_jacobian": cs.vec(r.body_jacobian),
+            "image_jacobian": cs.vec(self.conditioning[self._image_matrix]),
+            "body_jacobian": cs.vec(self.conditioning[self._arm_matrix]),
         }
 
     def rhs_function(self) -> cs.Function:

@@ -97,6 +97,7 @@ class PlanarLoop(ClosedLoop):
     """
 
     task_dim = TASK
+    _arm_matrix, _image_matrix = "J_p", "A"
 
     def __post_init__(self) -> None:
         self.t = cs.SX.sym("t")
@@ -219,13 +220,6 @@ class PlanarLoop(ClosedLoop):
     def conditioning(self) -> dict[str, Matrix]:
         """Matrices the law inverts: ``J_p`` (P5) and, in image mode, ``A`` (P12)."""
         return {"J_p": self.task_jacobian, "A": self.image_map}
-
-    @cached_property
-    def signals(self) -> dict[str, Matrix]:
-        s = dict(super().signals)
-        s["image_jacobian"] = cs.vec(self.image_map)
-        s["body_jacobian"] = cs.vec(self.task_jacobian)
-        return s
 
     def initial_state(self, q0: np.ndarray, qd0: np.ndarray, estimation_error: SE3) -> np.ndarray:
         """``s(0)`` with ``e_e(0)`` the first two coordinates of the estimation error's translation."""
