@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
+import typer
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from analysis.cli import (
@@ -17,14 +19,21 @@ from analysis.cli import (
     out,
     prepare_out_dir,
 )
-from reports.document import STEPS, assemble, write
+from reports.document import CACHE, STEPS, StageCache, assemble, write
 
 
 @app.command()
-def report(scenario: ScenarioArg = DEFAULT_SCENARIO, out_dir: OutOpt = None) -> None:
+def report(
+    scenario: ScenarioArg = DEFAULT_SCENARIO,
+    out_dir: OutOpt = None,
+    resume: Annotated[bool, typer.Option(help="Reuse the stages an interrupted report finished in --out.")] = False,
+) -> None:
     """Write the design-review report of a scenario: report.html (self-contained) and report.pdf."""
     spec, loop, s0, settings, _ = load_scenario(scenario)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
+    provenance_ = command_provenance(scenario)
+    key = f"{provenance_['scenario_sha256']} dvfc {provenance_['toolkit']['dvfc']}"
+    cache = StageCache(directory / CACHE, key, resume)
     columns = (
         SpinnerColumn(),
         TextColumn("[bold]report[/] {task.description}"),
@@ -37,7 +46,11 @@ def report(scenario: ScenarioArg = DEFAULT_SCENARIO, out_dir: OutOpt = None) -> 
         def step(name: str) -> None:
             bar.update(task, description=name, completed=STEPS.index(name))
 
-        data = assemble(spec, loop, s0, settings, command_provenance(scenario), progress=step)
+        try:
+            data = assemble(spec, loop, s0, settings, provenance_, progress=step, cache=cache)
+        except KeyboardInterrupt:
+            err.print(f"interrupted: resume with  dvfc report {scenario} --out {directory} --resume", markup=False)
+            raise typer.Exit(130) from None
         bar.update(task, description="HTML and PDF", completed=len(STEPS))
         html, pdf = write(data, directory)
     out.print(f"report: {html}\n        {pdf}", markup=False)

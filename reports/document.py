@@ -9,6 +9,7 @@ fetched); :func:`write` saves ``report.html`` and ``report.pdf`` (WeasyPrint) at
 from __future__ import annotations
 
 import math
+import pickle
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +45,35 @@ class ReportData:
     provenance: dict
 
 
+CACHE = ".dvfc-report"
+"""Directory (inside the output directory) holding the finished stages of a report."""
+
+
+class StageCache:
+    """Finished stages of a report, kept in ``directory`` so an interrupted report resumes.
+
+    Each stage is pickled atomically with a key (the scenario's SHA-256 and the toolkit's
+    version); a stage is reused only with ``resume`` and a matching key.
+    """
+
+    def __init__(self, directory: Path | None, key: str, resume: bool) -> None:
+        self.directory, self.key, self.resume = directory, key, resume
+
+    def __call__(self, name: str, compute: Callable[[], object]):
+        path = None if self.directory is None else self.directory / f"{name}.pkl"
+        if self.resume and path is not None and path.exists():
+            with path.open("rb") as handle:
+                stored = pickle.load(handle)
+            if stored["key"] == self.key:
+                return stored["value"]
+        value = compute()
+        if path is not None:
+            path.parent.mkdir(exist_ok=True)
+            payload = pickle.dumps({"key": self.key, "value": value})
+            atomic_write(path, lambda h: h.write(payload))
+        return value
+
+
 def assemble(
     spec: Scenario,
     loop: ClosedLoop,
@@ -51,19 +81,23 @@ def assemble(
     settings: Settings,
     provenance: dict,
     progress: Callable[[str], None] = lambda step: None,
+    cache: StageCache | None = None,
 ) -> ReportData:
-    """Run every job of the review on the scenario; ``progress`` is told each step of :data:`STEPS`."""
+    """Run every job of the review on the scenario; ``progress`` is told each step of
+    :data:`STEPS`; the simulation, the certificate and the verification go through ``cache``."""
+    stage = cache or StageCache(None, "", False)
     progress(STEPS[0])
-    trajectory = Simulator(loop, settings).run(s0)
+    trajectory = stage("simulation", lambda: Simulator(loop, settings).run(s0))
     progress(STEPS[1])
-    certificate, cert = certificate_result(spec, loop, s0, provenance)
+    certificate = stage("certificate", lambda: certificate_result(spec, loop, s0, provenance)[0])
     progress(STEPS[2])
-    verification, _ = verification_result(spec, loop, s0, settings, provenance)
+    verification = stage("verification", lambda: verification_result(spec, loop, s0, settings, provenance)[0])
     progress(STEPS[3])
     point = gain_point(spec, loop.robot.n)
     axes = spec.grid.axes() if spec.grid is not None else None
-    gmap, design = None, {"gamma": cert.gamma}
-    if cert.gamma is not None:  # no map where Theorem 2 does not apply (the paper's loop with n < 6)
+    gamma_certified = certificate["points"][0]["gamma"]
+    gmap, design = None, {"gamma": gamma_certified}
+    if gamma_certified is not None:  # no map where Theorem 2 does not apply (the paper's loop with n < 6)
         gmap = gain_map(point, spec.reference.se3(), axes, spec.certify.gamma)
         design |= {name: axis_value(point, name) for name in (gmap.x_axis, gmap.y_axis) if name is not None}
     progress(STEPS[4])

@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import matplotlib.image as mpimg
@@ -16,6 +18,7 @@ from typer.testing import CliRunner
 
 from analysis.scenario import DEFAULT_SCENARIO
 from reports.cli import app
+from reports.document import CACHE
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
 CHROMIUM = shutil.which("chromium")
@@ -146,3 +149,26 @@ def test_grid_scenario_maps_its_first_two_axes(tmp_path):
     figure = html[html.index('<figure id="fig-map">') : html.index("</figure>", html.index('<figure id="fig-map">'))]
     assert "Certified gamma over k_c and k_e (the first two [grid] axes; w_pc at the design" in figure
     assert "edge of the certified region" in figure
+
+
+def test_interrupted_report_resumes(tmp_path):
+    """SIGINT after the simulation: exit 130 with one line naming --resume; the resumed report
+    reuses the finished stage (its file untouched) and completes."""
+    text = DEFAULT_SCENARIO.read_text().replace("duration = 10.0", "duration = 3.0")
+    scenario = tmp_path / "short.toml"
+    scenario.write_text(text)
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "reports", "report", str(scenario), "--out", str(out)]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    finished = out / CACHE / "simulation.pkl"
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None and not finished.exists():
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    code, stderr = proc.wait(), proc.stderr.read()
+    assert code == 130 and "--resume" in stderr.strip().splitlines()[-1], stderr
+    assert not (out / "report.html").exists()
+    stamp = finished.stat().st_mtime_ns
+    resumed = subprocess.run([*command, "--resume"], capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    assert finished.stat().st_mtime_ns == stamp and (out / "report.pdf").exists()
