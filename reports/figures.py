@@ -35,7 +35,7 @@ def svg(fig: Figure) -> str:
     """The figure as an ``<svg>`` element (no XML prolog; its size in pt, so every figure
     shares one font scale)."""
     buffer = io.StringIO()
-    fig.savefig(buffer, format="svg", bbox_inches="tight")
+    fig.savefig(buffer, format="svg", bbox_inches="tight", dpi=150)  # dpi: rasterised parts (the map)
     plt.close(fig)
     text = buffer.getvalue()
     return text[text.index("<svg") :]
@@ -166,7 +166,7 @@ def gain_map(m: GainMap, design: dict[str, float]) -> str:
     else:
         finite = gamma[np.isfinite(gamma)]
         norm = LogNorm(finite.min(), finite.max()) if finite.size and finite.max() > finite.min() else None
-        mesh = ax.pcolormesh(m.x, m.y, gamma, shading="nearest", cmap="viridis_r", norm=norm)
+        mesh = ax.pcolormesh(m.x, m.y, gamma, shading="nearest", cmap="viridis_r", norm=norm, rasterized=True)
         fig.colorbar(mesh, ax=ax, label="certified gamma [-] (blank: not certified)")
         if m.certified.any() and not m.certified.all():
             ax.contour(m.x, m.y, m.certified.astype(float), levels=[0.5], colors="k", linewidths=1.5)
