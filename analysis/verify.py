@@ -86,7 +86,24 @@ def theorem_1(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Clai
               traj.status == "ok" and residual <= IDENTITY_TOL, traj.message),
         Claim("V non-increasing", "Theorem 1, (43)", rise, "max step rise / V(0) <= 1e-9", rise <= 1e-9),
         Claim("x -> 0", "Theorem 1", ratio, f"|x(T)| / |x(0)| <= 1e-2 at T = {traj.t[-1]:g} s", ratio <= 1e-2),
+        *([self_motion(traj)] if loop.robot.n > loop.task_dim else []),
     ]  # fmt: skip
+
+
+def self_motion(traj: Trajectory) -> Claim:
+    """For a redundant arm, the joint motion in the null space of ``J_b``, which ``x`` does not
+    contain. Since ``qd_d = pinv(J_b) u_d`` lies in the row space, ``(I - pinv(J_b) J_b) qd =
+    (I - pinv(J_b) J_b) xi``: the self-motion is bounded by ``int |xi| dt``, which Theorem 1
+    drives to a finite limit."""
+    qd, t = traj["qd"], traj.t
+    n = qd.shape[1]
+    jac = traj["body_jacobian"].reshape(len(qd), n, -1).transpose(0, 2, 1)
+    null = np.eye(n) - np.linalg.pinv(jac) @ jac
+    integral = lambda f: float(np.sum((f[1:] + f[:-1]) / 2 * np.diff(t)))  # noqa: E731
+    drift = integral(np.linalg.norm(np.einsum("tij,tj->ti", null, qd), axis=1))
+    bound = integral(np.linalg.norm(traj["xi"], axis=1))
+    return Claim("self-motion int |(I - pinv(J_b) J_b) qd| dt <= int |xi| dt", f"n = {n} > 6, Theorem 1",
+                 drift, f"<= {bound:.3g} rad", drift <= bound * (1 + 1e-9))  # fmt: skip
 
 
 def lyapunov_derivative(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> Claim:

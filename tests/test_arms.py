@@ -73,6 +73,13 @@ def test_verify_every_claim_holds(name, tmp_path):
     assert code == 0 and not failed, failed
 
 
+def test_redundant_arm_self_motion_is_bounded_by_xi(tmp_path):
+    """n = 7: the null-space motion, invisible in x, is measured and stays below int |xi| dt."""
+    _, result = run("verify", str(short("panda_circle", tmp_path, 5.0)))
+    claim = next(c for c in result["claims"] if c["claim"].startswith("self-motion"))
+    assert claim["status"] == "PASS" and claim["value"] > 0
+
+
 def test_planar_certificates_sit_above_the_lower_bounds(tmp_path):
     """The planar loop's certified gammas (paper's P and scaled storage) are upper bounds on
     its L2 gain: both lie above the linearisation's peak gain and the worst disturbance found
