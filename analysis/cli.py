@@ -11,7 +11,8 @@ import os
 import sys
 import time
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
@@ -92,6 +93,28 @@ def emit(result: dict, saved: Path | None, json_target: str | None, show: Callab
         write_json(json_target, result)
     if json_target != "-":
         show(result)
+
+
+def interrupted(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is Ctrl-C, or an error it caused: a C extension (CasADi) interrupted
+    inside a call reports a ``SystemError`` whose cause is the ``KeyboardInterrupt``."""
+    while exc is not None:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+@contextmanager
+def resumable(command: str) -> Iterator[None]:
+    """On Ctrl-C: one line saying how to resume with ``command``, exit status 130."""
+    try:
+        yield
+    except (KeyboardInterrupt, SystemError) as exc:
+        if not interrupted(exc):
+            raise
+        err.print(f"interrupted: resume with  {command}", markup=False)
+        raise typer.Exit(130) from None
 
 
 def command_provenance(scenario: Path) -> dict:
@@ -285,7 +308,10 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
         TimeRemainingColumn(),
     )
     try:
-        with Progress(*columns, console=err, transient=True) as bar:
+        with (
+            resumable(f"dvfc certify {scenario} --out {directory} --resume"),
+            Progress(*columns, console=err, transient=True) as bar,
+        ):
             task = bar.add_task("grid", total=grid.size, rate="")
 
             def advance(done: int) -> None:
@@ -304,9 +330,6 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
             )
     except ValueError as exc:
         raise fail(str(exc)) from exc
-    except KeyboardInterrupt:
-        err.print(f"interrupted: resume with  dvfc certify {scenario} --out {directory} --resume", markup=False)
-        raise typer.Exit(130) from None
 
     def record(entry):
         if entry is None:

@@ -18,6 +18,7 @@ from analysis.cli import (
     load_scenario,
     out,
     prepare_out_dir,
+    resumable,
 )
 from reports.document import CACHE, STEPS, StageCache, assemble, write
 
@@ -46,11 +47,8 @@ def report(
         def step(name: str) -> None:
             bar.update(task, description=name, completed=STEPS.index(name))
 
-        try:
+        with resumable(f"dvfc report {scenario} --out {directory} --resume"):
             data = assemble(spec, loop, s0, settings, provenance_, progress=step, cache=cache)
-        except KeyboardInterrupt:
-            err.print(f"interrupted: resume with  dvfc report {scenario} --out {directory} --resume", markup=False)
-            raise typer.Exit(130) from None
         bar.update(task, description="HTML and PDF", completed=len(STEPS))
         html, pdf = write(data, directory)
     out.print(f"report: {html}\n        {pdf}", markup=False)

@@ -245,3 +245,18 @@ def test_verify_short_horizon_fails_convergence(tmp_path):
     assert result.exit_code == 1
     failed = [c["claim"] for c in json.loads(result.stdout)["claims"] if c["status"] == "FAIL"]
     assert failed == ["x -> 0"]
+
+
+def test_ctrl_c_inside_a_c_extension_counts_as_an_interrupt():
+    """CasADi interrupted inside a call raises SystemError caused by the KeyboardInterrupt:
+    it is an interrupt (exit 130 and how to resume), while other errors are not."""
+    from analysis.cli import interrupted
+
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as cause:
+            raise SystemError("returned a result with an exception set") from cause
+    except SystemError as wrapped:
+        assert interrupted(wrapped)
+    assert not interrupted(SystemError("other")) and not interrupted(ValueError("bad"))
