@@ -13,7 +13,7 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
-from analysis.cli import app
+from analysis.cli import app, interrupted
 from models.robot import Robot, builtin_urdf
 from tests.conftest import scenario_dict
 
@@ -250,8 +250,6 @@ def test_verify_short_horizon_fails_convergence(tmp_path):
 def test_ctrl_c_inside_a_c_extension_counts_as_an_interrupt():
     """CasADi interrupted inside a call raises SystemError caused by the KeyboardInterrupt:
     it is an interrupt (exit 130 and how to resume), while other errors are not."""
-    from analysis.cli import interrupted
-
     try:
         try:
             raise KeyboardInterrupt
