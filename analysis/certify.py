@@ -37,6 +37,7 @@ import cvxpy as cp
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from analysis.output import interrupted
 from models.lie import SE3, SO3
 from models.loop import Weights, disturbance_matrix, disturbance_weight, output_matrix
 from models.planar import TASK, planar_disturbance_matrix, planar_output_matrix
@@ -207,6 +208,8 @@ def solve(problem: cp.Problem, solver_options: dict | None = None) -> tuple[str 
                 warnings.simplefilter("ignore", UserWarning)
                 problem.solve(solver=solver, **(solver_options or {}).get(solver, {}))
         except Exception as exc:
+            if interrupted(exc):  # Ctrl-C inside a solver: not a solver failure
+                raise KeyboardInterrupt from exc
             failures.append(f"{solver}: {type(exc).__name__}: {exc}".splitlines()[0])
             continue
         if problem.status == cp.OPTIMAL:

@@ -33,7 +33,7 @@ from analysis.certify import (
     region_text,
 )
 from analysis.grid import GridSpec, run_sweep
-from analysis.output import atomic_write, provenance, write_json
+from analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
 from analysis.results import certificate_for, certificate_result, point_record, verification_result
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import Simulator, summary
@@ -95,26 +95,20 @@ def emit(result: dict, saved: Path | None, json_target: str | None, show: Callab
         show(result)
 
 
-def interrupted(exc: BaseException | None) -> bool:
-    """Whether ``exc`` is Ctrl-C, or an error it caused: a C extension (CasADi) interrupted
-    inside a call reports a ``SystemError`` whose cause is the ``KeyboardInterrupt``."""
-    while exc is not None:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        exc = exc.__cause__ or exc.__context__
-    return False
-
-
 @contextmanager
 def resumable(command: str) -> Iterator[None]:
-    """On Ctrl-C: one line saying how to resume with ``command``, exit status 130."""
-    try:
-        yield
-    except (KeyboardInterrupt, SystemError) as exc:
-        if not interrupted(exc):
-            raise
-        err.print(f"interrupted: resume with  {command}", markup=False)
-        raise typer.Exit(130) from None
+    """On Ctrl-C, wherever it lands (see :func:`analysis.output.interrupted`): one line saying
+    how to resume with ``command``, exit status 130."""
+    with interrupt_aware():
+        try:
+            yield
+            if interrupted(None):  # received, but swallowed by native code on the way
+                raise KeyboardInterrupt
+        except BaseException as exc:
+            if not interrupted(exc):
+                raise
+            err.print(f"interrupted: resume with  {command}", markup=False, soft_wrap=True)
+            raise typer.Exit(130) from None
 
 
 def command_provenance(scenario: Path) -> dict:
@@ -176,7 +170,7 @@ def simulate(
     atomic_write(directory / "trajectory.npz", lambda h: np.savez_compressed(h, **arrays))
     emit(result, directory / "summary.json", json_target, show)
     if trajectory.status != "ok":
-        err.print(f"run stopped: {trajectory.message}", markup=False)
+        err.print(f"run stopped: {trajectory.message}", markup=False, soft_wrap=True)
         raise typer.Exit(1)
 
 
@@ -236,7 +230,7 @@ def certify_command(
     point = gain_point(spec, loop.robot.n)
     check_json_target(json_target)
     if axes is not None and spec.loop == "paper" and loop.robot.n < 6:
-        err.print(f"NOT CERTIFIED: {NOT_APPLICABLE.format(n=loop.robot.n)}", markup=False)
+        err.print(f"NOT CERTIFIED: {NOT_APPLICABLE.format(n=loop.robot.n)}", markup=False, soft_wrap=True)
         raise typer.Exit(1)
     if axes is not None:
         size = int(np.prod([len(v) for _, v in axes], dtype=np.int64))

@@ -27,7 +27,7 @@ import casadi as cs
 import numpy as np
 
 from analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
-from analysis.output import atomic_write, json_text
+from analysis.output import atomic_write, interrupted, json_text
 from models.lie import SE3, SO3
 from models.planar import TASK, planar_output_matrix
 
@@ -268,6 +268,8 @@ def run_sweep(
     try:
         with BatchRunner(workers, scheduler) as submit:
             for result in submit(spec, list(batches(state.done, spec.size, batch_size))):
+                if interrupted(None):  # Ctrl-C that native code swallowed: keep nothing of this batch
+                    raise KeyboardInterrupt
                 for name, handle in files.items():
                     text = OUTPUTS[name](result, axes).encode()
                     handle.write(text)

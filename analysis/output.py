@@ -5,9 +5,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import signal
 import sys
 import tempfile
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -70,3 +73,37 @@ def provenance(scenario_path: Path, command: list[str]) -> dict[str, Any]:
         "command": command,
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
     }
+
+
+_SIGINT = threading.Event()
+
+
+@contextmanager
+def interrupt_aware() -> Iterator[None]:
+    """Within, Ctrl-C raises ``KeyboardInterrupt`` as usual and is also remembered, so that
+    :func:`interrupted` knows of it where native code turns it into an ordinary error (CVODES
+    inside CasADi reports a failed right-hand side). Main thread only."""
+
+    def handler(signum, frame):
+        _SIGINT.set()
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        _SIGINT.clear()
+
+
+def interrupted(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is Ctrl-C or an error it caused: Ctrl-C was received within
+    :func:`interrupt_aware`, or ``exc`` is (caused by) ``KeyboardInterrupt`` or Clarabel's
+    ``InterruptedError`` (CasADi wraps it in a ``SystemError``)."""
+    if _SIGINT.is_set():
+        return True
+    while exc is not None:
+        if isinstance(exc, KeyboardInterrupt | InterruptedError):
+            return True
+        exc = exc.__cause__ if exc.__cause__ is not None else None if exc.__suppress_context__ else exc.__context__
+    return False

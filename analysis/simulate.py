@@ -17,6 +17,7 @@ import casadi as cs
 import numpy as np
 
 from analysis.compile import compiled
+from analysis.output import interrupted
 from models.loop import QUADRATURES, ClosedLoop
 
 
@@ -214,7 +215,9 @@ class Simulator:
             chunk_start = time.perf_counter()
             try:
                 result = integrator(x0=states[:, k], p=t[k])
-            except RuntimeError:
+            except RuntimeError as exc:
+                if interrupted(exc):
+                    raise KeyboardInterrupt from exc
                 if count > 1:
                     refining, size = True, 1
                     continue

@@ -41,14 +41,16 @@ def report(
         TextColumn("{task.completed}/{task.total}"),
         TimeElapsedColumn(),
     )
-    with Progress(*columns, console=err, transient=True) as bar:
+    with (
+        resumable(f"dvfc report {scenario} --out {directory} --resume"),
+        Progress(*columns, console=err, transient=True) as bar,
+    ):
         task = bar.add_task("", total=len(STEPS) + 1)
 
         def step(name: str) -> None:
             bar.update(task, description=name, completed=STEPS.index(name))
 
-        with resumable(f"dvfc report {scenario} --out {directory} --resume"):
-            data = assemble(spec, loop, s0, settings, provenance_, progress=step, cache=cache)
+        data = assemble(spec, loop, s0, settings, provenance_, progress=step, cache=cache)
         bar.update(task, description="HTML and PDF", completed=len(STEPS))
         html, pdf = write(data, directory)
     out.print(f"report: {html}\n        {pdf}", markup=False)

@@ -18,7 +18,7 @@ import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from analysis.grid import GainMap, axis_value, gain_map
-from analysis.output import atomic_write
+from analysis.output import atomic_write, interrupted
 from analysis.results import certificate_result, verification_result
 from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings, Simulator, Trajectory, summary
@@ -67,6 +67,8 @@ class StageCache:
             if stored["key"] == self.key:
                 return stored["value"]
         value = compute()
+        if interrupted(None):  # Ctrl-C that native code swallowed: the stage may be incomplete
+            raise KeyboardInterrupt
         if path is not None:
             path.parent.mkdir(exist_ok=True)
             payload = pickle.dumps({"key": self.key, "value": value})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +14,8 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
-from analysis.cli import app, interrupted
+from analysis.cli import app
+from analysis.output import interrupt_aware, interrupted
 from models.robot import Robot, builtin_urdf
 from tests.conftest import scenario_dict
 
@@ -248,8 +250,8 @@ def test_verify_short_horizon_fails_convergence(tmp_path):
 
 
 def test_ctrl_c_inside_a_c_extension_counts_as_an_interrupt():
-    """CasADi interrupted inside a call raises SystemError caused by the KeyboardInterrupt:
-    it is an interrupt (exit 130 and how to resume), while other errors are not."""
+    """Native code reports Ctrl-C its own way (CasADi: a SystemError caused by it; Clarabel:
+    InterruptedError): both are interrupts (exit 130 and how to resume); other errors are not."""
     try:
         try:
             raise KeyboardInterrupt
@@ -257,4 +259,17 @@ def test_ctrl_c_inside_a_c_extension_counts_as_an_interrupt():
             raise SystemError("returned a result with an exception set") from cause
     except SystemError as wrapped:
         assert interrupted(wrapped)
+    assert interrupted(InterruptedError("Clarabel's way"))
     assert not interrupted(SystemError("other")) and not interrupted(ValueError("bad"))
+
+
+def test_ctrl_c_swallowed_by_native_code_is_remembered():
+    """CVODES inside CasADi turns Ctrl-C into a failed right-hand side (a RuntimeError): within
+    interrupt_aware the signal itself is remembered, so that error counts as an interrupt."""
+    failure = RuntimeError("CV_RHSFUNC_FAIL")
+    with interrupt_aware():
+        assert not interrupted(failure)
+        with pytest.raises(KeyboardInterrupt):
+            signal.raise_signal(signal.SIGINT)
+        assert interrupted(failure)
+    assert not interrupted(failure)
