@@ -29,11 +29,25 @@ from models.target import TargetMotion
 
 
 @dataclass
-class DrivenTargetLoop(ClosedLoop):
-    """The loop driven by a disturbance signal ``w(t) = [tau_d; V_wo]``: the target's pose
-    is a state ``(p_o, quat_o)`` moved by ``V_wo`` (5), so any ``w`` can be applied."""
+class DisturbanceDriven:
+    """Mixin for a loop whose whole disturbance ``w = [tau_d; target velocity]`` is the
+    signal ``disturbance_input(t)`` (the target's motion then becomes a state)."""
 
     disturbance_input: Callable[[cs.SX], cs.SX] | None = None
+
+    @cached_property
+    def w(self):
+        return self.disturbance_input(self.t)
+
+    @cached_property
+    def tau_d(self):
+        return self.w[: self.robot.n]
+
+
+@dataclass
+class DrivenTargetLoop(DisturbanceDriven, ClosedLoop):
+    """The loop driven by a disturbance signal ``w(t) = [tau_d; V_wo]``: the target's pose
+    is a state ``(p_o, quat_o)`` moved by ``V_wo`` (5), so any ``w`` can be applied."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -49,14 +63,6 @@ class DrivenTargetLoop(ClosedLoop):
     @cached_property
     def relative_pose(self) -> SE3:
         return self.robot.camera_pose.inverse() @ self.target_pose
-
-    @cached_property
-    def w(self):
-        return self.disturbance_input(self.t)
-
-    @cached_property
-    def tau_d(self):
-        return self.w[: self.robot.n]
 
     @cached_property
     def state_rate(self):
@@ -196,11 +202,9 @@ def _linearization(rate, output, z, w, t, q_eq: np.ndarray) -> Linearization:
 
 
 @dataclass
-class DrivenPlanarLoop(PlanarLoop):
+class DrivenPlanarLoop(DisturbanceDriven, PlanarLoop):
     """The reduced planar loop driven by ``w(t) = [tau_d; v_o]``: the target's horizontal
     position ``o`` is a state moved by ``v_o``."""
-
-    disturbance_input: Callable[[cs.SX], cs.SX] | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -211,14 +215,6 @@ class DrivenPlanarLoop(PlanarLoop):
     @cached_property
     def target_position(self):
         return self.o
-
-    @cached_property
-    def w(self):
-        return self.disturbance_input(self.t)
-
-    @cached_property
-    def tau_d(self):
-        return self.w[: self.robot.n]
 
     @cached_property
     def state_rate(self):
