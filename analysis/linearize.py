@@ -165,7 +165,10 @@ class Linearization:
 
 
 def linearize(loop: ClosedLoop, q0: np.ndarray) -> Linearization:
-    """Linearise the ideal loop at its equilibrium (static target at ``g_wo(0)``, ``x = 0``)."""
+    """Linearise the ideal loop at its equilibrium (static target at ``g_wo(0)``, ``x = 0``);
+    the planar loop by :func:`linearize_planar`."""
+    if isinstance(loop, PlanarLoop):
+        return linearize_planar(loop, q0)
     q_eq = equilibrium_configuration(loop, q0)
     n = loop.robot.n
     w = cs.SX.sym("w", n + 6)

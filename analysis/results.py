@@ -19,12 +19,11 @@ from analysis.certify import (
     tight_gamma,
     tight_gamma_planar,
 )
-from analysis.linearize import linearize, linearize_planar, worst_case_disturbance
+from analysis.linearize import linearize, worst_case_disturbance
 from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings
 from analysis.verify import Claim, verify
 from models.loop import ClosedLoop
-from models.planar import PlanarLoop
 
 
 def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:
@@ -49,7 +48,7 @@ def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | 
 def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
     """Lower bounds on the true L2 gain and how far the certificates sit above them."""
     try:
-        lin = (linearize_planar if isinstance(loop, PlanarLoop) else linearize)(loop, s0[: loop.robot.n])
+        lin = linearize(loop, s0[: loop.robot.n])
     except ValueError as exc:
         return {"gamma_lower": None, "lower_bound_reason": str(exc)}
     nonlinear, disturbance = worst_case_disturbance(loop, lin)
