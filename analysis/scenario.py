@@ -69,7 +69,29 @@ class RobotSection(_Strict):
 
 
 class CameraSection(_Strict):
+    """Pinhole camera: focal length and, optionally, the sensor's size and principal point
+    (pixels, from the top-left corner; the centre unless given)."""
+
     focal_length: Positive
+    width: Positive | None = None
+    height: Positive | None = None
+    principal_point: Annotated[list[Finite], Field(min_length=2, max_length=2)] | None = None
+
+    @model_validator(mode="after")
+    def _image(self) -> CameraSection:
+        if (self.width is None) != (self.height is None):
+            raise ValueError("give both width and height (pixels), or neither")
+        if self.principal_point is not None:
+            if self.width is None:
+                raise ValueError("principal_point needs the image size (width, height)")
+            u0, v0 = self.principal_point
+            if not (0 <= u0 <= self.width and 0 <= v0 <= self.height):
+                raise ValueError("principal_point must lie inside the image")
+        return self
+
+    def camera(self, points: np.ndarray) -> Camera:
+        pp = None if self.principal_point is None else tuple(self.principal_point)
+        return Camera(self.focal_length, points, self.width, self.height, pp)
 
 
 class MotionSection(_Strict):
@@ -389,7 +411,7 @@ def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[C
     kind = PlanarLoop if scenario.loop == "planar" else ClosedLoop
     loop = kind(
         robot=robot,
-        camera=Camera(scenario.camera.focal_length, np.asarray(t.points, dtype=float)),
+        camera=scenario.camera.camera(np.asarray(t.points, dtype=float)),
         target=target,
         reference=scenario.reference.se3(),
         weights=point.weights,
@@ -419,13 +441,14 @@ def gain_point(scenario: Scenario, n: int) -> GainPoint:
 
 
 def _check_initial_view(loop: ClosedLoop, s0: np.ndarray, threshold: float) -> None:
-    """At t = 0 every point must be in front of the camera (actual and estimated), the image
-    Jacobian must have full column rank and the arm's Jacobian must not be near-singular."""
+    """At t = 0 every point must be in front of the camera (actual and estimated) and inside
+    the image (when its size is given), the image Jacobian must have full column rank and the
+    arm's Jacobian must not be near-singular."""
     cam = loop.camera
     (arm_name, arm), (image_name, image) = loop.conditioning.items()
-    outputs = [cam.depths(loop.relative_pose), cam.depths(loop.estimate), image, arm]
+    outputs = [cam.depths(loop.relative_pose), cam.depths(loop.estimate), image, arm, cam.project(loop.relative_pose)]
     check = cs.Function("view", [loop.t, loop.state], outputs)
-    depth, depth_bar, jac, arm_jac = (np.asarray(v) for v in check(0.0, s0))
+    depth, depth_bar, jac, arm_jac, f = (np.asarray(v) for v in check(0.0, s0))
     for name, z in (("target.points", depth), ("observer", depth_bar)):
         bad = np.flatnonzero(~(z.ravel() > 1e-9))
         if bad.size:
@@ -434,6 +457,13 @@ def _check_initial_view(loop: ClosedLoop, s0: np.ndarray, threshold: float) -> N
             raise ScenarioError(
                 f"{name}: feature point {i} is at depth {depth_i:.4g} m at t = 0 (not in front of the camera)"
             )
+    if cam.has_image and (outside := cam.outside_image(f)).size:
+        i = int(outside[0])
+        u, v = f.ravel()[2 * i : 2 * i + 2] + cam.centre
+        raise ScenarioError(
+            f"target.points: feature point {i} is at pixel ({u:.1f}, {v:.1f}) at t = 0, outside the "
+            f"{cam.width:g} x {cam.height:g} image (camera.width, camera.height)"
+        )
     s = np.linalg.svd(jac, compute_uv=False)
     if s[-1] < 1e-9 * s[0]:
         raise ScenarioError(f"target.points: {image_name} is rank-deficient at t = 0 (degenerate feature layout)")

@@ -26,10 +26,46 @@ class Camera:
         ratio (pixels, or metres on the sensor).
     points
         ``(m, 3)`` feature points ``p_oi`` in the object frame (metres).
+    width, height
+        Image size in pixels, or ``None`` when the sensor is not stated (then no
+        visibility statement is possible).
+    principal_point
+        ``(u0, v0)`` in pixels from the image's top-left corner; ``None`` means the centre.
+        The features ``f`` of (11) are measured about it: pixel ``(u, v) = (u0, v0) + f``.
     """
 
     focal_length: float
     points: np.ndarray
+    width: float | None = None
+    height: float | None = None
+    principal_point: tuple[float, float] | None = None
+
+    @property
+    def has_image(self) -> bool:
+        """Whether the image size is known."""
+        return self.width is not None and self.height is not None
+
+    @property
+    def centre(self) -> np.ndarray:
+        """The principal point ``(u0, v0)`` in pixels (the image centre unless given)."""
+        if self.principal_point is not None:
+            return np.asarray(self.principal_point, dtype=float)
+        if not self.has_image:
+            raise ValueError("the image size is not known")
+        return np.array([self.width / 2, self.height / 2])
+
+    def image_window(self) -> tuple[np.ndarray, np.ndarray]:
+        """The image as a box in feature coordinates (about the principal point):
+        ``f`` is inside the image iff ``low <= f <= high`` componentwise (per point)."""
+        low = -self.centre
+        return low, low + np.array([self.width, self.height])
+
+    def outside_image(self, f: np.ndarray) -> np.ndarray:
+        """Indices of the points whose features ``f`` (2m, about the principal point) lie
+        outside the image."""
+        low, high = self.image_window()
+        xy = np.asarray(f, dtype=float).reshape(-1, 2)
+        return np.flatnonzero(np.any((xy < low) | (xy > high), axis=1))
 
     @property
     def m(self) -> int:

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import casadi as cs
 import numpy as np
+import pytest
 
+from analysis.scenario import build, load
 from models.camera import Camera
 from models.lie import SE3
 
 SQUARE = np.array([[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [-0.05, -0.05, 0.0], [0.05, -0.05, 0.0]])
 CAMERA = Camera(800.0, SQUARE)
+EXAMPLES = Path(__file__).parent.parent / "examples"
 GBAR = SE3.from_xyz_rpy([0.02, -0.01, 0.4], [0.1, -0.2, 0.3])
 
 
@@ -22,6 +27,19 @@ def test_projection_is_perspective():
     f = num(CAMERA.project(GBAR)).reshape(-1, 2)
     p = (num(GBAR.rotation.matrix) @ SQUARE.T).T + num(GBAR.translation).ravel()
     assert np.allclose(f, 800.0 * p[:, :2] / p[:, 2:], rtol=1e-14)
+
+
+def test_pixels_are_features_about_the_principal_point():
+    """A feature ``f`` (11) measured about the principal point ``(u0, v0)`` is at pixel
+    ``(u0, v0) + f``; it is inside the image iff ``0 <= u <= width`` and ``0 <= v <= height``.
+    Exact comparisons: the window is a sum of two given numbers."""
+    camera = Camera(800.0, SQUARE, 640.0, 480.0, (300.0, 250.0))
+    low, high = camera.image_window()
+    assert np.array_equal(low, [-300.0, -250.0]) and np.array_equal(high, [340.0, 230.0])
+    f = np.array([0.0, 0.0, 339.0, -249.0, 341.0, 0.0, 0.0, 231.0])
+    assert camera.outside_image(f).tolist() == [2, 3]
+    centred = Camera(800.0, SQUARE, 640.0, 480.0)
+    assert np.array_equal(centred.centre, [320.0, 240.0])
 
 
 def test_first_order_relation_is_quadratic_in_error(rng):
@@ -62,3 +80,14 @@ def test_estimation_error_from_image_is_exact_to_first_order(rng):
     estimate = num(CAMERA.estimation_error(CAMERA.project(g), GBAR)).ravel()
     exact = num(g_ee.error_vector()).ravel()
     assert np.linalg.norm(estimate - exact) < 100 * np.linalg.norm(exact) ** 2
+
+
+@pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.toml")), ids=lambda p: p.stem)
+def test_every_example_states_its_sensor_and_starts_in_view(path):
+    """Every shipped example names an image size (a real sensor, stated in its comments) and
+    every feature is inside that image at t = 0 (``build`` rejects a start outside it)."""
+    spec, base = load(path)
+    assert spec.camera.width and spec.camera.height
+    assert "px" in path.read_text().split("[camera]")[1].split("[target]")[0]
+    loop, _, _ = build(spec, base)
+    assert loop.camera.has_image

@@ -118,6 +118,15 @@ BAD_SCENARIOS.update({
     "grid range of zero points": (setter("grid", {"k_c": {"start": 1.0, "stop": 2.0, "num": 0}}), "grid.k_c"),
     "reversed synthesis bounds": (setter("synthesize.k_c", [5.0, 1.0]), "synthesize"),
     "negative gamma requirement": (setter("certify.gamma", -1.0), "certify.gamma"),
+    "width without height": (remover("camera.height"), "camera: give both width and height"),
+    "principal point off the image": (
+        lambda d: d["camera"].update(width=640, height=480, principal_point=[700.0, 240.0]),
+        "camera: principal_point must lie inside the image",
+    ),
+    "feature outside the image at the start": (
+        lambda d: d["camera"].update(width=160, height=120),
+        "target.points: feature point 0 is at pixel",
+    ),
 })  # fmt: skip
 
 COMMANDS = ("simulate", "certify", "verify", "synthesize")
