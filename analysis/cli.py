@@ -278,6 +278,39 @@ def show_certificate(result: dict) -> None:
         )
     else:
         out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)
+    if "envelope" in p:
+        show_envelope(p["envelope"])
+
+
+def show_envelope(e: dict) -> None:
+    """Human output of the operating envelope (MATH facts 7-9)."""
+    if e.get("rate") is None:
+        out.print(f"Operating envelope: not certified: {e['reason']}", markup=False)
+        return
+    fmt = lambda v, unit="": "-" if v is None else f"{v:.4g}{unit}"  # noqa: E731
+    d, b, start = e["disturbance"], e["bounds"], e["start"]
+    table = Table(title="Operating envelope (facts 7-9)", show_header=False)
+    rows = [
+        ("disturbance bounds", f"speed {fmt(d['target_speed'], ' m/s')}, rate {fmt(d['target_rate'], ' rad/s')}, "
+                               f"|tau_d| {fmt(d['torque'], ' N m')} (wbar = {fmt(e['wbar'])})"),
+        ("decay rate kappa", f"{fmt(e['rate'], ' 1/s')} (gamma' = {fmt(e['gamma_prime'])}, "
+                             f"theta_bar = {fmt(e['theta_bar_deg'], ' deg')})"),
+        ("m_lo, m_hi (from the URDF, rigorous)", f"{fmt(e['m_lo'])}, {fmt(e['m_hi'])} kg m^2"),
+        ("ultimate V (c_inf)", fmt(e["ultimate_V"])),
+        ("ultimate |p_ec|, theta_ec", f"{fmt(b['p_ec'], ' m')}, {fmt(b['theta_ec_deg'], ' deg')}"),
+        ("ultimate |p_ee|, theta_ee", f"{fmt(b['p_ee'], ' m')}, {fmt(b['theta_ee_deg'], ' deg')}"),
+        ("ultimate |xi|", fmt(b["xi"], " rad/s")),
+        ("start V(0) (kinetic part)", f"{fmt(start['V0'])} ({fmt(start.get('kinetic'))}): "
+                                      f"{'inside' if start['inside'] else 'NOT inside'} the certified set"),
+        ("visible, margin to border, min depth", f"{e['visible']}, {fmt(e['image_margin_px'], ' px')}, "
+                                                  f"{fmt(e['depth_min'], ' m')}"),
+        ("largest certified target speed", fmt(e["max_target_speed"], " m/s")),
+        ("largest certified |tau_d|", fmt(e["max_torque"], " N m")),
+    ]  # fmt: skip
+    for name, value in rows:
+        table.add_row(name, value)
+    out.print(table)
+    out.print(f"ENVELOPE: {e['statement']}. Assumes: {'; '.join(e['assumptions'])}.", markup=False)
 
 
 def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_target, how: tuple, start: float):

@@ -9,6 +9,7 @@ import numpy as np
 
 from analysis.certify import (
     ASSUMPTIONS,
+    NOT_APPLICABLE,
     PLANAR_ASSUMPTIONS,
     Certificate,
     GainPoint,
@@ -19,6 +20,9 @@ from analysis.certify import (
     tight_gamma,
     tight_gamma_planar,
 )
+from analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
+from analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
+from analysis.envelope import design_of, disturbance_bounds, envelope, start_storage
 from analysis.linearize import linearize, worst_case_disturbance
 from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings
@@ -65,6 +69,26 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
     }
 
 
+def envelope_record(spec: Scenario, loop: ClosedLoop, s0: np.ndarray, point: GainPoint) -> dict:
+    """The operating envelope of the scenario's design (MATH facts 7-9), with what it assumes."""
+    planar = spec.loop == "planar"
+    if not planar and loop.robot.n < 6:
+        return {"rate": None, "reason": NOT_APPLICABLE.format(n=loop.robot.n)}
+    design = design_of(point, None if planar else spec.reference.se3(), loop.robot.mass_bounds)
+    section = spec.envelope
+    theta = None if section is None or section.theta_bar_deg is None else math.radians(section.theta_bar_deg)
+    env = envelope(design, loop.camera, disturbance_bounds(section, loop), start_storage(loop, s0), theta)
+    mass = loop.robot.mass_bounds
+    return {
+        **env.as_dict(),
+        "m_hi_method": mass.method_hi,
+        "m_lo_method": mass.method_lo,
+        "K_e": "isotropic: R_ec = I decides (fact 2)" if planar or point.isotropic
+        else "anisotropic: blockwise-minimum K_min, sound for every R_ec (fact 5)",
+        "assumptions": list(PLANAR_ENVELOPE_ASSUMPTIONS if planar else ENVELOPE_ASSUMPTIONS),
+    }
+
+
 def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, bounded: bool = True) -> Certificate:
     """Theorem 2 for the scenario's loop: the paper's over the ``[certify]`` region, or the
     reduced planar loop's; ``bounded`` applies the ``[certify]`` gamma requirement."""
@@ -88,6 +112,7 @@ def certificate_result(
     record = point_record(point, cert, tight if cert.gamma is not None else None)
     if lower_bounds:
         record.update(lower_bound_record(loop, s0, record))
+    record["envelope"] = envelope_record(spec, loop, s0, point)
     result = {
         "scenario": spec.name,
         "loop": spec.loop,

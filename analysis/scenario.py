@@ -37,6 +37,7 @@ class ScenarioError(ValueError):
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Vector3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 
 
@@ -211,6 +212,18 @@ class CertifySection(_Strict):
     gamma: Positive | None = None
 
 
+class EnvelopeSection(_Strict):
+    """Bounds on the disturbance for the operating envelope (MATH facts 7-9): the target's
+    speed (m/s) and angular rate (rad/s), the joint-torque disturbance ``|tau_d|`` (N m,
+    Euclidean norm), and optionally ``theta_bar`` (degrees). Each one absent is derived
+    from the scenario's own target motion and disturbances."""
+
+    target_speed: NonNegative | None = None
+    target_rate: NonNegative | None = None
+    torque: NonNegative | None = None
+    theta_bar_deg: Annotated[float, Field(gt=0, lt=180, allow_inf_nan=False)] | None = None
+
+
 Interval = Annotated[list[Positive], Field(min_length=2, max_length=2)]
 
 
@@ -299,6 +312,7 @@ class Scenario(_Strict):
     disturbance: DisturbancesSection = DisturbancesSection()
     simulation: SimulationSection = SimulationSection()
     certify: CertifySection = CertifySection()
+    envelope: EnvelopeSection | None = None
     grid: GridSection | None = None
     synthesize: SynthesizeSection = SynthesizeSection()
 

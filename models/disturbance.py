@@ -24,6 +24,11 @@ class Step:
     def breakpoints(self) -> list[float]:
         return [self.start]
 
+    @property
+    def bound(self) -> float:
+        """``sup_t |tau_d(t)| = |amplitude|``."""
+        return float(np.linalg.norm(self.amplitude))
+
 
 @dataclass(frozen=True)
 class Sine:
@@ -39,6 +44,11 @@ class Sine:
     @property
     def breakpoints(self) -> list[float]:
         return []
+
+    @property
+    def bound(self) -> float:
+        """``sup_t |tau_d(t)| <= |amplitude|``."""
+        return float(np.linalg.norm(self.amplitude))
 
 
 @dataclass(frozen=True)
@@ -71,8 +81,20 @@ class BandLimitedNoise:
     def breakpoints(self) -> list[float]:
         return []
 
+    @property
+    def bound(self) -> float:
+        """``sup_t |tau_d(t)| <= |rms| sqrt(2 tones)``: each joint's sum of ``tones`` sines of
+        amplitude ``rms_j sqrt(2 / tones)`` is at most ``rms_j sqrt(2 tones)`` in magnitude."""
+        return float(np.linalg.norm(self.rms) * np.sqrt(2.0 * self.tones))
+
 
 Disturbance = Step | Sine | BandLimitedNoise
+
+
+def torque_bound(components: list[Disturbance]) -> float:
+    """A bound on ``sup_t |tau_d(t)|`` (Euclidean norm): the sum of the components' bounds
+    (triangle inequality)."""
+    return float(sum(c.bound for c in components))
 
 
 def torque(components: list[Disturbance], t: Matrix, n: int) -> Matrix:

@@ -19,6 +19,7 @@ from pathlib import Path
 import casadi as cs
 from adam.casadi import KinDynComputations
 
+from models.inertia import MassBounds, mass_matrix_bounds
 from models.lie import SE3, Matrix, vee
 
 _ERD = "cmeel.prefix/share/example-robot-data/robots"
@@ -155,6 +156,11 @@ class Robot:
         """``M(q)`` of (33), symbolic in :attr:`q` (rigid body plus :attr:`armature`)."""
         rigid = self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self.q))
         return rigid + cs.diag(cs.DM(self.armature)) if self.armature else rigid
+
+    @cached_property
+    def mass_bounds(self) -> MassBounds:
+        """Rigorous ``m_lo <= lambda(M(q)) <= m_hi`` for every ``q`` (:mod:`models.inertia`)."""
+        return mass_matrix_bounds(self.urdf, self.joints, self.armature)
 
     @cached_property
     def gravity(self) -> Matrix:

@@ -55,6 +55,17 @@ class TargetMotion:
         spin = SO3.exp(cs.DM(axis / np.linalg.norm(axis)) * (self.spin_rate * t))
         return SE3(self.start.translation + offset, self.start.rotation @ spin)
 
+    @property
+    def speed(self) -> float:
+        """``|v|`` of ``V_wo = [v; w]``: the origin's speed on its circle, ``2 pi radius / period``
+        (the body frame rotates the world velocity, keeping its length)."""
+        return 2 * np.pi * self.radius / self.period
+
+    @property
+    def rate(self) -> float:
+        """``|w|`` of ``V_wo``: the spin rate."""
+        return abs(self.spin_rate)
+
     def velocity(self, t: cs.SX) -> Matrix:
         """``V_wo(t) = (g_wo^-1 dg_wo/dt)^vee`` (5), exact by automatic differentiation."""
         g = self.pose(t)

@@ -118,6 +118,8 @@ BAD_SCENARIOS.update({
     "grid range of zero points": (setter("grid", {"k_c": {"start": 1.0, "stop": 2.0, "num": 0}}), "grid.k_c"),
     "reversed synthesis bounds": (setter("synthesize.k_c", [5.0, 1.0]), "synthesize"),
     "negative gamma requirement": (setter("certify.gamma", -1.0), "certify.gamma"),
+    "negative envelope speed": (setter("envelope.target_speed", -0.1), "envelope.target_speed"),
+    "theta_bar at 180 degrees": (setter("envelope.theta_bar_deg", 180.0), "envelope.theta_bar_deg"),
     "width without height": (remover("camera.height"), "camera: give both width and height"),
     "principal point off the image": (
         lambda d: d["camera"].update(width=640, height=480, principal_point=[700.0, 240.0]),

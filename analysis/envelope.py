@@ -1,0 +1,564 @@
+"""The certified operating envelope of one design (MATH facts 7-9).
+
+The L2 gain of Theorem 2 says nothing uniform in time about a target that keeps moving
+(its energy is infinite). This module answers the review's questions instead, from the
+same storage ``V`` (38):
+
+- Rate (fact 7). With ``s = 1/(2 gamma'^2)``, ``Q(s) = N^T K N - s W`` and
+  ``V <= x^T D x`` while ``|theta_ec|, |theta_ee| <= theta_bar``,
+  ``D = diag(m_hi/2 I_n, w_pc/2 I3, w_rc/(1+cos theta_bar) I3, w_pe/2 I3, w_re/(1+cos theta_bar) I3)``,
+  ``kappa = lambda_min(D^-1/2 Q D^-1/2)`` gives ``dV/dt <= -kappa V + |w|^2 / (4 s)``. The
+  ``xi`` block decouples: ``(min k_xi - s) / (m_hi/2)``. ``Q`` is taken at ``R_ec = I``:
+  exact for block-isotropic ``K_e`` (``D`` is block-isotropic, so fact 2's congruence
+  leaves it alone), and with the blockwise-minimum gains ``K_min`` otherwise (fact 5:
+  ``Q`` grows with ``K_e``), sound for every ``R_ec``.
+- Ultimate bound. ``V(t) <= exp(-kappa t) V(0) + c_inf``, ``c_inf = wbar^2 / (4 s kappa)``,
+  ``wbar^2 = torque^2 + speed^2 + rate^2 >= |w|^2``; ``s`` maximises ``s kappa(s)`` (a
+  concave function times ``s``: ``log`` of it is concave, so a golden-section search finds it).
+- Self-consistency (first exit). ``{V <= c}`` keeps ``theta <= theta_bar`` when
+  ``c <= c_max = min(w_rc, w_re) (1 - cos theta_bar)``. If ``c_inf <= c`` and ``V(0) <= c``,
+  ``V(t) <= c`` for all ``t >= 0``. ``theta_bar`` (unless given) is the one, on a 1-degree
+  grid, with the smallest ``c_inf`` that is self-consistent and, when possible, covers the
+  start (``V(0) <= c_max``).
+- Error bounds from ``V <= c``: ``|p_ec| <= sqrt(2c/w_pc)``, ``theta_ec <= arccos(1 - c/w_rc)``,
+  the same for ``e_e``, ``|xi| <= sqrt(2c/m_lo)``.
+- Visibility (fact 8). ``p_ci - g_d p_oi = R_d [(R_ec R_ee - I) p_oi + R_ec p_ee + p_ec]`` has
+  length at most ``rho_i = 2 sin(min(pi, theta_ec + theta_ee)/2) |p_oi| + |p_ee| + |p_ec|``:
+  each feature lies in the image box spanned by the corners ``x in [x_i +- rho_i]``,
+  ``z in [z_i +- rho_i]`` (same for ``y``) when ``z_i - rho_i > 0``.
+- The largest certified target speed and torque: ``c_inf`` grows as ``wbar^2`` and the
+  boxes grow with the level, so the largest ``wbar^2`` keeping the statement is
+  ``max over theta_bar of min(c_max, c_vis) / rho(theta_bar)`` (``c_vis`` the largest level
+  whose boxes fit, by bisection); the answer is re-checked by recomputing the envelope there.
+
+Every rate is re-checked a posteriori: the reported ``kappa`` is the computed one shrunk by
+:data:`SHRINK`, certified only when ``lambda_min(Q - kappa D) >= 0`` on the literal ``Q``
+and ``D`` of size ``n + 12``.
+
+Where this stops (fact 9): the ideal loop (exact ``e_e``); ``J_b`` and ``J(gbar)`` away from
+singular (not implied by ``V <= c``); ``m_hi``, ``m_lo`` over every configuration
+(revolute arms); ``|theta| < pi``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import casadi as cs
+import numpy as np
+
+from analysis.certify import GainPoint, theorem2_matrices
+from models.camera import Camera
+from models.disturbance import torque_bound
+from models.inertia import MassBounds
+from models.lie import SE3
+from models.planar import planar_output_matrix
+
+SHRINK = 1e-6
+"""Relative shrink of a computed rate before the a posteriori check ``Q - kappa D >= 0``: at
+the computed ``kappa`` that matrix is singular; shrunk, its smallest eigenvalue is positive
+by far more than the eigenvalue solver's error (~1e-14 ||Q||)."""
+
+THETA_GRID = np.radians(np.arange(1.0, 180.0, 1.0))
+"""Candidates for ``theta_bar`` when the scenario does not fix it (1-degree steps)."""
+
+GOLDEN_STEPS = 30
+"""Golden-section steps over ``[s_lim/2, s_lim]``: the bracket shrinks to ~6e-7 of ``s_lim``
+(the optimum only affects tightness, never soundness)."""
+
+CHUNK = 16
+"""``theta_bar`` candidates evaluated together while scanning upwards for the smallest."""
+
+ASSUMPTIONS = (
+    "ideal loop: the law uses the exact estimation error e_e (the image estimate (21) is first order)",
+    "J_b of full row rank and J(gbar) of full column rank along the run (not implied by V <= c)",
+    "m_lo <= lambda(M(q)) <= m_hi for every configuration (rigorous for revolute joints, from the URDF)",
+    "target speed, target rate and joint-torque disturbance within the stated bounds at all times",
+)
+
+PLANAR_ASSUMPTIONS = (
+    "the reduced planar loop (models.planar): horizontal motion, camera looking straight down, "
+    "target not rotating, every feature at a constant depth",
+    "J_p of full row rank along the run (not implied by V <= c)",
+    "m_lo <= lambda(M(q)) <= m_hi for every configuration (rigorous for revolute joints, from the URDF)",
+    "target speed and joint-torque disturbance within the stated bounds at all times",
+)
+
+
+@dataclass(frozen=True)
+class DisturbanceBounds:
+    """Bounds on the disturbance ``w = [tau_d; V_wo]`` and how each was obtained."""
+
+    target_speed: float
+    target_rate: float
+    torque: float
+    derivation: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def wbar(self) -> float:
+        """``wbar >= sup |w|``: ``|w|^2 = |tau_d|^2 + |v_wo|^2 + |w_wo|^2``."""
+        return math.sqrt(self.torque**2 + self.target_speed**2 + self.target_rate**2)
+
+
+@dataclass(frozen=True)
+class Design:
+    """What the envelope of one design needs: ``N^T K N`` on ``(e_c, e_e)`` (at ``R_ec = I``,
+    with ``K_min`` for anisotropic ``K_e``), the diagonal of ``W`` there, ``min k_xi``, the
+    mass bounds and the weights; ``rotational`` is False for the planar loop."""
+
+    nkn: np.ndarray
+    w: np.ndarray
+    k_xi_min: float
+    mass: MassBounds
+    weights: tuple[float, float, float, float]  # w_pc, w_rc, w_pe, w_re (w_rc, w_re unused when planar)
+    rotational: bool
+    point: GainPoint
+    reference: SE3 | None
+    full: tuple[np.ndarray, np.ndarray]
+    """``N^T K N`` and ``W`` of size ``n + 2t``, literally (for the a posteriori check)."""
+
+    @property
+    def task(self) -> int:
+        return self.nkn.shape[0] // 2
+
+    def d_diagonal(self, theta_bar: np.ndarray) -> np.ndarray:
+        """``D`` on ``(e_c, e_e)`` for each ``theta_bar`` (B,): (B, 2t)."""
+        w_pc, w_rc, w_pe, w_re = self.weights
+        theta_bar = np.atleast_1d(theta_bar)
+        if not self.rotational:
+            return np.tile(np.repeat([w_pc / 2, w_pe / 2], self.task), (len(theta_bar), 1))
+        rot = 1.0 / (1.0 + np.cos(theta_bar))
+        ones = np.ones_like(theta_bar)
+        blocks = [w_pc / 2 * ones, w_rc * rot, w_pe / 2 * ones, w_re * rot]
+        return np.repeat(np.stack(blocks, axis=1), 3, axis=1)
+
+    def c_max(self, theta_bar: np.ndarray) -> np.ndarray:
+        """Largest self-consistent level ``min(w_rc, w_re) (1 - cos theta_bar)`` (infinite for
+        the planar loop: no rotation to keep below pi)."""
+        if not self.rotational:
+            return np.full(np.shape(theta_bar), np.inf)
+        return min(self.weights[1], self.weights[3]) * (1.0 - np.cos(theta_bar))
+
+
+def design_of(point: GainPoint, reference: SE3 | None, mass: MassBounds) -> Design:
+    """The :class:`Design` of a gain point: the paper's loop when ``reference`` is given, the
+    reduced planar loop (P9), with ``N`` constant, when it is None."""
+    w, n = point.weights, len(point.k_xi)
+    if reference is None:
+        nmat = planar_output_matrix(w.w_pc, w.w_pe, n)
+        k = np.concatenate([point.k_xi, point.k_c, point.k_e])
+        nkn = nmat.T @ (k[:, None] * nmat)
+        wdiag = np.concatenate([np.ones(n), np.zeros(len(point.k_c)), np.full(len(point.k_e), w.w_pe**2)])
+        sound, weights, rotational = point, (w.w_pc, 0.0, w.w_pe, 0.0), False
+    else:
+        sound = point if point.isotropic else point.with_k_e(np.repeat([point.k_e[:3].min(), point.k_e[3:].min()], 3))
+        a, wmat = theorem2_matrices(sound, reference, np.eye(3))
+        nkn, wdiag = a + 0.5 * np.eye(len(a)), np.diag(wmat).copy()
+        weights, rotational = (w.w_pc, w.w_rc, w.w_pe, w.w_re), True
+    return Design(nkn[n:, n:], wdiag[n:], float(point.k_xi.min()), mass, weights, rotational, sound, reference,
+                  (nkn, np.diag(wdiag)))  # fmt: skip
+
+
+def rates(design: Design, s: np.ndarray, theta_bar: np.ndarray) -> np.ndarray:
+    """``kappa(s, theta_bar) = min((k_xi_min - s) / (m_hi/2), lambda_min(D^-1/2 (N^T K N - s W) D^-1/2))``
+    for batches ``s``, ``theta_bar`` (B,)."""
+    s = np.atleast_1d(s)
+    inv = 1.0 / np.sqrt(design.d_diagonal(theta_bar))
+    q = design.nkn[None] - s[:, None, None] * np.diag(design.w)[None]
+    ce = np.linalg.eigvalsh(inv[:, :, None] * q * inv[:, None, :])[:, 0]
+    return np.minimum((design.k_xi_min - s) / (design.mass.m_hi / 2), ce)
+
+
+def s_limit(design: Design) -> float:
+    """The largest ``s`` with ``Q(s) > 0``: ``min(k_xi_min, 1 / lambda_max(W^1/2 (N^T K N)^-1 W^1/2))``."""
+    root = np.sqrt(design.w)
+    inverse = np.linalg.inv(design.nkn)
+    return float(min(design.k_xi_min, 1.0 / np.linalg.eigvalsh(root[:, None] * inverse * root[None, :])[-1]))
+
+
+def best_s(design: Design, theta_bar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each ``theta_bar``: the ``s`` maximising ``s kappa(s)`` (smallest ``c_inf``), by a
+    batched golden-section search; returns ``(s, kappa)``.
+
+    ``kappa`` is concave in ``s`` (a smallest eigenvalue of a matrix affine in ``s``, and an
+    affine function) and vanishes at ``s_lim`` (:func:`s_limit`), so ``log(s kappa)`` is
+    concave (one maximum) and, by the tangent inequality ``-kappa'/kappa <= 1/(s_lim - s)``,
+    increasing below ``s_lim / 2``: the maximum lies in ``[s_lim/2, s_lim]``.
+    """
+    theta_bar = np.atleast_1d(theta_bar)
+    top = s_limit(design)
+    lo, hi = np.full(len(theta_bar), top / 2), np.full(len(theta_bar), top)
+    ratio = (math.sqrt(5) - 1) / 2
+
+    def value(s: np.ndarray) -> np.ndarray:
+        return s * rates(design, s, theta_bar)
+
+    c, d = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+    fc, fd = value(c), value(d)
+    for _ in range(GOLDEN_STEPS):
+        left = fc >= fd  # the maximum lies in [lo, d]: d becomes the upper end, c the new d
+        hi, lo = np.where(left, d, hi), np.where(left, lo, c)
+        fresh = np.where(left, hi - ratio * (hi - lo), lo + ratio * (hi - lo))
+        f_fresh = value(fresh)
+        c, d, fc, fd = (np.where(left, fresh, d), np.where(left, c, fresh),
+                        np.where(left, f_fresh, fd), np.where(left, fc, f_fresh))  # fmt: skip
+    s = (lo + hi) / 2
+    return s, rates(design, s, theta_bar)
+
+
+def recheck(design: Design, s: float, theta_bar: float, kappa: float) -> float:
+    """``lambda_min(Q - kappa D)`` on the literal matrices of size ``n + 2t``: the a posteriori
+    check of a rate."""
+    nkn, w = design.full
+    n = len(design.point.k_xi)
+    d = np.concatenate([np.full(n, design.mass.m_hi / 2), design.d_diagonal(np.array([theta_bar]))[0]])
+    return float(np.linalg.eigvalsh(nkn - s * w - kappa * np.diag(d))[0])
+
+
+@dataclass(frozen=True)
+class Decay:
+    """The rate certified at one ``theta_bar``: ``s``, ``kappa`` (shrunk and re-checked),
+    ``rho = c_inf / wbar^2 = 1/(4 s kappa)`` and the self-consistent level ``c_max``."""
+
+    theta_bar: float
+    s: float
+    kappa: float
+    rho: float
+    c_max: float
+
+    @property
+    def gamma_prime(self) -> float:
+        return 1.0 / math.sqrt(2.0 * self.s)
+
+
+def decays(design: Design, theta_bars: np.ndarray) -> list[Decay]:
+    """:class:`Decay` at each candidate ``theta_bar`` with a positive rate (shrunk by
+    :data:`SHRINK`; the one used is re-checked by :func:`recheck`)."""
+    s, kappa = best_s(design, theta_bars)
+    c_max = design.c_max(theta_bars)
+    return [
+        Decay(float(th), float(si), float(ki * (1 - SHRINK)), float(1.0 / (4 * si * ki * (1 - SHRINK))), float(cm))
+        for th, si, ki, cm in zip(theta_bars, s, kappa, c_max, strict=True)
+        if ki > 0
+    ]
+
+
+def error_bounds(design: Design, c: float) -> dict:
+    """Bounds on every error for the states with ``V <= c`` (fact 7): metres, degrees, rad/s."""
+    w_pc, w_rc, w_pe, w_re = design.weights
+
+    def angle(weight: float) -> float | None:
+        if not design.rotational:
+            return None
+        return math.degrees(math.acos(max(-1.0, 1.0 - c / weight)))
+
+    m_lo = design.mass.m_lo
+    return {
+        "p_ec": math.sqrt(2 * c / w_pc),
+        "theta_ec_deg": angle(w_rc),
+        "p_ee": math.sqrt(2 * c / w_pe),
+        "theta_ee_deg": angle(w_re),
+        "xi": math.sqrt(2 * c / m_lo) if m_lo > 0 else (0.0 if c == 0 else math.inf),
+    }
+
+
+@dataclass(frozen=True)
+class Boxes:
+    """Certified feature regions at a level ``c``: per feature ``[u_lo, v_lo, u_hi, v_hi]`` in
+    pixels (None without an image size or when a depth can reach zero), the smallest depth,
+    the smallest distance to the image border (negative when a box crosses it)."""
+
+    level: float
+    boxes: list[list[float]] | None
+    depth_min: float
+    margin_px: float | None
+
+    @property
+    def visible(self) -> bool | None:
+        if self.margin_px is None:
+            return None if self.depth_min > 0 else False
+        return self.depth_min > 0 and self.margin_px >= 0
+
+
+def feature_boxes(design: Design, camera: Camera, desired: np.ndarray, c: float) -> Boxes:
+    """Fact 8 at level ``c``. ``desired`` (m, 3): the features' camera-frame positions at the
+    reference, ``g_d p_oi``."""
+    bounds = error_bounds(design, c)
+    turn = 0.0
+    if design.rotational:
+        turn = 2 * math.sin(min(math.pi, math.radians(bounds["theta_ec_deg"] + bounds["theta_ee_deg"])) / 2)
+    radius = turn * np.linalg.norm(camera.points, axis=1) + bounds["p_ee"] + bounds["p_ec"]
+    depth_min = float(np.min(desired[:, 2] - radius))
+    if not camera.has_image or depth_min <= 0:
+        return Boxes(c, None, depth_min, None)
+    corners = []
+    for axis in (0, 1):
+        lateral = desired[:, axis, None] + np.array([-1.0, 1.0]) * radius[:, None]
+        depth = desired[:, 2, None] + np.array([-1.0, 1.0]) * radius[:, None]
+        ratios = camera.focal_length * lateral[:, :, None] / depth[:, None, :]
+        corners.append((ratios.min(axis=(1, 2)), ratios.max(axis=(1, 2))))
+    centre = camera.centre
+    lo = np.stack([corners[0][0], corners[1][0]], axis=1) + centre
+    hi = np.stack([corners[0][1], corners[1][1]], axis=1) + centre
+    size = np.array([camera.width, camera.height])
+    margin = float(np.min(np.concatenate([lo, size - hi], axis=1)))
+    return Boxes(c, np.concatenate([lo, hi], axis=1).tolist(), depth_min, margin)
+
+
+def desired_features(camera: Camera, reference: SE3) -> np.ndarray:
+    """``g_d p_oi`` for every feature (m, 3)."""
+    return np.stack([np.asarray(cs.DM(reference.act(p))).ravel() for p in camera.points])
+
+
+def visible_level(design: Design, camera: Camera, desired: np.ndarray, steps: int = 60) -> float:
+    """The largest level ``c`` whose feature boxes all fit the image (boxes grow with ``c``):
+    bisection; 0 when even ``c = 0`` does not fit, ``inf`` without an image size."""
+    if not camera.has_image:
+        return math.inf
+    if not feature_boxes(design, camera, desired, 0.0).visible:
+        return 0.0
+    hi = 2 * min(w for w in design.weights if w > 0) if design.rotational else 1.0
+    while design.rotational is False and feature_boxes(design, camera, desired, hi).visible:
+        hi *= 2
+    lo = 0.0
+    if feature_boxes(design, camera, desired, hi).visible:
+        return hi
+    for _ in range(steps):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if feature_boxes(design, camera, desired, mid).visible else (lo, mid)
+    return lo
+
+
+@dataclass
+class Envelope:
+    """The operating envelope of one design (see the module text for every field)."""
+
+    rate: float | None
+    gamma_prime: float | None
+    theta_bar_deg: float | None
+    m_hi: float
+    m_lo: float
+    ultimate_v: float | None
+    bounds: dict | None
+    level: float | None
+    visible: bool | None
+    image_margin_px: float | None
+    depth_min: float | None
+    start: dict
+    max_target_speed: float | None
+    max_torque: float | None
+    wbar: float
+    disturbance: DisturbanceBounds
+    invariant_v: float | None = None
+    boxes: list[list[float]] | None = None
+    ultimate_boxes: list[list[float]] | None = None
+    margin: float | None = None
+    statement: str = ""
+    reason: str | None = None
+
+    def as_dict(self) -> dict:
+        d = self.disturbance
+        return {
+            "rate": self.rate,
+            "gamma_prime": self.gamma_prime,
+            "theta_bar_deg": self.theta_bar_deg,
+            "m_hi": self.m_hi,
+            "m_lo": self.m_lo,
+            "ultimate_V": self.ultimate_v,
+            "bounds": self.bounds,
+            "level": self.level,
+            "invariant_V": self.invariant_v,
+            "visible": self.visible,
+            "image_margin_px": self.image_margin_px,
+            "depth_min": self.depth_min,
+            "start": self.start,
+            "max_target_speed": self.max_target_speed,
+            "max_torque": self.max_torque,
+            "wbar": self.wbar,
+            "disturbance": {"target_speed": d.target_speed, "target_rate": d.target_rate, "torque": d.torque,
+                            "derivation": d.derivation},
+            "boxes_px": self.boxes,
+            "ultimate_boxes_px": self.ultimate_boxes,
+            "recheck_margin": self.margin,
+            "statement": self.statement,
+            "reason": self.reason,
+        }  # fmt: skip
+
+
+def _smallest(design: Design, grid: np.ndarray, wbar2: float, v0: float, cover: bool):
+    """The smallest ``theta_bar`` of ``grid`` whose rate passes the a posteriori check and
+    whose ``c_inf`` is self-consistent (``c_inf <= c_max``) and, with ``cover``, whose
+    ``c_max`` covers the start. ``kappa`` falls and ``c_inf`` grows with ``theta_bar`` (``D``
+    grows), so the smallest also has the smallest ``c_inf``. Returns ``(decay, cover, margin)``."""
+    if cover and design.rotational:
+        grid = grid[design.c_max(grid) >= v0]
+    for chunk in np.array_split(grid, max(1, math.ceil(len(grid) / CHUNK))):
+        for d in decays(design, chunk):
+            if d.rho * wbar2 <= d.c_max and (not cover or v0 <= d.c_max):
+                margin = recheck(design, d.s, d.theta_bar, d.kappa)
+                if margin >= 0:
+                    return d, cover, margin
+    return None, False, None
+
+
+def envelope(
+    design: Design,
+    camera: Camera,
+    disturbance: DisturbanceBounds,
+    start: dict,
+    theta_bar: float | None = None,
+    *,
+    search: bool = True,
+) -> Envelope:
+    """The envelope of ``design`` under ``disturbance`` from a start whose storage is
+    ``start["V0"]`` (:func:`start_storage`); ``theta_bar`` (radians) fixed, or chosen (module
+    text). ``search``: also the largest certified target speed and torque."""
+    v0 = start["V0"]
+    grid = np.array([theta_bar]) if theta_bar is not None else THETA_GRID
+    if not design.rotational:
+        grid = np.array([0.0])  # no rotation: D does not depend on theta_bar
+    wbar2 = disturbance.wbar**2
+    mass = design.mass
+    empty = Envelope(None, None, None, mass.m_hi, mass.m_lo, None, None, None, None, None, None,
+                     {**start, "inside": False}, None, None, disturbance.wbar, disturbance)  # fmt: skip
+    if s_limit(design) <= 0:
+        empty.reason = "no positive decay rate: Q(gamma') = N^T K N - W/(2 gamma'^2) is not positive definite"
+        return empty
+    chosen, inside, margin = _smallest(design, grid, wbar2, v0, cover=True)
+    if chosen is None:
+        chosen, inside, margin = _smallest(design, grid, wbar2, v0, cover=False)
+    if chosen is None:
+        empty.reason = (
+            "not self-consistent: for every theta_bar the ultimate level c_inf exceeds min(w_rc, w_re)(1 - cos "
+            "theta_bar), so the rotation errors are not kept below theta_bar (reduce the disturbance bounds)"
+        )
+        return empty
+    env = _build(design, camera, disturbance, start, chosen, inside, margin)
+    if inside and env.visible is False:  # covering the start costs visibility: try the ultimate statement
+        ultimate = _build(design, camera, disturbance, start, *_smallest(design, grid, wbar2, v0, cover=False))
+        if ultimate.visible:
+            ultimate.start["reason"] = (
+                f"V(0) = {v0:.3g} lies in a self-consistent set (theta_bar = {env.theta_bar_deg:.3g} deg) whose "
+                "feature regions are not certified inside the image; the statement is the ultimate one")
+            env = ultimate
+    if search and env.visible is not None:
+        _largest_bounds(env, design, camera, desired_features(camera, design.reference), decays(design, grid),
+                        theta_bar)  # fmt: skip
+    env.statement = _statement(env)
+    return env
+
+
+def _build(design: Design, camera: Camera, disturbance: DisturbanceBounds, start: dict, chosen: Decay,
+           inside: bool, margin: float) -> Envelope:
+    """The envelope at the chosen ``theta_bar``: bounds, level, boxes (without the searches)."""  # fmt: skip
+    wbar2 = disturbance.wbar**2
+    mass = design.mass
+    v0 = start["V0"]
+    c_inf = chosen.rho * wbar2
+    level = max(c_inf, v0) if inside else c_inf
+    desired = desired_features(camera, design.reference) if design.rotational else None
+    env = Envelope(
+        rate=chosen.kappa,
+        gamma_prime=chosen.gamma_prime,
+        theta_bar_deg=math.degrees(chosen.theta_bar) if design.rotational else None,
+        m_hi=mass.m_hi,
+        m_lo=mass.m_lo,
+        ultimate_v=c_inf,
+        bounds=error_bounds(design, c_inf),
+        level=level,
+        visible=None,
+        image_margin_px=None,
+        depth_min=None,
+        start={**start, "inside": inside, "level": level if inside else None},
+        max_target_speed=None,
+        max_torque=None,
+        wbar=disturbance.wbar,
+        disturbance=disturbance,
+        margin=margin,
+        invariant_v=chosen.c_max,
+    )
+    if desired is not None:
+        boxes = feature_boxes(design, camera, desired, level)
+        env.visible, env.image_margin_px, env.depth_min, env.boxes = (
+            boxes.visible, boxes.margin_px, boxes.depth_min, boxes.boxes)  # fmt: skip
+        env.ultimate_boxes = feature_boxes(design, camera, desired, c_inf).boxes
+    return env
+
+
+def _largest_bounds(env: Envelope, design: Design, camera: Camera, desired: np.ndarray,
+                    candidates: list[Decay], theta_bar: float | None) -> None:
+    """The largest target speed and torque with the same statement still certified (from
+    t = 0 when the start is covered, else ultimately), each with the other bounds held;
+    re-checked by recomputing the envelope there."""  # fmt: skip
+    if not camera.has_image:
+        return
+    cap = visible_level(design, camera, desired)
+    start = {k: env.start[k] for k in ("V0", "kinetic", "pose") if k in env.start}
+    v0, inside = start["V0"], env.start["inside"]
+    best = 0.0
+    for d in candidates:
+        top = min(d.c_max, cap)
+        if inside and v0 > top:
+            continue
+        best = max(best, top / d.rho)
+    dist = env.disturbance
+    for name, others in (("target_speed", dist.torque**2 + dist.target_rate**2),
+                         ("torque", dist.target_speed**2 + dist.target_rate**2)):  # fmt: skip
+        room = best - others
+        if room < 0:
+            continue
+        value = math.sqrt(room) * (1 - 1e-9)
+        trial = DisturbanceBounds(**{**_fields(dist), name: value})
+        check = envelope(design, camera, trial, start, theta_bar, search=False)
+        if check.visible and (check.start["inside"] or not inside):
+            setattr(env, "max_target_speed" if name == "target_speed" else "max_torque", value)
+
+
+def _fields(d: DisturbanceBounds) -> dict:
+    return {"target_speed": d.target_speed, "target_rate": d.target_rate, "torque": d.torque,
+            "derivation": d.derivation}  # fmt: skip
+
+
+def _statement(env: Envelope) -> str:
+    """One sentence saying what is certified and from when."""
+    if env.rate is None:
+        return "no envelope certified"
+    when = f"for all t >= 0 (the start V(0) = {env.start['V0']:.3g} is inside the certified set V <= {env.level:.3g})"
+    if not env.start["inside"]:
+        when = (f"ultimately, for runs that enter the certified set V <= {env.invariant_v:.3g} "
+                f"(the start V(0) = {env.start['V0']:.3g} is outside it)")  # fmt: skip
+    if env.visible is True:
+        return f"every feature stays in the image {when}"
+    if env.visible is False:
+        return "visibility is NOT certified: a certified feature region reaches the image border or zero depth"
+    why = ("the planar loop's feature regions are not derived (the camera's yaw is not a task)"
+           if env.bounds["theta_ec_deg"] is None else "no image size given")  # fmt: skip
+    return f"errors bounded {when}; no visibility statement: {why}"
+
+
+def disturbance_bounds(section, loop) -> DisturbanceBounds:
+    """The envelope's disturbance bounds: those of the scenario's ``[envelope]`` section
+    (``section``, possibly None), each missing one derived from the loop's own target motion
+    and torque disturbances (saying how)."""
+    given = {} if section is None else section.model_dump(exclude_none=True)
+    derived = {
+        "target_speed": (loop.target.speed, "the target's circle: 2 pi radius / period"),
+        "target_rate": (loop.target.rate, "the target's spin rate"),
+        "torque": (torque_bound(loop.disturbances), "sum of the torque components' sup-norm bounds "
+                   "(step, sine: |amplitude|; noise: |rms| sqrt(2 tones))"),
+    }  # fmt: skip
+    values, how = {}, {}
+    for name, (value, text) in derived.items():
+        values[name] = float(given.get(name, value))
+        how[name] = "[envelope] " + name if name in given else text
+    return DisturbanceBounds(**values, derivation=how)
+
+
+def start_storage(loop, s0: np.ndarray) -> dict:
+    """``V(0)`` (38) at the initial state and its parts: the kinetic term ``xi^T M xi / 2``
+    (large when ``qd0`` differs from ``qd_d(0) = pinv(J_b) u_d(0)``) and the pose errors."""
+    kinetic = loop.xi.T @ loop.robot.mass_matrix @ loop.xi / 2
+    values = cs.Function("V0", [loop.t, loop.state], [loop.storage, kinetic])(0.0, s0)
+    total, kin = (float(v) for v in values)
+    return {"V0": total, "kinetic": kin, "pose": total - kin}

@@ -1,0 +1,276 @@
+"""The operating envelope (MATH facts 7-9): each link of fact 7's chain on its own, the mass
+bounds from the URDF, the rotation reductions, and visibility on simulated runs."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import casadi as cs
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from analysis.certify import output_blocks, random_rotations
+from analysis.cli import app
+from analysis.envelope import (
+    DisturbanceBounds,
+    decays,
+    design_of,
+    desired_features,
+    disturbance_bounds,
+    envelope,
+    error_bounds,
+    feature_boxes,
+    rates,
+    recheck,
+    start_storage,
+)
+from analysis.scenario import Scenario, build, gain_point, load
+from models.camera import Camera
+from models.lie import SO3
+from models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, builtin_urdf
+from tests.conftest import build_loop, run, scenario_dict
+
+EXAMPLES = Path(__file__).parent.parent / "examples"
+
+
+def angle(r: np.ndarray) -> np.ndarray:
+    """Rotation angles of a batch (B, 3, 3)."""
+    return np.arccos(np.clip((np.trace(r, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0))
+
+
+def rotation_errors(traj, loop) -> tuple[np.ndarray, np.ndarray]:
+    """``theta_ec``, ``theta_ee`` along a run, from ``g``, ``gbar`` and ``g_d`` (24), (15)."""
+    poses = {k: traj[k].reshape(-1, 4, 4).transpose(0, 2, 1)[:, :3, :3] for k in ("g", "gbar")}  # CasADi vec: columns
+    r_d = np.asarray(cs.DM(loop.reference.rotation.matrix))
+    r_ec = np.einsum("ji,bjk->bik", r_d, poses["gbar"])
+    r_ee = np.einsum("bji,bjk->bik", poses["gbar"], poses["g"])
+    return angle(r_ec), angle(r_ee)
+
+
+def test_phi_has_quadratic_bounds_in_e_r(rng):
+    """Fact 7: ``|e_R|^2 / 2 <= phi(R) <= |e_R|^2 / (1 + cos theta_bar)`` for ``|theta| <= theta_bar``.
+    The two sides meet as ``theta -> 0`` and at ``theta = theta_bar``, so the relative
+    tolerance 1e-12 covers only rounding of ``cos``/``sin`` (~1e-16) amplified by ``1/sin^2``."""
+    theta_bar = math.radians(150.0)
+    rotations = random_rotations(2000, theta_bar, rng)
+    phi, e_r = [], []
+    for r in rotations:
+        phi.append(float(SO3(cs.DM(r)).error_function()))
+        e_r.append(float(cs.sumsqr(SO3(cs.DM(r)).error_vector())))
+    phi, e_r = np.array(phi), np.array(e_r)
+    assert np.all(phi >= e_r / 2 * (1 - 1e-12))
+    assert np.all(phi <= e_r / (1 + math.cos(theta_bar)) * (1 + 1e-12) + 1e-300)
+
+
+@pytest.fixture(scope="module")
+def default_loop():
+    return build_loop()
+
+
+def storage_and_state(loop) -> cs.Function:
+    """``(t, s) -> (V, xi, e_c, e_e, theta_ec, theta_ee)`` of the loop."""
+    angles = [
+        cs.acos(cs.fmin(1, cs.fmax(-1, (cs.trace(p.rotation.matrix) - 1) / 2)))
+        for p in (loop.control_pose_error, loop.estimation_pose_error)
+    ]
+    kinetic = loop.xi.T @ loop.robot.mass_matrix @ loop.xi / 2
+    return cs.Function("Vx", [loop.t, loop.state], [loop.storage, kinetic, loop.xi, loop.e_c, loop.e_e, *angles])
+
+
+def random_states(loop, s0: np.ndarray, count: int, rng) -> list[np.ndarray]:
+    """States around ``s0``: random joints in [-pi, pi], joint rates up to 3 rad/s, and the
+    observer pose perturbed by up to 0.1 m and 0.6 rad."""
+    n = loop.robot.n
+    out = []
+    for _ in range(count):
+        s = s0.copy()
+        s[:n] = rng.uniform(-math.pi, math.pi, n)
+        s[n : 2 * n] = rng.uniform(-3, 3, n)
+        s[2 * n : 2 * n + 3] += rng.uniform(-0.1, 0.1, 3)
+        quat = s[2 * n + 3 :] + rng.uniform(-0.3, 0.3, 4)
+        s[2 * n + 3 :] = quat / np.linalg.norm(quat)
+        out.append(s)
+    return out
+
+
+def test_storage_is_below_x_d_x(default_loop, rng):
+    """Fact 7: ``V <= x^T D x`` while ``theta_ec, theta_ee <= theta_bar``, term by term (the kinetic
+    term with ``m_hi`` from the URDF, the pose terms with ``1 + cos theta_bar``); and ``V`` bounds
+    every error (``error_bounds(V)`` above each one) with ``m_lo``. Tolerance 1e-12 relative:
+    both sides are sums of the same terms evaluated twice."""
+    loop, s0, _ = default_loop
+    design = design_of(gain_point(Scenario.model_validate(scenario_dict()), 6), loop.reference,
+                       loop.robot.mass_bounds)  # fmt: skip
+    f = storage_and_state(loop)
+    theta_bar = math.radians(120.0)
+    d = np.concatenate([np.full(6, design.mass.m_hi / 2), design.d_diagonal(np.array([theta_bar]))[0]])
+    checked = 0
+    for s in random_states(loop, s0, 300, rng):
+        v, kinetic, xi, e_c, e_e, th_c, th_e = (np.asarray(a).ravel() for a in f(0.0, s))
+        bounds = error_bounds(design, float(v[0]))
+        assert np.linalg.norm(e_c[:3]) <= bounds["p_ec"] * (1 + 1e-12)
+        assert np.linalg.norm(e_e[:3]) <= bounds["p_ee"] * (1 + 1e-12)
+        assert math.degrees(th_c[0]) <= bounds["theta_ec_deg"] * (1 + 1e-9) + 1e-9
+        assert math.degrees(th_e[0]) <= bounds["theta_ee_deg"] * (1 + 1e-9) + 1e-9
+        assert np.linalg.norm(xi) <= bounds["xi"] * (1 + 1e-12)
+        if max(th_c[0], th_e[0]) <= theta_bar:
+            x = np.concatenate([xi, e_c, e_e])
+            assert kinetic[0] <= xi @ (d[:6] * xi) * (1 + 1e-12)
+            assert v[0] - kinetic[0] <= x[6:] @ (d[6:] * x[6:]) * (1 + 1e-12)
+            checked += 1
+    assert checked > 100
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN_URDF))
+def test_mass_bounds_hold_at_random_configurations(name, rng):
+    """``m_lo <= lambda_min(M(q))`` and ``lambda_max(M(q)) <= m_hi`` at 10^4 random ``q`` in
+    ``[-pi, pi]^n`` (every configuration of a revolute arm). No tolerance: the bounds are
+    proven, and the eigenvalue solver's error (~1e-15 ||M||) is far below every gap measured."""
+    robot = Robot(builtin_urdf(name), BUILTIN_CAMERA_FRAME[name], armature=BUILTIN_ARMATURE.get(name, ()))
+    bounds = robot.mass_bounds
+    count = 10_000
+    q = rng.uniform(-math.pi, math.pi, (robot.n, count))
+    m = np.asarray(cs.Function("M", [robot.q], [robot.mass_matrix]).map(count)(q))
+    eig = np.linalg.eigvalsh(m.reshape(robot.n, count, robot.n).transpose(1, 0, 2))
+    assert eig[:, -1].max() <= bounds.m_hi
+    assert 0 < bounds.m_lo <= eig[:, 0].min()
+
+
+def design_at(design, reference, rotation: np.ndarray, k_e: np.ndarray):
+    """The design's ``(e_c, e_e)`` block of ``N^T K N`` at ``R_ec = rotation`` with gains ``k_e``."""
+    w = design.point.weights
+    n_ce = output_blocks(np.array([[w.w_pc, w.w_rc, w.w_pe, w.w_re]]), reference, rotation[None])[0]
+    k = np.concatenate([design.point.k_c, k_e])
+    return replace(design, nkn=n_ce.T @ (k[:, None] * n_ce))
+
+
+def test_isotropic_rate_does_not_depend_on_r_ec(default_loop, rng):
+    """Fact 7 with fact 2: for block-isotropic ``K_e``, ``kappa(s)`` at random ``R_ec`` equals the
+    one at ``I`` (congruence by an orthogonal matrix commuting with ``D``); 1e-10 relative
+    covers the eigenvalue solver's error on matrices of norm ~1e2."""
+    loop, _, _ = default_loop
+    point = gain_point(Scenario.model_validate(scenario_dict(lambda d: d["gains"].update(k_xi=1e4))), 6)
+    design = design_of(point, loop.reference, loop.robot.mass_bounds)
+    s, theta = np.array([0.3]), np.array([math.radians(40.0)])
+    reference = rates(design, s, theta)[0]
+    assert reference < (1e4 - 0.3) / (design.mass.m_hi / 2)  # decided by the (e_c, e_e) block
+    for r in random_rotations(50, math.pi, rng):
+        value = rates(design_at(design, loop.reference, r, point.k_e), s, theta)[0]
+        assert value == pytest.approx(reference, rel=1e-10)
+
+
+def test_anisotropic_k_min_rate_is_below_every_rotation(default_loop, rng):
+    """Fact 7 with fact 5: with anisotropic ``K_e`` the envelope uses ``K_min``; its ``kappa`` is at
+    most the true ``kappa`` at every sampled ``R_ec``, some of which lie below ``kappa`` at
+    ``R_ec = I`` (so checking ``I`` alone would not be sound for these gains)."""
+    loop, _, _ = default_loop
+    k_e = np.array([10.0, 1.0, 1.0, 10.0, 1.0, 1.0])
+    edit = lambda d: d["gains"].update(k_e=k_e.tolist(), k_xi=1e4)  # noqa: E731
+    point = gain_point(Scenario.model_validate(scenario_dict(edit)), 6)
+    design = design_of(point, loop.reference, loop.robot.mass_bounds)
+    s, theta = np.array([0.2]), np.array([math.radians(40.0)])
+    sound = rates(design, s, theta)[0]
+    assert sound < (1e4 - 0.2) / (design.mass.m_hi / 2)  # decided by the (e_c, e_e) block
+    rotations = random_rotations(300, math.pi, rng)
+    values = [rates(design_at(design, loop.reference, r, k_e), s, theta)[0] for r in rotations]
+    at_identity = rates(design_at(design, loop.reference, np.eye(3), k_e), s, theta)[0]
+    assert sound > 0 and min(values) >= sound * (1 - 1e-12)
+    assert min(values) < at_identity * (1 - 1e-4)
+
+
+def test_dissipation_rate_holds_pointwise_on_a_run(default_loop):
+    """Fact 7: ``dV/dt <= -kappa V + gamma'^2/2 |w|^2`` at every output step of a run with the
+    moving target and a torque disturbance, while the rotation errors stay below ``theta_bar``.
+    ``dV/dt`` is exact (automatic differentiation of (38)); the slack 1e-8 (V + |w|^2) covers
+    the identity residual of the run (~1e-10) and rounding."""
+    loop, s0, settings = build_loop(lambda d: d.update(disturbance={"torque": [
+        {"kind": "sine", "amplitude": [3.0, -2.0, 1.0, 0.5, 0.5, 0.2], "frequency": 0.7}]}))  # fmt: skip
+    point = gain_point(Scenario.model_validate(scenario_dict()), 6)
+    design = design_of(point, loop.reference, loop.robot.mass_bounds)
+    theta_bar = math.radians(60.0)
+    (decay,) = decays(design, np.array([theta_bar]))
+    assert recheck(design, decay.s, theta_bar, decay.kappa) >= 0
+    s = decay.s
+    traj = run(loop, s0, settings, duration=4.0)
+    v, vdot, w = traj["V"][:, 0], traj["Vdot"][:, 0], traj["w"]
+    w2 = np.sum(w**2, axis=1)
+    th_c, th_e = rotation_errors(traj, loop)
+    inside = np.maximum(th_c, th_e) <= theta_bar
+    assert inside.mean() > 0.9
+    excess = vdot - (-decay.kappa * v + w2 / (4 * s))
+    assert np.all(excess[inside] <= 1e-8 * (v + w2)[inside])
+
+
+def test_features_stay_in_their_boxes_when_the_start_is_inside():
+    """Fact 8 with fact 7: the shipped start with ``V(0) <= c`` (near the reference, ``xi(0) = 0``),
+    the target moving and a torque disturbance inside the bounds: ``V(t) <= c`` and every
+    feature stays in its certified box at every output step. The boxes are rigorous; the only
+    tolerance is the integrator's (1e-9 relative on ``V``, run at rtol 1e-10)."""
+    spec, base = load(EXAMPLES / "ur5_envelope.toml")
+    loop, s0, settings = build(spec, base)
+    env = envelope(design_of(gain_point(spec, 6), loop.reference, loop.robot.mass_bounds), loop.camera,
+                   disturbance_bounds(spec.envelope, loop), start_storage(loop, s0), search=False)  # fmt: skip
+    assert env.start["inside"] and env.visible
+    traj = run(loop, s0, settings, duration=5.0, jit=False)
+    assert traj.status == "ok"
+    assert np.all(traj["V"][:, 0] <= env.level * (1 + 1e-9))
+    boxes = np.asarray(env.boxes)
+    pixels = traj["f"].reshape(len(traj.t), -1, 2) + loop.camera.centre
+    assert np.all(pixels >= boxes[None, :, :2]) and np.all(pixels <= boxes[None, :, 2:])
+
+
+def test_a_design_whose_region_crosses_the_border_is_not_visible(default_loop):
+    """Fact 8: an image just large enough for the desired features, but smaller than the boxes
+    at the certified level, is reported ``visible = false`` with a negative margin."""
+    loop, s0, _ = default_loop
+    point = gain_point(Scenario.model_validate(scenario_dict()), 6)
+    design = design_of(point, loop.reference, loop.robot.mass_bounds)
+    desired = desired_features(loop.camera, loop.reference)
+    f = loop.camera.focal_length * desired[:, :2] / desired[:, 2:]
+    half = np.abs(f).max(axis=0) + 5.0  # the desired features 5 px inside the border
+    small = Camera(loop.camera.focal_length, loop.camera.points, 2 * half[0], 2 * half[1])
+    assert feature_boxes(design, small, desired, 0.0).visible
+    env = envelope(design, small, DisturbanceBounds(0.0785, 0.0, 0.0), start_storage(loop, s0))
+    assert env.visible is False and env.image_margin_px < 0
+    assert env.max_target_speed is not None and env.max_target_speed < 0.0785
+
+
+@pytest.mark.parametrize("gain", ["k_xi", "k_c", "k_e"])
+def test_max_target_speed_grows_with_each_gain(default_loop, gain):
+    """Facts 7-8: ``N^T K N`` grows with every gain, so ``kappa(s)`` does for every ``s`` and
+    ``theta_bar``, ``c_inf`` falls and the largest certified speed cannot drop."""
+    loop, s0, _ = default_loop
+    start = start_storage(loop, s0)
+    speeds = []
+    for factor in (1.0, 1.5, 3.0):
+        data = scenario_dict()
+        data["gains"][gain] = (np.asarray(data["gains"][gain], dtype=float) * factor).tolist()
+        point = gain_point(Scenario.model_validate(data), 6)
+        design = design_of(point, loop.reference, loop.robot.mass_bounds)
+        speeds.append(envelope(design, loop.camera, DisturbanceBounds(0.0785, 0.0, 0.0), start).max_target_speed)
+    assert speeds[0] is not None and speeds[0] <= speeds[1] <= speeds[2]
+
+
+CONTRACT = {"rate", "gamma_prime", "theta_bar_deg", "m_hi", "ultimate_V", "bounds", "visible", "image_margin_px",
+            "depth_min", "start", "max_target_speed", "max_torque", "wbar"}  # fmt: skip
+
+
+def test_certify_reports_the_envelope_contract(tmp_path):
+    """``dvfc certify --json``: ``points[0].envelope`` carries every key of the contract, with the
+    bounds in SI units and degrees where the key says so, and the start covered for the
+    shipped envelope example (the human table says so too)."""
+    result = CliRunner().invoke(app, ["certify", str(EXAMPLES / "ur5_envelope.toml"), "--out", str(tmp_path),
+                                      "--no-lower-bounds", "--json", "-"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    env = json.loads(result.stdout)["points"][0]["envelope"]
+    assert set(env) >= CONTRACT
+    assert set(env["bounds"]) == {"p_ec", "theta_ec_deg", "p_ee", "theta_ee_deg", "xi"}
+    assert set(env["start"]) >= {"V0", "inside"} and env["start"]["inside"] and env["visible"]
+    assert env["max_target_speed"] > env["disturbance"]["target_speed"]
+    table = CliRunner().invoke(app, ["certify", str(EXAMPLES / "ur5_envelope.toml"), "--out", str(tmp_path),
+                                     "--no-lower-bounds"])  # fmt: skip
+    assert "every feature stays in the image for all t >= 0" in " ".join(table.stdout.split())
