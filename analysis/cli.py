@@ -187,8 +187,12 @@ def show(result: dict) -> None:
     rows = [
         ("status", s["status"]),
         ("horizon", f"{s['t_final']:.3g} s in {s['wall_time']:.3g} s wall"),
-        ("final |p_ec|, |e_R(R_ec)|", f"{f['e_c_position']:.3e} m, {_number(f['e_c_rotation'])}"),
-        ("final |p_ee|, |e_R(R_ee)|", f"{f['e_e_position']:.3e} m, {_number(f['e_e_rotation'])}"),
+        ("final tracking error g_d^-1 g: position, angle", f"{f['tracking_position']:.3e} m, "
+         + ("-" if f["tracking_angle_deg"] is None else f"{f['tracking_angle_deg']:.3g} deg")),
+        ("final control error e_c (estimate vs g_d): |p_ec|, |e_R(R_ec)|",
+         f"{f['e_c_position']:.3e} m, {_number(f['e_c_rotation'])}"),
+        ("final estimation error e_e (g vs estimate): |p_ee|, |e_R(R_ee)|",
+         f"{f['e_e_position']:.3e} m, {_number(f['e_e_rotation'])}"),
         ("V(0) -> V(T)", f"{s['V0']:.4g} -> {s['VT']:.4g}"),
         ("max |tau|", f"{s['max_torque']:.4g} N m"),
         ("Lemma 2 identity residual", f"{r['passivity']:.2e}"),
@@ -413,7 +417,8 @@ def synthesize_command(
     weights = Weights(**spec.weights.model_dump())
     with err.status("solving the gain-synthesis SDP"):
         result = synthesize(
-            weights, spec.reference.se3(), n, bounds, gamma_target=cfg.gamma, search_weights=cfg.search_weights
+            weights, spec.reference.se3(), n, bounds, gamma_target=cfg.gamma, search_weights=cfg.search_weights,
+            theta_max=math.radians(spec.certify.theta_max_deg),
         )
     record = {
         "scenario": spec.name,

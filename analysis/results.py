@@ -143,14 +143,35 @@ def verification_result(
         gamma = exact_gamma(point, spec.reference.se3(), np.eye(3))[0]
         gamma = None if not np.isfinite(gamma) else gamma
     claims = verify(loop, s0, settings, gamma)
-    failed = [c for c in claims if c.passed is False]
+    count = lambda status: sum(c.status == status for c in claims)  # noqa: E731
     result = {
         "scenario": spec.name,
         "gamma": gamma,
         "gamma_certified": cert.certified,
         "claims": [c.as_dict() for c in claims],
-        "summary": {"claims": sum(c.passed is not None for c in claims), "failed": len(failed),
-                    "seconds": time.perf_counter() - start},
+        "summary": {"claims": count("PASS") + count("FAIL"), "failed": count("FAIL"),
+                    "inconclusive": count("INCONCLUSIVE"), "seconds": time.perf_counter() - start},
         "provenance": provenance,
     }  # fmt: skip
     return result, claims
+
+
+def verdict(certificate: dict, verification: dict) -> dict:
+    """The whole verdict of a review: the certificate AND every check behind it.
+
+    ``passed`` only when the design is certified, no claim fails and no check is
+    inconclusive; ``failed`` and ``inconclusive`` list those claims with their reasons."""
+    point = certificate["points"][0]
+    pick = lambda status: [c for c in verification["claims"] if c["status"] == status]  # noqa: E731
+    failed, inconclusive = pick("FAIL"), pick("INCONCLUSIVE")
+    checks = []
+    if failed:
+        checks.append(f"{len(failed)} of {verification['summary']['claims']} checked claims FAIL")
+    if inconclusive:
+        checks.append(f"{len(inconclusive)} check(s) INCONCLUSIVE")
+    if point["certified"]:
+        headline = "CERTIFIED" + (", but " + " and ".join(checks) if checks else ", and every check passes")
+    else:
+        headline = "NOT CERTIFIED" + (" and " + " and ".join(checks) if checks else "")
+    return {"passed": bool(point["certified"]) and not checks, "headline": headline, "failed": failed,
+            "inconclusive": inconclusive}  # fmt: skip

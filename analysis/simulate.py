@@ -303,15 +303,21 @@ def identity_residuals(traj: Trajectory) -> dict[str, float]:
 
 
 def summary(traj: Trajectory) -> dict:
-    """Headline numbers of a run (JSON-ready)."""
+    """Headline numbers of a run (JSON-ready). ``final`` starts with the true tracking error
+    ``g_d^-1 g`` (position in m, angle in degrees; the planar loop's horizontal ``p - p_d``),
+    then the control error ``e_c`` (of the estimate) and the estimation error ``e_e``."""
     e_c, e_e = traj["e_c"], traj["e_e"]
     v = traj["V"][:, 0]
     gap = np.linalg.norm(traj["e_e_image"] - e_e, axis=1)
+    tracking = traj["g_tracking"][-1].reshape(4, 4, order="F")  # g_d^-1 g at the end
+    cosine = np.clip((np.trace(tracking[:3, :3]) - 1) / 2, -1.0, 1.0)
     return {
         "status": traj.status,
         "message": traj.message,
         "t_final": float(traj.t[-1]),
         "final": {
+            "tracking_position": float(np.linalg.norm(tracking[:3, 3])),
+            "tracking_angle_deg": float(np.degrees(np.arccos(cosine))) if e_c.shape[1] == 6 else None,
             "e_c_position": float(np.linalg.norm(e_c[-1, :3])),
             "e_c_rotation": float(np.linalg.norm(e_c[-1, 3:])) if e_c.shape[1] == 6 else None,
             "e_e_position": float(np.linalg.norm(e_e[-1, :3])),

@@ -17,6 +17,7 @@ Optionally the weights are searched on a log grid around the scenario's (outer l
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import cvxpy as cp
@@ -83,9 +84,11 @@ def synthesize(
     *,
     gamma_target: float | None = None,
     search_weights: bool = False,
+    theta_max: float = math.pi,
 ) -> Synthesis:
     """Gains within ``bounds`` minimising the certified gamma (or, with ``gamma_target``,
-    the smallest gain norm reaching it), certified a posteriori."""
+    the smallest gain norm reaching it), certified a posteriori over the rotations
+    ``|theta_ec| <= theta_max`` (the ``[certify]`` region)."""
     candidates = [weights]
     if search_weights:
         scales = (0.25, 0.5, 1.0, 2.0, 4.0)
@@ -97,7 +100,7 @@ def synthesize(
         if gains is None:
             continue
         point = GainPoint(*gains, w)
-        cert = certify(point, reference, gamma_bound=gamma_target)
+        cert = certify(point, reference, theta_max=theta_max, gamma_bound=gamma_target)
         if not cert.certified:
             continue
         better = best.certificate is None or (

@@ -187,6 +187,12 @@ class ClosedLoop:
         return self.estimate.inverse() @ self.relative_pose
 
     @cached_property
+    def tracking_error(self) -> SE3:
+        """The true tracking error ``g_d^-1 g``: the relative pose against the desired one
+        (the identity when the camera holds its pose; ``e_c`` measures the estimate's)."""
+        return self.reference.inverse() @ self.relative_pose
+
+    @cached_property
     def control_pose_error(self) -> SE3:
         """``g_ec = g_d^-1 gbar`` (24)."""
         return self.reference.inverse() @ self.estimate
@@ -355,6 +361,7 @@ class ClosedLoop:
             "tau": self.tau,
             "tau_d": self.tau_d,
             "g": cs.vec(self.relative_pose.as_matrix()),
+            "g_tracking": cs.vec(self.tracking_error.as_matrix()),
             "gbar": cs.vec(self.estimate.as_matrix()),
             "g_wc": cs.vec(r.camera_pose.as_matrix()),
             "g_wo": cs.vec(self.target.pose(self.t).as_matrix()),

@@ -142,6 +142,12 @@ class PlanarLoop(ClosedLoop):
         return self.relative_position - self.pbar
 
     @cached_property
+    def tracking_error(self) -> SE3:
+        """The true tracking error ``p - p_d = e_e + e_c`` (P3)-(P4), horizontal and
+        world-aligned, as a pose without rotation."""
+        return SE3(cs.vertcat(self.e_e + self.e_c, 0), SO3(cs.DM.eye(3)))
+
+    @cached_property
     def e_c(self) -> Matrix:
         """``e_c = pbar - p_d`` (P4)."""
         return self.pbar - cs.DM(np.asarray(cs.DM(self.reference.translation)).ravel()[:TASK])

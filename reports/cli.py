@@ -20,6 +20,7 @@ from analysis.cli import (
     prepare_out_dir,
     resumable,
 )
+from analysis.results import verdict
 from reports.document import CACHE, STEPS, StageCache, assemble, write
 
 
@@ -29,7 +30,8 @@ def report(
     out_dir: OutOpt = None,
     resume: Annotated[bool, typer.Option(help="Reuse the stages an interrupted report finished in --out.")] = False,
 ) -> None:
-    """Write the design-review report of a scenario: report.html (self-contained) and report.pdf."""
+    """Write the design-review report of a scenario: report.html (self-contained) and report.pdf.
+    Exit 0: certified and every check passes; 1: not certified, or a check fails or is inconclusive."""
     spec, loop, s0, settings, _ = load_scenario(scenario)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
     provenance_ = command_provenance(scenario)
@@ -54,3 +56,9 @@ def report(
         bar.update(task, description="HTML and PDF", completed=len(STEPS))
         html, pdf = write(data, directory)
     out.print(f"report: {html}\n        {pdf}", markup=False)
+    outcome = verdict(data.certificate, data.verification)
+    out.print(outcome["headline"], markup=False)
+    for claim in outcome["failed"] + outcome["inconclusive"]:
+        out.print(f"  {claim['status']} {claim['paper']}: {claim['claim']} ({claim['detail']})", markup=False)
+    if not outcome["passed"]:
+        raise typer.Exit(1)

@@ -19,9 +19,9 @@ from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from analysis.grid import GainMap, axis_value, gain_map
 from analysis.output import atomic_write, interrupted
-from analysis.results import certificate_result, verification_result
+from analysis.results import certificate_result, verdict, verification_result
 from analysis.scenario import Scenario, gain_point
-from analysis.simulate import Settings, Simulator, Trajectory, summary
+from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, summary
 from models.loop import ClosedLoop
 from reports import figures
 
@@ -119,6 +119,21 @@ def assemble(
     )
 
 
+def supply_facts(traj: Trajectory) -> dict[str, float | bool]:
+    """What Lemma 2 says about the run shown: with ``w``, ``V(t) - V(0) = int u^T nu +
+    int x^T G w`` (its residual, :func:`analysis.simulate.identity_residuals`) and the
+    smallest values of both supplies against ``-V(0)``; ``int u^T nu >= -V(0)`` is stated
+    for ``w = 0`` only."""
+    i = traj.integrals
+    return {
+        "with_w": bool(np.abs(traj["w"]).max() > 0),
+        "V0": float(traj["V"][0, 0]),
+        "min_u_nu": float(i["supply_u_nu"].min()),
+        "min_total": float((i["supply_u_nu"] + i["supply_x_G_w"]).min()),
+        "residual": identity_residuals(traj)["passivity"],
+    }
+
+
 def _number(value: float | None, digits: int = 6) -> str:
     """A number for the page: ``-`` when absent, ``digits`` significant figures."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
@@ -146,11 +161,13 @@ def render(data: ReportData) -> str:
         region=data.certificate["region"],
         assumptions=data.certificate["assumptions"],
         verification=data.verification,
+        verdict=verdict(data.certificate, data.verification),
         summary=data.summary,
         map=data.gain_map,
         design=data.design,
         best=data.gain_map.best() if data.gain_map is not None and data.gain_map.certified.any() else None,
         figures=data.figures,
+        lemma2=supply_facts(data.trajectory),
         provenance=data.provenance,
     )
 

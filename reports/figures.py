@@ -128,14 +128,19 @@ def torques(traj: Trajectory) -> str:
 
 
 def supply(traj: Trajectory) -> str:
-    """The passivity integral ``int u^T nu`` of Lemma 2 against its bound ``-V(0)`` (37)."""
+    """Lemma 2 on the run shown, with ``w``: ``V(t) - V(0) = int u^T nu + int x^T G w``
+    ((40)-(41)), hence ``>= -V(0)`` as ``V >= 0``; ``int u^T nu`` alone, whose bound
+    ``>= -V(0)`` (37) is stated for ``w = 0``."""
     fig, ax = plt.subplots(figsize=(6.0, 3.4))
-    ax.plot(traj.t, traj.integrals["supply_u_nu"], color=BOUNDED, label="int_0^t u^T nu dt")
-    ax.axhline(-traj["V"][0, 0], color=BOUND, ls="--", label="-beta = -V(0)")
+    v, i = traj["V"][:, 0], traj.integrals
+    ax.plot(traj.t, i["supply_u_nu"] + i["supply_x_G_w"], color=BOUNDED, label="int_0^t (u^T nu + x^T G w) dt")
+    ax.plot(traj.t, v - v[0], color="k", ls=":", label="V(t) - V(0)")
+    ax.plot(traj.t, i["supply_u_nu"], color=ESTIMATE, lw=0.8, label="int_0^t u^T nu dt (>= -V(0) when w = 0)")
+    ax.axhline(-v[0], color=BOUND, ls="--", label="-V(0)")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("supplied energy [J]")
-    ax.set_title("Lemma 2: int u^T nu >= -beta (37)")
-    ax.legend()
+    ax.set_title("Lemma 2: V(t) - V(0) = int u^T nu + int x^T G w >= -V(0)")
+    ax.legend(fontsize=7)
     return svg(fig)
 
 

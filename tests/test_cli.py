@@ -284,3 +284,22 @@ def test_ctrl_c_swallowed_by_native_code_is_remembered():
             signal.raise_signal(signal.SIGINT)
         assert interrupted(failure)
     assert not interrupted(failure)
+
+
+def test_simulate_shows_the_true_tracking_error_first(tmp_path):
+    """The summary leads with the true tracking error g_d^-1 g (position and angle, from the
+    relative pose g, not the estimate gbar), then e_c and e_e, each labelled."""
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["simulate", str(write(tmp_path)), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.stdout.splitlines() if "error" in line]
+    assert "tracking error g_d^-1 g" in lines[0] and "e_c" in lines[1] and "e_e" in lines[2], lines
+    final = json.loads((out / "summary.json").read_text())["summary"]["final"]
+    with np.load(out / "trajectory.npz") as data:
+        g = data["g"][-1].reshape(4, 4, order="F")
+    g_d = np.eye(4)
+    g_d[:3, 3] = scenario_dict()["reference"]["xyz"]  # reference rpy = 0
+    error = np.linalg.solve(g_d, g)
+    angle = np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1)))
+    assert final["tracking_position"] == pytest.approx(np.linalg.norm(error[:3, 3]), rel=1e-9)
+    assert final["tracking_angle_deg"] == pytest.approx(angle, rel=1e-9, abs=1e-9)

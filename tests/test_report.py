@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 import re
 import shutil
 import signal
@@ -69,8 +70,46 @@ def test_html_self_contained(report):
 def test_every_claim_listed(report):
     """The checklist has a row per claim of ``verify`` (15 of the paper, the singularity
     check and 3 measurements of the image loop) with a status."""
-    rows = re.findall(r'<span class="(PASS|FAIL|MEASURED)">', report[0].read_text())
-    assert len(rows) == 19 and rows.count("MEASURED") == 3 and "FAIL" not in rows
+    html = report[0].read_text()
+    rows = re.findall(r'<span class="(PASS|FAIL|INCONCLUSIVE|MEASURED)">', html[html.index('<table id="claims">') :])
+    assert len(rows) == 19 and rows.count("MEASURED") == 3 and rows.count("PASS") == 16
+
+
+def test_banner_carries_the_failed_checks(report, tmp_path):
+    """The verdict on page 1 is the certificate AND the checks: with one claim failing (its
+    stored verification edited), the banner is not green, names the claim with its reason,
+    the checklist shows the reason beside the FAIL, and ``report`` exits 1 saying so."""
+    out = tmp_path / "out"
+    shutil.copytree(report[0].parent, out)
+    stored = out / CACHE / "verification.pkl"
+    payload = pickle.loads(stored.read_bytes())
+    claim = payload["value"]["claims"][0]
+    claim.update(status="FAIL", detail="measured 3e-3, required <= 1e-06")
+    payload["value"]["summary"]["failed"] = 1
+    stored.write_bytes(pickle.dumps(payload))
+    result = CliRunner().invoke(app, ["report", str(DEFAULT_SCENARIO), "--out", str(out), "--resume"])
+    assert result.exit_code == 1, result.output
+    html = (out / "report.html").read_text()
+    banner = html[html.index('id="verdict"') : html.index("</div>", html.index('id="verdict"'))]
+    assert 'class="verdict fail"' in html and "CERTIFIED, but 1 of" in banner
+    assert claim["claim"] in banner and "measured 3e-3" in banner
+    row = html[html.index('<table id="claims">') :].split("</tr>")[1]
+    assert '<span class="FAIL">FAIL</span><br><span class="small reason">measured 3e-3' in row
+    assert f"FAIL {claim['paper']}: {claim['claim']}" in result.stdout
+
+
+def test_lemma_2_caption_holds_for_the_run_shown(report):
+    """With a moving target and torque noise (w != 0) int u^T nu falls below -V(0) (so (37),
+    stated for w = 0, is not what the run shows); the figure's caption states what holds:
+    V(t) - V(0) = int u^T nu + int x^T G w >= -V(0), true on the run to round-off."""
+    html = report[0].read_text()
+    stored = pickle.loads((report[0].parent / CACHE / "simulation.pkl").read_bytes())["value"]
+    supply, v0 = stored.integrals["supply_u_nu"], stored["V"][0, 0]
+    total = supply + stored.integrals["supply_x_G_w"]
+    assert supply.min() < -v0 and total.min() >= -v0 * (1 + 1e-6)
+    caption = html[html.index('<figure id="fig-supply">') :].split("<figcaption>")[1].split("</figcaption>")[0]
+    assert "V(t) - V(0) = int u<sup>T</sup>nu + int x<sup>T</sup>G w" in caption
+    assert "stated for w = 0" in caption
 
 
 def test_html_renders_in_chromium(report, tmp_path):

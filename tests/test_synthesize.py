@@ -61,3 +61,10 @@ def test_gamma_target_gives_smallest_gains(result):
 def test_unreachable_target_is_reported():
     out = synthesize(WEIGHTS, REFERENCE, 6, BOUNDS, gamma_target=1e-3)
     assert out.point is None and "infeasible" in out.status
+
+
+def test_region_is_the_scenarios():
+    """With ``[certify] theta_max_deg = 90`` the synthesised certificate states that region,
+    not every rotation."""
+    out = synthesize(WEIGHTS, REFERENCE, 6, BOUNDS, theta_max=np.radians(90))
+    assert out.certificate.region == "every rotation R_ec with |theta_ec| <= 90 deg"
