@@ -23,6 +23,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
+from rich.text import Text
 
 from analysis.certify import (
     ASSUMPTIONS,
@@ -461,7 +462,7 @@ def verify_command(
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("simulating and checking the claims"):
         result, claims = verification_result(spec, loop, s0, settings, command_provenance(scenario))
-    failed = result["summary"]["failed"]
+    failed = result["summary"]["failed"] + result["summary"]["inconclusive"]
     emit(result, directory / "verification.json" if directory else None, json_target, lambda r: show_claims(r, claims))
     if failed:
         raise typer.Exit(1)
@@ -507,12 +508,16 @@ def show_synthesis(record: dict) -> None:
 def show_claims(result: dict, claims: list) -> None:
     """Human output of ``verify``: each claim with its equation and PASS/FAIL, a verdict."""
     table = Table(title=f"Claims of the paper on {result['scenario']}")
-    for col in ("paper", "claim", "value", "bound", "status"):
+    for col in ("paper", "claim", "value", "bound", "status", "reason"):
         table.add_column(col)
+    colours = {"PASS": "green", "FAIL": "red", "INCONCLUSIVE": "yellow", "MEASURED": "default"}
     for c in claims:
-        status = {True: "[green]PASS[/]", False: "[red]FAIL[/]", None: "measured"}[c.passed]
-        table.add_row(c.reference, c.name, f"{c.value:.3e}", c.bound, status)
+        reason = c.detail if c.status in ("FAIL", "INCONCLUSIVE") else ""
+        status = Text(c.status, style=colours[c.status])
+        table.add_row(Text(c.reference), Text(c.name), f"{c.value:.3e}", Text(c.bound), status, Text(reason))
     out.print(table)
-    failed = result["summary"]["failed"]
-    verdict = "every claim holds" if not failed else f"{failed} claim(s) FAIL"
-    out.print(f"{verdict} ({result['summary']['claims']} checked)", markup=False)
+    summary_ = result["summary"]
+    problems = [f"{summary_['failed']} claim(s) FAIL"] if summary_["failed"] else []
+    problems += [f"{summary_['inconclusive']} check(s) INCONCLUSIVE"] if summary_["inconclusive"] else []
+    verdict = "; ".join(problems) or "every claim holds"
+    out.print(f"{verdict} ({summary_['claims']} checked)", markup=False)

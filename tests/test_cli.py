@@ -260,6 +260,15 @@ def test_verify_short_horizon_fails_convergence(tmp_path):
     assert failed == ["x -> 0"]
 
 
+def test_verify_table_shows_the_reason_beside_a_fail(tmp_path):
+    """The human table prints each FAIL's reason in its row, and the verdict line counts it."""
+    result = runner.invoke(app, ["verify", str(write(tmp_path))], env={"COLUMNS": "250"})
+    assert result.exit_code == 1
+    row = next(line for line in result.stdout.splitlines() if "x -> 0" in line)
+    assert "FAIL" in row and "required |x(T)| / |x(0)| <= 1e-2" in row, row
+    assert "1 claim(s) FAIL" in result.stdout
+
+
 def test_ctrl_c_inside_a_c_extension_counts_as_an_interrupt():
     """Native code reports Ctrl-C its own way (CasADi: a SystemError caused by it; Clarabel:
     InterruptedError): both are interrupts (exit 130 and how to resume); other errors are not."""
