@@ -111,7 +111,8 @@ def worst_case_disturbance(
     model, s_eq = driven_at_rest(loop, w_sym, lin.q_eq)
     h = horizon / intervals
     dae = {"x": model.state, "t": model.t, "p": w_sym, "ode": model.state_rate, "quad": model.x.T @ model.x}
-    step = cs.integrator("interval", "cvodes", dae, 0.0, h, {"abstol": 1e-10, "reltol": 1e-10, "quad_err_con": True})
+    step = cs.integrator("interval", "cvodes", dae, 0.0, h, {"abstol": 1e-10, "reltol": 1e-10, "quad_err_con": True,
+                                                        "disable_internal_warnings": True})
     w = cs.MX.sym("W", n + loop.task_dim, intervals)
     state, energy = cs.DM(s_eq), 0
     for k in range(intervals):

@@ -143,6 +143,7 @@ class Simulator:
                 "quad_err_con": True,
                 "max_num_steps": 100000,
                 "min_step_size": 1e-12,  # a collapsing step ends the run at once instead of grinding
+                "disable_internal_warnings": True,  # SUNDIALS' own lines: the run's status says it instead
             }
             self._integrators[count] = cs.integrator("closed_loop", "cvodes", self._dae, 0.0, grid, options)
         return self._integrators[count]

@@ -239,7 +239,8 @@ def kinematic_claims(loop: ClosedLoop, s0: np.ndarray, seed: int = 2, duration: 
     grid = np.linspace(0, duration, 301)[1:]
     integrator = cs.integrator("vfs", "cvodes", {"x": system.state, "t": system.t, "ode": system.state_rate,
                                                  "quad": quad}, 0.0, grid,
-                               {"abstol": 1e-10, "reltol": 1e-10, "quad_err_con": True})  # fmt: skip
+                               {"abstol": 1e-10, "reltol": 1e-10, "quad_err_con": True,
+                                "disable_internal_warnings": True})  # fmt: skip
     start, est = initial_poses(loop, s0)
     x0 = np.concatenate([start.position_quaternion(), est.position_quaternion()])
     result = integrator(x0=x0)

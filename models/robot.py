@@ -10,6 +10,7 @@ the body Jacobian of the camera frame is the derivative of its forward kinematic
 
 from __future__ import annotations
 
+import difflib
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -81,7 +82,10 @@ def chain_joints(urdf: Path, frame: str) -> list[str]:
     root = _parse(urdf)
     links = {link.get("name") for link in root.iter("link")}
     if frame not in links:
-        raise RobotModelError(f"URDF {urdf.name} has no link named {frame!r}")
+        close = difflib.get_close_matches(frame, sorted(links), n=3, cutoff=0.3) or sorted(links)[:6]
+        raise RobotModelError(
+            f"URDF {urdf.name} has no link named {frame!r}; closest: {', '.join(map(repr, close))}"
+        )
     parent_joint = {j.find("child").get("link"): j for j in root.iter("joint") if j.find("child") is not None}
     names: list[str] = []
     link = frame
@@ -97,9 +101,13 @@ def chain_joints(urdf: Path, frame: str) -> list[str]:
 
 def frozen_urdf(urdf: Path, joints: list[str]) -> str:
     """The URDF with every movable joint outside ``joints`` (a gripper's fingers, say) fixed at
-    zero and without ``mimic`` and ``dynamics`` tags (not rigid-body data): the arm's dynamics
-    then carry those links as rigid loads."""
+    zero and without ``mimic`` and ``dynamics`` tags and top-level elements other than links,
+    joints and materials (``transmission``, ``ros2_control``, ``gazebo``: not rigid-body data):
+    the arm's dynamics then carry those links as rigid loads."""
     root = _parse(urdf)
+    for child in list(root):  # transmission, ros2_control, gazebo: not rigid-body data, unknown to the parser
+        if child.tag not in ("link", "joint", "material"):
+            root.remove(child)
     for joint in root.iter("joint"):
         for tag in ("mimic", "dynamics"):
             for child in joint.findall(tag):
