@@ -22,6 +22,7 @@ import casadi as cs
 import control
 import numpy as np
 
+from analysis.simulate import Settings, Simulator, Trajectory
 from models.lie import SE3, SO3, quaternion_rate, quaternion_to_matrix
 from models.loop import ClosedLoop
 from models.planar import TASK, PlanarLoop
@@ -131,6 +132,43 @@ def worst_case_disturbance(
             break
         current = gradient / np.linalg.norm(gradient) * np.linalg.norm(current)
     return best[0], {"interval_s": h, "horizon_s": horizon, "rms": amplitude, "w": best[1].T.tolist()}
+
+
+def piecewise_constant(values: np.ndarray, interval: float) -> Callable[[cs.SX], cs.SX]:
+    """``w(t) = values[k]`` on ``[k interval, (k + 1) interval)``, 0 after the last piece (the
+    disturbance of :func:`worst_case_disturbance`, one row per piece)."""
+
+    def signal(t):
+        total = cs.DM.zeros(values.shape[1])
+        for k, row in enumerate(values):
+            inside = cs.logic_and(t >= k * interval, t < (k + 1) * interval)
+            total = total + cs.if_else(inside, 1.0, 0.0) * cs.DM(row)
+        return total
+
+    return signal
+
+
+def peak_sinusoid(lin: Linearization, amplitude: float = 1e-2) -> Callable[[cs.SX], cs.SX]:
+    """The linearisation's worst input: ``Re(v exp(j omega t))`` with ``v`` the right singular
+    vector of ``G(j omega)`` at the peak frequency (a constant when the peak is at ``omega = 0``),
+    scaled so that its mean square is ``amplitude^2``. Over a long run from rest its L2 gain
+    tends to ``sigma_max(G(j omega))``, a lower bound on the true gain."""
+    v, omega = lin.worst_input, lin.peak_frequency
+    if omega == 0.0:
+        v = np.real(v)
+        return lambda t: cs.DM(amplitude * v / np.linalg.norm(v))
+    scale = amplitude * np.sqrt(2.0) / np.linalg.norm(v)
+    return lambda t: cs.DM(scale * np.real(v)) * cs.cos(omega * t) - cs.DM(scale * np.imag(v)) * cs.sin(omega * t)
+
+
+def run_from_rest(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[cs.SX], cs.SX], horizon: float,
+                  dt: float = 0.01) -> tuple[float, Trajectory]:
+    """Integrate the ideal loop from its equilibrium (``x(0) = 0``, so ``V(0) = 0``) driven by
+    ``disturbance`` (all of ``w``) with CVODES; returns ``sqrt(int |x|^2 / int |w|^2)`` at the
+    horizon and the trajectory. Theorem 2 says this ratio is at most every certified gamma."""  # fmt: skip
+    _, s_eq = driven_at_rest(loop, cs.SX.zeros(loop.robot.n + loop.task_dim), lin.q_eq)
+    traj = Simulator(driven(loop, disturbance), Settings(duration=horizon, dt=dt)).run(s_eq)
+    return float(np.sqrt(traj.integrals["x_squared"][-1] / traj.integrals["w_squared"][-1])), traj
 
 
 def equilibrium_configuration(loop: ClosedLoop, q0: np.ndarray, iterations: int = 50) -> np.ndarray:
