@@ -35,6 +35,7 @@ from analysis.certify import (
 )
 from analysis.grid import GridSpec, run_sweep
 from analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
+from analysis.pose import initial_view
 from analysis.results import certificate_for, certificate_result, point_record, verification_result
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import Simulator, summary
@@ -117,12 +118,12 @@ def command_provenance(scenario: Path) -> dict:
     return provenance(scenario, ["dvfc", *sys.argv[1:]])
 
 
-def load_scenario(path: Path, mode: str | None = None):
+def load_scenario(path: Path, mode: str | None = None, check_view: bool = True):
     """Read, validate and build a scenario, or exit with status 2 and one line: every
     command rejects the same bad input, whether or not it uses the faulty part."""
     try:
         spec, base = load(path)
-        loop, s0, settings = build(spec, base, mode=mode)
+        loop, s0, settings = build(spec, base, mode=mode, check_view=check_view)
         axes = spec.grid.axes() if spec.grid is not None else None
     except ScenarioError as exc:
         raise fail(str(exc)) from exc
@@ -173,6 +174,37 @@ def simulate(
     if trajectory.status != "ok":
         err.print(f"run stopped: {trajectory.message}", markup=False, soft_wrap=True)
         raise typer.Exit(1)
+
+
+@app.command()
+def pose(scenario: ScenarioArg = DEFAULT_SCENARIO, json_target: JsonOpt = None) -> None:
+    """Show where everything is at the start: the camera's pose at q0, the target's pose (in the
+    world and from the camera) and each feature point's image position and depth, for placing
+    the target in view (see [target] relative_to_camera). Exit 1 when a point is out of view."""
+    spec, loop, s0, _, _ = load_scenario(scenario, check_view=False)
+    check_json_target(json_target)
+    result = {"scenario": spec.name, **initial_view(loop, s0)}
+    emit(result, None, json_target, show_pose)
+    if not all(f["in_view"] for f in result["features"]):
+        raise typer.Exit(1)
+
+
+def show_pose(result: dict) -> None:
+    """Human output of ``pose``."""
+    vec = lambda v: "[" + ", ".join(f"{x:.4g}" for x in v) + "]"  # noqa: E731
+    for label, key in (("camera g_wc(q0)", "camera_in_world"), ("target g_wo(0)", "target_in_world"),
+                       ("target from the camera g(0)", "target_in_camera")):  # fmt: skip
+        pose_ = result[key]
+        out.print(f"{label}: xyz = {vec(pose_['xyz'])} m, rpy = {vec(pose_['rpy'])} rad", markup=False, soft_wrap=True)
+    size = result["image_size"]
+    table = Table(title=f"feature points ({result['image_coordinates']}"
+                  + (f", image {size[0]:g} x {size[1]:g})" if size else ")"))  # fmt: skip
+    for col in ("point", "u [px]", "v [px]", "depth [m]", "in view"):
+        table.add_column(Text(col))
+    for f in result["features"]:
+        table.add_row(str(f["point"]), f"{f['image'][0]:.1f}", f"{f['image'][1]:.1f}", f"{f['depth']:.4g}",
+                      "yes" if f["in_view"] else "NO")  # fmt: skip
+    out.print(table)
 
 
 def _number(value: float | None) -> str:

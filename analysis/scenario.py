@@ -118,10 +118,30 @@ class MotionSection(_Strict):
 
 
 class TargetSection(_Strict):
+    """The object: feature points in its frame, its pose ``g_wo(0)`` in the world (``xyz``,
+    ``rpy``) or relative to the camera at ``q0`` (``relative_to_camera``: ``g_wo(0) =
+    g_wc(q0) g_co``, so ``xyz = [0, 0, d]`` puts it on the optical axis at depth ``d``), and
+    its motion."""
+
     points: Annotated[list[Vector3], Field(min_length=4)]
-    xyz: Vector3
+    xyz: Vector3 | None = None
     rpy: Vector3 = [0.0, 0.0, 0.0]
+    relative_to_camera: Pose | None = None
     motion: MotionSection = MotionSection()
+
+    @model_validator(mode="after")
+    def _one_placement(self) -> TargetSection:
+        if self.relative_to_camera is not None and {"xyz", "rpy"} & self.model_fields_set:
+            raise ValueError("give either xyz/rpy (world frame) or relative_to_camera, not both")
+        if self.relative_to_camera is None and self.xyz is None:
+            raise ValueError("give xyz (the target's position in the world) or relative_to_camera = {xyz, rpy}")
+        return self
+
+    def start(self, camera_at_q0: SE3) -> SE3:
+        """``g_wo(0)``, given the camera's pose ``g_wc(q0)``."""
+        if self.relative_to_camera is not None:
+            return camera_at_q0 @ self.relative_to_camera.se3()
+        return SE3.from_xyz_rpy(self.xyz, self.rpy)
 
     @field_validator("points")
     @classmethod
@@ -514,9 +534,12 @@ def _check_planar(scenario: Scenario, robot: Robot) -> None:
         raise ScenarioError(f"robot: the planar loop needs at least {TASK} joints, the arm has {robot.n}")
 
 
-def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[ClosedLoop, np.ndarray, Settings]:
+def build(
+    scenario: Scenario, base: Path, *, mode: str | None = None, check_view: bool = True
+) -> tuple[ClosedLoop, np.ndarray, Settings]:
     """The closed loop (the paper's, or the reduced planar one), its initial state and the
-    simulation settings of a scenario."""
+    simulation settings of a scenario; ``check_view`` refuses a start with a feature behind
+    the camera or outside the image, or a singular arm (:func:`analysis.pose` shows them)."""
     robot = build_robot(scenario.robot, base)
     n = robot.n
     if scenario.loop == "planar":
@@ -525,9 +548,8 @@ def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[C
     qd0 = _vector(scenario.robot.qd0 or 0.0, n, "robot.qd0")
     t = scenario.target
     m = t.motion
-    target = TargetMotion(
-        SE3.from_xyz_rpy(t.xyz, t.rpy), m.radius, m.period, tuple(m.normal), tuple(m.spin_axis), m.spin_rate
-    )
+    camera_at_q0 = SE3.from_matrix(cs.Function("g_wc", [robot.q], [robot.camera_pose.as_matrix()])(q0))
+    target = TargetMotion(t.start(camera_at_q0), m.radius, m.period, tuple(m.normal), tuple(m.spin_axis), m.spin_rate)
     point = gain_point(scenario, n)
     kind = PlanarLoop if scenario.loop == "planar" else ClosedLoop
     loop = kind(
@@ -542,7 +564,8 @@ def build(scenario: Scenario, base: Path, *, mode: str | None = None) -> tuple[C
     )
     o = scenario.observer
     s0 = loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
-    _check_initial_view(loop, s0, scenario.simulation.sigma_min)
+    if check_view:
+        _check_initial_view(loop, s0, scenario.simulation.sigma_min)
     sim = scenario.simulation
     settings = Settings(sim.duration, sim.dt, sim.rtol, sim.atol, sim.jit, sim.time_budget, sigma_min=sim.sigma_min)
     return loop, s0, settings

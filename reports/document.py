@@ -19,6 +19,7 @@ from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from analysis.grid import GainMap, axis_value, gain_map
 from analysis.output import atomic_write, interrupted
+from analysis.pose import xyz_rpy
 from analysis.results import certificate_result, verdict, verification_result
 from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, summary
@@ -162,6 +163,7 @@ def render(data: ReportData) -> str:
         assumptions=data.certificate["assumptions"],
         verification=data.verification,
         verdict=verdict(data.certificate, data.verification),
+        target_start=xyz_rpy(np.asarray(data.loop.target.start.as_matrix())),
         summary=data.summary,
         map=data.gain_map,
         design=data.design,

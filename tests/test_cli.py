@@ -363,3 +363,46 @@ def test_urdf_with_control_tags_builds_silently(tmp_path, capfd):
     assert Robot(urdf, "tool0").n == 6
     captured = capfd.readouterr()
     assert captured.out == "" and captured.err == ""
+
+
+def on_the_axis(data):
+    """The target placed 0.35 m straight ahead of the camera at q0, facing it."""
+    for key in ("xyz", "rpy"):
+        data["target"].pop(key)
+    data["target"]["relative_to_camera"] = {"xyz": [0.0, 0.0, 0.35], "rpy": [0.0, 0.0, 0.0]}
+
+
+def test_target_placed_relative_to_the_camera(tmp_path):
+    """``relative_to_camera`` gives g(0) itself: ``dvfc pose`` prints the camera pose at q0 and
+    the square of side 0.1 m at depth 0.35 m centred in the 1280 x 1024 image, 800 * 0.05 / 0.35
+    px from the centre on each axis."""
+    result = runner.invoke(app, ["pose", str(write(tmp_path, on_the_axis)), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    view = json.loads(result.stdout)
+    assert np.allclose(view["target_in_camera"]["xyz"], [0.0, 0.0, 0.35], atol=1e-12)
+    assert np.allclose(view["target_in_camera"]["rpy"], 0.0, atol=1e-12)
+    offset = 800 * 0.05 / 0.35
+    expected = np.array([[640 + offset, 512 + offset], [640 - offset, 512 + offset], [640 - offset, 512 - offset],
+                         [640 + offset, 512 - offset]])  # fmt: skip
+    assert np.allclose([f["image"] for f in view["features"]], expected, atol=1e-9)
+    robot = Robot(builtin_urdf("ur5"), "tool0")
+    g_wc = np.asarray(cs.Function("g", [robot.q], [robot.camera_pose.as_matrix()])(scenario_dict()["robot"]["q0"]))
+    assert np.allclose(view["camera_in_world"]["xyz"], g_wc[:3, 3], atol=1e-12)
+
+
+def test_pose_shows_a_target_out_of_view(tmp_path):
+    """A target 0.5 m to the camera's side is bad input for a run, but ``pose`` shows where its
+    points land (exit 1, the points marked out of view)."""
+    def aside(data):
+        on_the_axis(data)
+        data["target"]["relative_to_camera"]["xyz"] = [0.5, 0.0, 0.35]
+
+    path = write(tmp_path, aside)
+    assert runner.invoke(app, ["simulate", str(path)]).exit_code == 2
+    result = runner.invoke(app, ["pose", str(path)], env={"COLUMNS": "200"})
+    assert result.exit_code == 1 and "NO" in result.stdout and "u [px]" in result.stdout, result.output
+
+
+def test_target_placed_twice_is_refused(tmp_path):
+    result = runner.invoke(app, ["pose", str(write(tmp_path, setter("target.relative_to_camera.xyz", [0, 0, 0.3])))])
+    assert result.exit_code == 2 and "give either xyz/rpy (world frame) or relative_to_camera" in result.stderr

@@ -1,0 +1,44 @@
+"""Where everything is at the start: the camera's pose ``g_wc(q0)``, the target's ``g_wo(0)``,
+the relative pose ``g(0) = g_wc^-1 g_wo`` (10) and the feature points in the image (11),
+(14), for placing a target in view before any simulation."""
+
+from __future__ import annotations
+
+import casadi as cs
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from models.loop import ClosedLoop
+
+
+def xyz_rpy(matrix: np.ndarray) -> dict[str, list[float]]:
+    """A 4x4 pose as ``xyz`` and ``rpy`` (URDF convention ``Rz(yaw) Ry(pitch) Rx(roll)``:
+    SciPy's extrinsic ``"xyz"``)."""
+    m = np.asarray(matrix, dtype=float)
+    return {"xyz": m[:3, 3].tolist(), "rpy": Rotation.from_matrix(m[:3, :3]).as_euler("xyz").tolist()}
+
+
+def initial_view(loop: ClosedLoop, s0: np.ndarray) -> dict:
+    """The poses at ``t = 0`` and each feature point's image position and depth: in pixels
+    from the image's top-left corner when the camera's image size is known (with whether it
+    is inside), otherwise about the principal point."""
+    cam, g = loop.camera, loop.relative_pose
+    outputs = [loop.robot.camera_pose.as_matrix(), loop.target.pose(loop.t).as_matrix(), g.as_matrix(),
+               cam.project(g), cam.depths(g)]  # fmt: skip
+    g_wc, g_wo, g0, f, depth = (np.asarray(v) for v in cs.Function("view", [loop.t, loop.state], outputs)(0.0, s0))
+    xy, depth = f.reshape(-1, 2), depth.ravel()
+    outside = set(cam.outside_image(f).tolist()) if cam.has_image else set()
+    pixels = xy + cam.centre if cam.has_image else xy
+    features = [
+        {"point": i, "image": pixels[i].tolist(), "depth": float(depth[i]),
+         "in_view": bool(depth[i] > 0 and i not in outside)}
+        for i in range(cam.m)
+    ]  # fmt: skip
+    return {
+        "camera_in_world": xyz_rpy(g_wc),
+        "target_in_world": xyz_rpy(g_wo),
+        "target_in_camera": xyz_rpy(g0),
+        "image_coordinates": "pixels from the top-left corner" if cam.has_image else "pixels about the principal point",
+        "image_size": [cam.width, cam.height] if cam.has_image else None,
+        "features": features,
+    }
