@@ -410,7 +410,10 @@ NOT_APPLICABLE = (
     "this arm (use the reduced planar loop, loop = \"planar\")"
 )
 
-PLANAR_REGION = "every state of the reduced planar loop (N is constant: no rotation enters)"
+PLANAR_REGION = (
+    "every state of the reduced planar loop where J_p has full row rank (away from the arm's singularities; "
+    "N is constant: no rotation enters)"
+)
 
 PLANAR_ASSUMPTIONS = (
     "planar arm in a horizontal plane, camera looking straight down, target moving without rotating "

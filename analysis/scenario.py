@@ -519,13 +519,44 @@ def disturbances(section: DisturbancesSection, n: int) -> list[Disturbance]:
     return out
 
 
-def _check_planar(scenario: Scenario, robot: Robot) -> None:
-    """The reduced loop's assumptions that the file decides (:mod:`models.planar`)."""
+PLANAR_TILT_TOL = 1e-6
+"""Largest angle (rad) between the camera's optical axis and the downward vertical, and largest
+rate of that axis or of the camera's height per joint, that the planar loop accepts: (P12)
+needs the camera looking straight down at a constant height."""
+
+
+def _check_planar(scenario: Scenario, robot: Robot, q0: np.ndarray) -> None:
+    """The reduced loop's assumptions (:mod:`models.planar`): a target that does not rotate and
+    moves in a horizontal plane (circle normal along +-z), and a camera looking straight down
+    at ``q0`` whose optical axis and height no joint changes (every joint axis vertical). Then
+    it keeps looking down at a constant height along any run (P12): a revolute joint about a
+    vertical axis keeps the axes after it vertical, so the check at ``q0`` holds at every ``q``."""
     motion = scenario.target.motion
     if motion.kind == "circle_spin" or motion.spin_rate != 0:
         raise ScenarioError("target.motion.kind: the planar loop needs a target that does not rotate")
-    if motion.kind == "circle" and list(motion.normal) != [0.0, 0.0, 1.0]:
-        raise ScenarioError("target.motion.normal: the planar loop needs motion in a horizontal plane, [0, 0, 1]")
+    normal = np.asarray(motion.normal) / np.linalg.norm(motion.normal)
+    if motion.kind == "circle" and np.linalg.norm(normal[:2]) > PLANAR_TILT_TOL:
+        raise ScenarioError(
+            "target.motion.normal: the planar loop needs motion in a horizontal plane (normal [0, 0, 1] or "
+            f"[0, 0, -1]); this one is {math.degrees(math.asin(min(1.0, np.linalg.norm(normal[:2])))):.3g} deg "
+            "from vertical"
+        )
+    pose = robot.camera_pose
+    axis, height = pose.rotation.matrix[:, 2], pose.translation[2]
+    geometry = cs.Function("geometry", [robot.q], [axis, cs.jacobian(cs.vertcat(axis, height), robot.q)])
+    axis0, rates = (np.asarray(v) for v in geometry(q0))
+    tilt = math.acos(max(-1.0, min(1.0, -float(axis0.ravel()[2]))))
+    if tilt > PLANAR_TILT_TOL:
+        raise ScenarioError(
+            f"robot: the planar loop needs the camera looking straight down (P12); at q0 its optical axis is "
+            f"{math.degrees(tilt):.3g} deg from the downward vertical"
+        )
+    moving = [robot.joints[j] for j in np.flatnonzero(np.abs(rates).max(axis=0) > PLANAR_TILT_TOL)]
+    if moving:
+        raise ScenarioError(
+            f"robot: the planar loop needs every joint axis vertical (P12: the camera keeps looking down at a "
+            f"constant height); joint(s) {', '.join(moving)} tilt the camera or change its height"
+        )
     if any(scenario.reference.rpy):
         raise ScenarioError("reference.rpy: the planar loop controls the position only; give [0, 0, 0]")
     if any(scenario.observer.error_rpy):
@@ -542,9 +573,9 @@ def build(
     the camera or outside the image, or a singular arm (:func:`analysis.pose` shows them)."""
     robot = build_robot(scenario.robot, base)
     n = robot.n
-    if scenario.loop == "planar":
-        _check_planar(scenario, robot)
     q0 = _vector(scenario.robot.q0, n, "robot.q0")
+    if scenario.loop == "planar":
+        _check_planar(scenario, robot, q0)
     qd0 = _vector(scenario.robot.qd0 or 0.0, n, "robot.qd0")
     t = scenario.target
     m = t.motion

@@ -3,6 +3,8 @@ on the 2-DOF direct-drive testbed."""
 
 from __future__ import annotations
 
+import re
+import tomllib
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,10 +13,11 @@ import numpy as np
 import pytest
 
 from analysis.certify import GainPoint, certify_planar, planar_blocks, theorem2_matrices
-from analysis.scenario import build, load
+from analysis.scenario import Scenario, ScenarioError, build, load
 from analysis.verify import lemma_2, theorem_1
 from models.lie import SE3
 from models.loop import Weights, pseudo_inverse
+from models.planar import PlanarLoop
 
 EXAMPLE = Path(__file__).parent.parent / "examples" / "planar2dd_reduced.toml"
 
@@ -68,3 +71,41 @@ def test_p11_certificate_is_tight_at_its_gamma():
     p = lambda gamma: nkn - g @ g.T / (2 * gamma**2) - 0.5 * np.eye(6)  # noqa: E731
     assert cert.certified and np.linalg.eigvalsh(p(cert.gamma))[0] >= 0
     assert np.linalg.eigvalsh(p(0.99 * cert.gamma))[0] < 0
+
+
+def planar_scenario(edit):
+    data = tomllib.loads(EXAMPLE.read_text())
+    edit(data)
+    return Scenario.model_validate(data)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d["robot"].update(mount={"xyz": [0, 0, 0], "rpy": [0.15, 0.0, 0.0]}),
+         "optical axis is 8.59 deg from the downward"),
+        (lambda d: d.update(robot={"model": "ur5", "q0": [0.15, -1.45, 1.45, -1.70, -1.45, 0.20]}),
+         "optical axis is"),
+        (lambda d: d["target"]["motion"].update(normal=[0.0, 0.2, 1.0]), "11.3 deg from vertical"),
+    ],
+    ids=["tilted mount", "UR5", "tilted circle"],
+)  # fmt: skip
+def test_p12_geometry_is_required(edit, message):
+    """(P12) needs the camera looking straight down at a constant height and the target moving
+    in a horizontal plane: a mount tilted by 0.15 rad, an arm whose camera does not look down
+    (the UR5) and a tilted circle are refused, each naming what is wrong."""
+    with pytest.raises(ScenarioError, match=re.escape(message)):
+        build(planar_scenario(edit), EXAMPLE.parent)
+
+
+def test_p12_allows_a_circle_normal_pointing_down():
+    """A circle normal of [0, 0, -1] is a horizontal plane as well: accepted."""
+    loop, _, _ = build(planar_scenario(lambda d: d["target"]["motion"].update(normal=[0.0, 0.0, -1.0])),
+                       EXAMPLE.parent)  # fmt: skip
+    assert isinstance(loop, PlanarLoop)
+
+
+def test_planar_region_states_the_rank_condition():
+    """The statement needs J_p of full row rank: the certificate's region says so."""
+    point = GainPoint(np.full(2, 20.0), np.full(2, 3.0), np.full(2, 10.0), Weights(4.0, 1.0, 4.0, 1.0))
+    assert "J_p has full row rank" in certify_planar(point, with_sdp=False).region
