@@ -1,17 +1,20 @@
-"""Gain synthesis (MATH fact 6): bounds respected, certified at the reported gamma, and no
-point of a grid inside the bounds certifies a smaller gamma."""
+"""Gain synthesis (MATH fact 6): bounds respected, certified at the reported gamma, no point
+of a grid inside the bounds certifies a smaller gamma (an optimum at a corner), and the
+smallest gains reaching a gamma target (an interior optimum) beat a fine grid."""
 
 from __future__ import annotations
 
 import itertools
 
+import casadi as cs
 import numpy as np
 import pytest
 
 from analysis.certify import GainPoint, certify, exact_gamma
-from analysis.synthesize import Bounds, synthesize
+from analysis.synthesize import TARGET_MARGIN, Bounds, synthesize
 from models.lie import SE3
 from models.loop import Weights
+from tests import reference as ref
 
 REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
 WEIGHTS = Weights(4.0, 1.0, 4.0, 1.0)
@@ -68,3 +71,37 @@ def test_region_is_the_scenarios():
     not every rotation."""
     out = synthesize(WEIGHTS, REFERENCE, 6, BOUNDS, theta_max=np.radians(90))
     assert out.certificate.region == "every rotation R_ec with |theta_ec| <= 90 deg"
+
+
+WIDE = Bounds((0.5, 30.0), (0.05, 10.0), (0.05, 10.0))
+
+
+def test_smallest_gains_for_a_target_are_interior_and_beat_a_fine_grid():
+    """With a gamma target (1.5 times the smallest reachable) the smallest gains sit inside the
+    bounds, on the boundary ``P = 0`` of the feasible set (an interior optimum, unlike the
+    minimum-gamma problem's corner). A 201 x 201 grid of the plane that scales ``K_c`` and ``K_e``
+    (``t_c K_c, t_e K_e`` with ``t`` in [0.5, 1.5], the optimum at (1, 1)), each point judged
+    feasible by the independent reference (``lambda_min(P) >= 0`` at the gamma the synthesis
+    aims at), has no feasible point of smaller norm (to the solver's 1e-6), and its best feasible
+    point is within the grid step of the optimum: ``P`` grows with ``K``, so ``(1 + h, 1 + h)``
+    is feasible and its norm exceeds the optimum's by at most ``h (|K_c| + |K_e|)``."""
+    best_gamma = synthesize(WEIGHTS, REFERENCE, 6, WIDE).certificate.gamma
+    out = synthesize(WEIGHTS, REFERENCE, 6, WIDE, gamma_target=1.5 * best_gamma)
+    p = out.point
+    for values, (lo, hi) in ((p.k_xi, WIDE.k_xi), (p.k_c, WIDE.k_c), (p.k_e, WIDE.k_e)):
+        assert np.all(values > 1.01 * lo) and np.all(values < 0.99 * hi)
+    gamma_aimed = 1.5 * best_gamma / (1 + TARGET_MARGIN)
+    pose = np.asarray(cs.DM(REFERENCE.as_matrix()))
+    w = np.array([WEIGHTS.w_pc, WEIGHTS.w_rc, WEIGHTS.w_pe, WEIGHTS.w_re])
+    n_matrix = ref.output_matrix(w, pose[:3, 3], pose[:3, :3], np.eye(3), 6)
+    weight = ref.disturbance_weight(w, 6)
+    t = np.linspace(0.5, 1.5, 201)
+    t_c, t_e = (v.ravel() for v in np.meshgrid(t, t, indexing="ij"))
+    k = np.hstack([np.tile(p.k_xi, (len(t_c), 1)), t_c[:, None] * p.k_c, t_e[:, None] * p.k_e])
+    a = np.einsum("ji,bj,jk->bik", n_matrix, k, n_matrix) - 0.5 * np.eye(18)
+    feasible = ref.lambda_min(a - weight / (2 * gamma_aimed**2)) >= 0
+    norms = np.linalg.norm(k, axis=1)
+    optimum = np.linalg.norm(np.r_[p.k_xi, p.k_c, p.k_e])
+    h = t[1] - t[0]
+    assert feasible.any() and norms[feasible].min() >= optimum * (1 - 1e-6)
+    assert norms[feasible].min() <= optimum + h * (np.linalg.norm(p.k_c) + np.linalg.norm(p.k_e))
