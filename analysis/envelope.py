@@ -246,14 +246,17 @@ def decays(design: Design, theta_bars: np.ndarray) -> list[Decay]:
 
 def error_bounds(design: Design, c: float) -> dict:
     """Bounds on every error for the states with ``V <= c`` (fact 7): metres, degrees, rad/s."""
-    w_pc, w_rc, w_pe, w_re = design.weights
+    return level_bounds(design.weights, design.mass.m_lo, design.rotational, c)
+
+
+def level_bounds(weights: tuple[float, float, float, float], m_lo: float, rotational: bool, c: float) -> dict:
+    """From ``V <= c``: ``|p_ec| <= sqrt(2c/w_pc)``, ``theta_ec <= arccos(1 - c/w_rc)`` (degrees; None
+    for the planar loop), the same for ``e_e``, ``|xi| <= sqrt(2c/m_lo)``."""
+    w_pc, w_rc, w_pe, w_re = weights
 
     def angle(weight: float) -> float | None:
-        if not design.rotational:
-            return None
-        return math.degrees(math.acos(max(-1.0, 1.0 - c / weight)))
+        return math.degrees(math.acos(max(-1.0, 1.0 - c / weight))) if rotational else None
 
-    m_lo = design.mass.m_lo
     return {
         "p_ec": math.sqrt(2 * c / w_pc),
         "theta_ec_deg": angle(w_rc),

@@ -69,7 +69,7 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
     }
 
 
-def envelope_record(spec: Scenario, loop: ClosedLoop, s0: np.ndarray, point: GainPoint) -> dict:
+def envelope_record(spec: Scenario, loop: ClosedLoop, s0: np.ndarray, point: GainPoint, *, search: bool = True) -> dict:
     """The operating envelope of the scenario's design (MATH facts 7-9), with what it assumes."""
     planar = spec.loop == "planar"
     if not planar and loop.robot.n < 6:
@@ -77,7 +77,8 @@ def envelope_record(spec: Scenario, loop: ClosedLoop, s0: np.ndarray, point: Gai
     design = design_of(point, None if planar else spec.reference.se3(), loop.robot.mass_bounds)
     section = spec.envelope
     theta = None if section is None or section.theta_bar_deg is None else math.radians(section.theta_bar_deg)
-    env = envelope(design, loop.camera, disturbance_bounds(section, loop), start_storage(loop, s0), theta)
+    env = envelope(design, loop.camera, disturbance_bounds(section, loop), start_storage(loop, s0), theta,
+                   search=search)  # fmt: skip
     mass = loop.robot.mass_bounds
     return {
         **env.as_dict(),
@@ -142,7 +143,7 @@ def verification_result(
     if gamma is None and spec.loop == "paper" and loop.robot.n < 6:  # test the paper's claims as written
         gamma = exact_gamma(point, spec.reference.se3(), np.eye(3))[0]
         gamma = None if not np.isfinite(gamma) else gamma
-    claims = verify(loop, s0, settings, gamma)
+    claims = verify(loop, s0, settings, gamma, envelope_record(spec, loop, s0, point, search=False))
     count = lambda status: sum(c.status == status for c in claims)  # noqa: E731
     result = {
         "scenario": spec.name,

@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import casadi as cs
 import numpy as np
 
+from analysis.envelope import level_bounds
 from analysis.linearize import linearize, peak_sinusoid, run_from_rest
 from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals
 from models.disturbance import BandLimitedNoise
@@ -336,6 +337,90 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float) -> list
     ]  # fmt: skip
 
 
+def rotation_angles(traj: Trajectory, reference: SE3) -> tuple[np.ndarray, np.ndarray]:
+    """``theta_ec``, ``theta_ee`` along a run, from ``g``, ``gbar`` and ``g_d`` ((24), (15))."""
+    rot = {k: traj[k].reshape(-1, 4, 4).transpose(0, 2, 1)[:, :3, :3] for k in ("g", "gbar")}  # CasADi vec: columns
+    r_d = np.asarray(cs.DM(reference.rotation.matrix))
+    r_ec = np.einsum("ji,bjk->bik", r_d, rot["gbar"])
+    r_ee = np.einsum("bji,bjk->bik", rot["gbar"], rot["g"])
+    angle = lambda r: np.arccos(np.clip((np.trace(r, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0))  # noqa: E731
+    return angle(r_ec), angle(r_ee)
+
+
+def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: dict) -> list[Claim]:
+    """Facts 7-8 on a run with the scenario's own target motion and torque disturbances:
+
+    - the premise ``|w(t)| <= wbar``;
+    - (fact 7) ``V(t) <= exp(-kappa (t - t0)) V(t0) + gamma'^2/(2 kappa) sup_{t0<=s<=t} |w(s)|^2``
+      from ``t0 = 0`` when the start is inside the certified set, else from the first output
+      step with ``V <= c_max`` (the set the statement covers);
+    - (fact 8) every feature inside its certified box at every step with ``V <= c`` (the boxes
+      bound every state of that sublevel set);
+    - every error over the last quarter of the run within the bound of fact 7's level there,
+      with the ratio to the certified ultimate bound (the envelope's tightness) reported.
+    """
+    if env.get("rate") is None:
+        return [Claim("operating envelope", "MATH facts 7-8", float("nan"), "an envelope", None,
+                      f"not certified: {env.get('reason')}")]  # fmt: skip
+    traj = Simulator(replace(loop, mode="ideal"), settings).run(s0)
+    t, v = traj.t, traj["V"][:, 0]
+    w2 = np.sum(traj["w"] ** 2, axis=1)
+    wbar = env["wbar"]
+    tol = 1e-9 * max(1.0, v[0])
+    claims = [on_run("premise: |w(t)| <= wbar along the run", "fact 7", traj, float(np.sqrt(w2.max())),
+                     f"<= {wbar:.4g}", bool(np.sqrt(w2.max()) <= wbar * (1 + 1e-12)))]  # fmt: skip
+    kappa, gamma = env["rate"], env["gamma_prime"]
+    cap = env["level"] if env["start"]["inside"] else env["invariant_V"]
+    entered = np.flatnonzero(v <= cap)
+    if not entered.size:
+        return [*claims, Claim("the run enters the certified set V <= c", "fact 7", float(v.min()),
+                               f"<= {cap:.4g}", None, "never entered: nothing is claimed for this run")]  # fmt: skip
+    k0 = 0 if env["start"]["inside"] else int(entered[0])
+    running = np.maximum.accumulate(w2[k0:])
+    bound = np.exp(-kappa * (t[k0:] - t[k0])) * v[k0] + gamma**2 / (2 * kappa) * running
+    excess = float(np.max(v[k0:] - bound))
+    claims.append(on_run("V(t) <= exp(-kappa t) V(t0) + gamma'^2/(2 kappa) sup |w|^2", "fact 7", traj, excess,
+                         f"<= {tol:.1e}", excess <= tol, f"from t0 = {t[k0]:.3g} s, kappa = {kappa:.4g} 1/s"))
+    if env.get("boxes_px") is not None:
+        boxes = np.asarray(env["boxes_px"])
+        pixels = traj["f"].reshape(len(t), -1, 2) + loop.camera.centre
+        inside = v <= env["level"]
+        out = np.maximum(boxes[None, :, :2] - pixels, pixels - boxes[None, :, 2:]).max(axis=(1, 2))[inside]
+        worst = float(out.max()) if out.size else float("nan")
+        claims.append(on_run("every feature inside its certified box while V <= c", "fact 8", traj, worst,
+                             "<= 0 px (distance outside the box)", bool(out.size and worst <= 0),
+                             f"{int(inside.sum())} of {len(t)} steps have V <= c = {env['level']:.4g}"))  # fmt: skip
+    claims.extend(_ultimate_errors(loop, traj, env, bound, k0))
+    return claims
+
+
+def _ultimate_errors(loop: ClosedLoop, traj: Trajectory, env: dict, bound: np.ndarray, k0: int) -> list[Claim]:
+    """The errors over the last quarter of the run against fact 7's bound at that time (a claim)
+    and against the certified ultimate bound (a ratio: the envelope's tightness)."""
+    tail = slice(max(k0, 3 * len(traj.t) // 4), None)
+    level = float(bound[tail.start - k0 :].max())
+    measured = {
+        "p_ec": np.linalg.norm(traj["e_c"][tail, :3], axis=1).max(),
+        "p_ee": np.linalg.norm(traj["e_e"][tail, :3], axis=1).max(),
+        "xi": np.linalg.norm(traj["xi"][tail], axis=1).max(),
+    }
+    if env["bounds"]["theta_ec_deg"] is not None:
+        th_c, th_e = rotation_angles(traj, loop.reference)
+        measured["theta_ec_deg"] = np.degrees(th_c[tail].max())
+        measured["theta_ee_deg"] = np.degrees(th_e[tail].max())
+    w = loop.weights
+    at_level = level_bounds((w.w_pc, w.w_rc, w.w_pe, w.w_re), env["m_lo"], "theta_ec_deg" in measured, level)
+    claims = []
+    for name, value in measured.items():
+        ultimate = env["bounds"][name]
+        claims.append(on_run(f"max {name} over the last quarter of the run", "fact 7", traj, float(value),
+                             f"<= {at_level[name]:.4g} (fact 7's bound there)",
+                             bool(value <= at_level[name] * (1 + 1e-9)),
+                             f"certified ultimate bound {ultimate:.4g}; measured / ultimate = "
+                             f"{value / ultimate if ultimate else float('nan'):.3g}"))  # fmt: skip
+    return claims
+
+
 def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Claim]:
     """The loop run on ``e_e`` from the image: for the paper's loop the first-order estimate
     (21), a measurement, not a claim; for the planar loop the exact map (P12), a claim."""
@@ -359,9 +444,12 @@ def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Cla
     ]
 
 
-def verify(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None) -> list[Claim]:
-    """All claims, in the paper's order. Each variant of the loop runs once, so the
-    right-hand sides are evaluated by CasADi's virtual machine rather than compiled."""
+def verify(
+    loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None, envelope: dict | None = None
+) -> list[Claim]:
+    """All claims, in the paper's order, then the operating envelope's (facts 7-8) when given.
+    Each variant of the loop runs once, so the right-hand sides are evaluated by CasADi's
+    virtual machine rather than compiled."""
     settings = replace(settings, jit=False)
     return [
         *([] if isinstance(loop, PlanarLoop) else kinematic_claims(loop, s0)),
@@ -370,4 +458,5 @@ def verify(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | 
         lyapunov_derivative(loop, s0, settings),
         *theorem_2(loop, s0, settings, gamma),
         *image_mode(loop, s0, settings),
+        *([] if envelope is None else envelope_claims(loop, s0, settings, envelope)),
     ]

@@ -29,6 +29,7 @@ from analysis.envelope import (
     start_storage,
 )
 from analysis.scenario import Scenario, build, gain_point, load
+from analysis.verify import envelope_claims, rotation_angles
 from models.camera import Camera
 from models.lie import SO3
 from models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, builtin_urdf
@@ -40,15 +41,6 @@ EXAMPLES = Path(__file__).parent.parent / "examples"
 def angle(r: np.ndarray) -> np.ndarray:
     """Rotation angles of a batch (B, 3, 3)."""
     return np.arccos(np.clip((np.trace(r, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0))
-
-
-def rotation_errors(traj, loop) -> tuple[np.ndarray, np.ndarray]:
-    """``theta_ec``, ``theta_ee`` along a run, from ``g``, ``gbar`` and ``g_d`` (24), (15)."""
-    poses = {k: traj[k].reshape(-1, 4, 4).transpose(0, 2, 1)[:, :3, :3] for k in ("g", "gbar")}  # CasADi vec: columns
-    r_d = np.asarray(cs.DM(loop.reference.rotation.matrix))
-    r_ec = np.einsum("ji,bjk->bik", r_d, poses["gbar"])
-    r_ee = np.einsum("bji,bjk->bik", poses["gbar"], poses["g"])
-    return angle(r_ec), angle(r_ee)
 
 
 def test_phi_has_quadratic_bounds_in_e_r(rng):
@@ -198,7 +190,7 @@ def test_dissipation_rate_holds_pointwise_on_a_run(default_loop):
     traj = run(loop, s0, settings, duration=4.0)
     v, vdot, w = traj["V"][:, 0], traj["Vdot"][:, 0], traj["w"]
     w2 = np.sum(w**2, axis=1)
-    th_c, th_e = rotation_errors(traj, loop)
+    th_c, th_e = rotation_angles(traj, loop.reference)
     inside = np.maximum(th_c, th_e) <= theta_bar
     assert inside.mean() > 0.9
     excess = vdot - (-decay.kappa * v + w2 / (4 * s))
@@ -274,3 +266,15 @@ def test_certify_reports_the_envelope_contract(tmp_path):
     table = CliRunner().invoke(app, ["certify", str(EXAMPLES / "ur5_envelope.toml"), "--out", str(tmp_path),
                                      "--no-lower-bounds"])  # fmt: skip
     assert "every feature stays in the image for all t >= 0" in " ".join(table.stdout.split())
+
+
+def test_verify_confirms_the_envelope_on_a_run():
+    """``dvfc verify``'s envelope claims (fact 7's inequality from t = 0, fact 8's boxes, the
+    ultimate errors against fact 7's bound) all pass on the shipped example that starts
+    inside its envelope, and the measured errors sit below the certified ultimate bounds."""
+    spec, base = load(EXAMPLES / "ur5_envelope.toml")
+    loop, s0, settings = build(spec, base)
+    env = envelope(design_of(gain_point(spec, 6), loop.reference, loop.robot.mass_bounds), loop.camera,
+                   disturbance_bounds(spec.envelope, loop), start_storage(loop, s0), search=False)  # fmt: skip
+    claims = envelope_claims(loop, s0, replace(settings, duration=4.0, jit=False), env.as_dict())
+    assert len(claims) == 8 and all(c.passed for c in claims), [c.as_dict() for c in claims if not c.passed]
