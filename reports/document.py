@@ -114,6 +114,7 @@ def assemble(
         "supply": figures.supply(trajectory),
         "l2": figures.l2_inequality(trajectory, gamma) if gamma is not None else None,
         "map": figures.gain_map(gmap, design) if gmap is not None else None,
+        "envelope": _envelope_figure(trajectory, loop, certificate["points"][0].get("envelope")),
     }
     return ReportData(
         spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance
@@ -133,6 +134,14 @@ def supply_facts(traj: Trajectory) -> dict[str, float | bool]:
         "min_total": float((i["supply_u_nu"] + i["supply_x_G_w"]).min()),
         "residual": identity_residuals(traj)["passivity"],
     }
+
+
+def _envelope_figure(trajectory: Trajectory, loop: ClosedLoop, envelope: dict | None) -> str | None:
+    """The image with the certified feature regions, when there is an image and a region."""
+    camera = loop.camera
+    if not envelope or envelope.get("boxes_px") is None or not camera.has_image:
+        return None
+    return figures.envelope_image(trajectory, camera.centre, (camera.width, camera.height), envelope)
 
 
 def _number(value: float | None, digits: int = 6) -> str:
@@ -164,6 +173,8 @@ def render(data: ReportData) -> str:
         verification=data.verification,
         verdict=verdict(data.certificate, data.verification),
         target_start=xyz_rpy(np.asarray(data.loop.target.start.as_matrix())),
+        envelope=point.get("envelope"),
+        envelope_claims=[c for c in data.verification["claims"] if c["paper"] in ("fact 7", "fact 8")],
         summary=data.summary,
         map=data.gain_map,
         design=data.design,

@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
 from analysis.grid import GainMap
 from analysis.simulate import Trajectory
@@ -79,6 +80,31 @@ def image_plane(traj: Trajectory, focal_length: float) -> str:
     ax.set_title(f"Feature points (focal length {focal_length:g} px)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend()
+    return svg(fig)
+
+
+def envelope_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, float], envelope: dict) -> str:
+    """The image (its border), the certified feature regions of MATH fact 8 (boxes at the
+    certified level, and at the ultimate level ``c_inf``) and the simulated feature tracks."""
+    fig, ax = plt.subplots(figsize=(6.0, 5.0))
+    width, height = size
+    ax.add_patch(Rectangle((0, 0), width, height, fill=False, color="black", lw=1.5, label="image border"))
+    for name, style, label in (("boxes_px", "-", "certified region (V <= c)"),
+                               ("ultimate_boxes_px", ":", "ultimate region (V <= c_inf)")):  # fmt: skip
+        for i, (u0, v0, u1, v1) in enumerate(envelope.get(name) or []):
+            ax.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, color=BOUND, ls=style,
+                                   label=label if i == 0 else None))  # fmt: skip
+    f = traj["f"].reshape(len(traj.t), -1, 2) + centre
+    for i in range(f.shape[1]):
+        ax.plot(f[:, i, 0], f[:, i, 1], color=BOUNDED, lw=1, label="simulated features" if i == 0 else None)
+        ax.plot(*f[0, i], "o", color=BOUNDED, ms=3)
+    ax.set_xlim(-0.05 * width, 1.05 * width)
+    ax.set_ylim(1.05 * height, -0.05 * height)  # image rows grow downwards
+    ax.set_aspect("equal")
+    ax.set_xlabel("u [px]")
+    ax.set_ylabel("v [px]")
+    ax.set_title("Certified feature regions (fact 8) and the simulated tracks")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0))
     return svg(fig)
 
 

@@ -24,7 +24,10 @@ from reports.document import CACHE
 EXAMPLES = Path(__file__).parent.parent / "examples"
 CHROMIUM = shutil.which("chromium")
 POPPLER = shutil.which("pdftoppm")
-FIGURES = ("fig-map", "fig-paths", "fig-image", "fig-errors", "fig-storage", "fig-torques", "fig-supply", "fig-l2")
+FIGURES = (
+    "fig-map", "fig-envelope", "fig-paths", "fig-image", "fig-errors",
+    "fig-storage", "fig-torques", "fig-supply", "fig-l2",
+)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
