@@ -63,12 +63,10 @@ by far more than the eigenvalue solver's error (~1e-14 ||Q||)."""
 THETA_GRID = np.radians(np.arange(1.0, 180.0, 1.0))
 """Candidates for ``theta_bar`` when the scenario does not fix it (1-degree steps)."""
 
-GOLDEN_STEPS = 30
-"""Golden-section steps over ``[s_lim/2, s_lim]``: the bracket shrinks to ~6e-7 of ``s_lim``
-(the optimum only affects tightness, never soundness)."""
-
-CHUNK = 16
-"""``theta_bar`` candidates evaluated together while scanning upwards for the smallest."""
+GOLDEN_STEPS = 24
+"""Golden-section steps over ``[s_lim/2, s_lim]``: the bracket shrinks to ~1e-5 of ``s_lim``;
+``s kappa(s)`` is flat at its maximum, so ``c_inf`` is then within ~1e-10 of its minimum (the
+optimum only affects tightness, never soundness)."""
 
 ASSUMPTIONS = (
     "ideal loop: the law uses the exact estimation error e_e (the image estimate (21) is first order)",
@@ -143,7 +141,7 @@ class Design:
 
 def design_of(point: GainPoint, reference: SE3 | None, mass: MassBounds) -> Design:
     """The :class:`Design` of a gain point: the paper's loop when ``reference`` is given, the
-    reduced planar loop (P9), with ``N`` constant, when it is None."""
+    reduced planar loop (P9), with ``N`` constant and ``D`` of (P13), when it is None."""
     w, n = point.weights, len(point.k_xi)
     if reference is None:
         nmat = planar_output_matrix(w.w_pc, w.w_pe, n)
@@ -163,10 +161,18 @@ def design_of(point: GainPoint, reference: SE3 | None, mass: MassBounds) -> Desi
 def rates(design: Design, s: np.ndarray, theta_bar: np.ndarray) -> np.ndarray:
     """``kappa(s, theta_bar) = min((k_xi_min - s) / (m_hi/2), lambda_min(D^-1/2 (N^T K N - s W) D^-1/2))``
     for batches ``s``, ``theta_bar`` (B,)."""
-    s = np.atleast_1d(s)
+    return _rates(design, _scaled(design, theta_bar), np.atleast_1d(s))
+
+
+def _scaled(design: Design, theta_bar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``D^-1/2 N^T K N D^-1/2`` and the diagonal of ``D^-1/2 W D^-1/2`` per ``theta_bar``."""
     inv = 1.0 / np.sqrt(design.d_diagonal(theta_bar))
-    q = design.nkn[None] - s[:, None, None] * np.diag(design.w)[None]
-    ce = np.linalg.eigvalsh(inv[:, :, None] * q * inv[:, None, :])[:, 0]
+    return inv[:, :, None] * design.nkn[None] * inv[:, None, :], design.w[None] * inv**2
+
+
+def _rates(design: Design, scaled: tuple[np.ndarray, np.ndarray], s: np.ndarray) -> np.ndarray:
+    a, w = scaled
+    ce = np.linalg.eigvalsh(a - s[:, None, None] * (w[:, :, None] * np.eye(a.shape[1])))[:, 0]
     return np.minimum((design.k_xi_min - s) / (design.mass.m_hi / 2), ce)
 
 
@@ -191,8 +197,10 @@ def best_s(design: Design, theta_bar: np.ndarray) -> tuple[np.ndarray, np.ndarra
     lo, hi = np.full(len(theta_bar), top / 2), np.full(len(theta_bar), top)
     ratio = (math.sqrt(5) - 1) / 2
 
+    scaled = _scaled(design, theta_bar)
+
     def value(s: np.ndarray) -> np.ndarray:
-        return s * rates(design, s, theta_bar)
+        return s * _rates(design, scaled, s)
 
     c, d = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
     fc, fd = value(c), value(d)
@@ -204,7 +212,7 @@ def best_s(design: Design, theta_bar: np.ndarray) -> tuple[np.ndarray, np.ndarra
         c, d, fc, fd = (np.where(left, fresh, d), np.where(left, c, fresh),
                         np.where(left, f_fresh, fd), np.where(left, fc, f_fresh))  # fmt: skip
     s = (lo + hi) / 2
-    return s, rates(design, s, theta_bar)
+    return s, _rates(design, scaled, s)
 
 
 def recheck(design: Design, s: float, theta_bar: float, kappa: float) -> float:
@@ -311,7 +319,8 @@ def feature_boxes(design: Design, camera: Camera, desired: np.ndarray, c: float)
 
 def desired_features(camera: Camera, reference: SE3) -> np.ndarray:
     """``g_d p_oi`` for every feature (m, 3)."""
-    return np.stack([np.asarray(cs.DM(reference.act(p))).ravel() for p in camera.points])
+    matrix = np.asarray(cs.DM(reference.as_matrix()))
+    return camera.points @ matrix[:3, :3].T + matrix[:3, 3]
 
 
 def visible_level(design: Design, camera: Camera, desired: np.ndarray, steps: int = 60) -> float:
@@ -396,7 +405,9 @@ def _smallest(design: Design, grid: np.ndarray, wbar2: float, v0: float, cover: 
     grows), so the smallest also has the smallest ``c_inf``. Returns ``(decay, cover, margin)``."""
     if cover and design.rotational:
         grid = grid[design.c_max(grid) >= v0]
-    for chunk in np.array_split(grid, max(1, math.ceil(len(grid) / CHUNK))):
+    lo, size = 0, 1
+    while lo < len(grid):  # chunks of 1, 2, 4, ... candidates: usually the first one is it
+        chunk, lo, size = grid[lo : lo + size], lo + size, 2 * size
         for d in decays(design, chunk):
             if d.rho * wbar2 <= d.c_max and (not cover or v0 <= d.c_max):
                 margin = recheck(design, d.s, d.theta_bar, d.kappa)

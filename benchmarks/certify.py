@@ -3,7 +3,9 @@
 In one run: the vectorised exact route (:func:`analysis.grid.certify_batch`), the
 per-point Clarabel SDP on a sample of the same points, and raw batched
 ``numpy.linalg.eigvalsh`` of as many 12x12 matrices (the ceiling); then the time of one
-anisotropic sound certificate with its worst-rotation search. Prints points/s and ratios.
+anisotropic sound certificate with its worst-rotation search; then the operating envelope
+of one design (MATH facts 7-9) with and without the searches for the largest target
+speed and torque, against one exact gamma of the same design. Prints points/s and ratios.
 """
 
 from __future__ import annotations
@@ -12,10 +14,39 @@ import time
 
 import numpy as np
 
-from analysis.certify import GainPoint, certify, sdp_gamma
+from analysis.certify import GainPoint, certify, exact_gamma, sdp_gamma
+from analysis.envelope import DisturbanceBounds, design_of, envelope
 from analysis.grid import GridSpec, certify_batch
+from models.camera import Camera
+from models.inertia import MassBounds
 from models.lie import SE3
 from models.loop import Weights
+
+SQUARE = np.array([[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [-0.05, -0.05, 0.0], [0.05, -0.05, 0.0]])
+
+
+def median_seconds(job, repeats: int = 20) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        job()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def envelope_timings(design: GainPoint, reference: SE3) -> None:
+    """One design's envelope (the model built: mass bounds and V(0) given) against one exact gamma."""
+    camera = Camera(800.0, SQUARE, 1280.0, 1024.0)
+    mass = MassBounds(0.0019, 12.0)  # the UR5's bounds (models.inertia)
+    bounds = DisturbanceBounds(0.0785, 0.0, 0.05)
+    start = {"V0": 0.002}
+    gamma = median_seconds(lambda: exact_gamma(design, reference, np.eye(3)))
+    plain = median_seconds(lambda: envelope(design_of(design, reference, mass), camera, bounds, start, search=False))
+    full = median_seconds(lambda: envelope(design_of(design, reference, mass), camera, bounds, start))
+    print("operating envelope of one design (median of 20)")
+    print(f"  one exact gamma (baseline)                {gamma * 1e3:12,.2f} ms")
+    print(f"  envelope: rate, bounds, boxes, start      {plain * 1e3:12,.2f} ms  ({plain / gamma:,.1f}x the baseline)")
+    print(f"  envelope with largest speed and torque    {full * 1e3:12,.2f} ms  ({full / gamma:,.1f}x the baseline)")
 
 
 def main() -> None:
@@ -56,6 +87,7 @@ def main() -> None:
     print(f"  exact / SDP                               {exact / sdp:12,.0f}x")
     print(f"  ceiling / exact                           {ceiling / exact:12,.2f}x")
     print(f"  anisotropic sound certificate + search    {anisotropic * 1e3:12,.1f} ms  (gap {cert.gap:.2%})")
+    envelope_timings(design, reference)
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ from analysis.envelope import (
 from analysis.scenario import Scenario, build, gain_point, load
 from analysis.verify import envelope_claims, rotation_angles
 from models.camera import Camera
+from models.disturbance import Sine
 from models.lie import SO3
 from models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, builtin_urdf
 from tests.conftest import build_loop, run, scenario_dict
@@ -278,3 +279,23 @@ def test_verify_confirms_the_envelope_on_a_run():
                    disturbance_bounds(spec.envelope, loop), start_storage(loop, s0), search=False)  # fmt: skip
     claims = envelope_claims(loop, s0, replace(settings, duration=4.0, jit=False), env.as_dict())
     assert len(claims) == 8 and all(c.passed for c in claims), [c.as_dict() for c in claims if not c.passed]
+
+
+def test_p13_planar_envelope_holds_on_a_run():
+    """(P13): for the reduced planar loop ``V <= x^T D x`` with no ``theta_bar``, so every start is
+    covered; on the shipped planar run with a torque disturbance, ``dV/dt <= -kappa V +
+    |w|^2/(4 s)`` at every output step and ``V(t)`` stays below fact 7's bound from t = 0.
+    Slack 1e-8 (V + |w|^2): the run's identity residual (~1e-10) and rounding."""
+    spec, base = load(EXAMPLES / "planar2dd_reduced.toml")
+    loop, s0, settings = build(spec, base)
+    loop = replace(loop, disturbances=[Sine(np.array([0.2, -0.1]), 0.8)])
+    design = design_of(gain_point(spec, loop.robot.n), None, loop.robot.mass_bounds)
+    env = envelope(design, loop.camera, DisturbanceBounds(loop.target.speed, 0.0, math.hypot(0.2, 0.1)),
+                   start_storage(loop, s0))  # fmt: skip
+    assert env.rate > 0 and env.start["inside"] and env.theta_bar_deg is None
+    traj = run(loop, s0, settings, duration=4.0, jit=False)
+    v, vdot, w2 = traj["V"][:, 0], traj["Vdot"][:, 0], np.sum(traj["w"] ** 2, axis=1)
+    s = 1 / (2 * env.gamma_prime**2)
+    assert np.all(vdot + env.rate * v - w2 / (4 * s) <= 1e-8 * (v + w2))
+    bound = np.exp(-env.rate * traj.t) * v[0] + env.ultimate_v * np.maximum.accumulate(w2) / env.wbar**2
+    assert np.all(v <= bound * (1 + 1e-9))
