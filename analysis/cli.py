@@ -26,17 +26,13 @@ from rich.table import Table
 from rich.text import Text
 
 from analysis.certify import (
-    ASSUMPTIONS,
     NOT_APPLICABLE,
-    PLANAR_ASSUMPTIONS,
-    PLANAR_REGION,
     GainPoint,
-    region_text,
 )
-from analysis.grid import GridSpec, run_sweep
+from analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
 from analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
 from analysis.pose import initial_view
-from analysis.results import certificate_for, certificate_result, point_record, verification_result
+from analysis.results import certificate_result, grid_result, point_record, verification_result
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import Simulator, summary
 from analysis.synthesize import Bounds, synthesize
@@ -241,7 +237,8 @@ def show(result: dict) -> None:
 
 
 MAX_GRID_POINTS = 10**8
-"""Grids larger than this need ``--large``."""
+MAX_GRID_BYTES = 10**9
+"""Grids of more points, or whose results are expected to take more bytes on disk, need ``--large``."""
 
 
 @app.command("certify")
@@ -254,8 +251,11 @@ def certify_command(
         str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
     ] = None,
     resume: Annotated[bool, typer.Option(help="Continue an interrupted grid sweep in --out.")] = False,
-    large: Annotated[bool, typer.Option(help=f"Allow grids of more than {MAX_GRID_POINTS:.0e} points.")] = False,
-    batch_size: Annotated[int, typer.Option(min=1, help="Grid points per batch.")] = 20000,
+    large: Annotated[
+        bool, typer.Option(help=f"Allow grids of more than {MAX_GRID_POINTS:.0e} points or {MAX_GRID_BYTES:.0e} bytes.")
+    ] = False,
+    batch_size: Annotated[int, typer.Option(min=1, help="Grid points per batch (one Parquet file each).")] = 20000,
+    csv: Annotated[bool, typer.Option("--csv", help="Grid: also export the points as DIR/points.csv.")] = False,
     lower_bounds: Annotated[
         bool, typer.Option(help="Single point: also measure lower bounds on the true L2 gain (linearisation, search).")
     ] = True,
@@ -271,10 +271,15 @@ def certify_command(
         raise typer.Exit(1)
     if axes is not None:
         size = int(np.prod([len(v) for _, v in axes], dtype=np.int64))
-        if size > MAX_GRID_POINTS and not large:
-            raise fail(f"grid: {size:.3g} points exceeds {MAX_GRID_POINTS:.0e}; pass --large to confirm")
+        expected = size * BYTES_PER_POINT
+        if (size > MAX_GRID_POINTS or expected > MAX_GRID_BYTES) and not large:
+            raise fail(f"grid: {size:,} points, about {expected / 1e6:,.0f} MB on disk, exceeds {MAX_GRID_POINTS:.0e} "
+                       f"points or {MAX_GRID_BYTES / 1e6:,.0f} MB; pass --large to confirm")  # fmt: skip
+        err.print(f"grid: {size:,} points, about {expected / 1e6:,.3g} MB on disk (Parquet, ~{BYTES_PER_POINT} bytes "
+                  f"a point{'; plus CSV, about 4x more' if csv else ''})", markup=False, soft_wrap=True)  # fmt: skip
         directory = prepare_out_dir(out_dir or Path("out") / f"{spec.name}-grid")
-        sweep(spec, scenario, point, axes, directory, json_target, (workers, scheduler, resume, batch_size), start)
+        how = (workers, scheduler, resume, batch_size, csv)
+        sweep(spec, scenario, point, axes, directory, json_target, how, start)
         return
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("certifying and measuring lower bounds on the L2 gain"):
@@ -350,12 +355,35 @@ def show_envelope(e: dict) -> None:
     out.print(f"ENVELOPE: {e['statement']}. Assumes: {'; '.join(e['assumptions'])}.", markup=False)
 
 
-def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_target, how: tuple, start: float):
-    """Run a grid sweep with a progress bar; write certificate.json; exit 0/1.
+PROGRESS_EVERY = 5.0
+"""Seconds between progress lines when standard error is not a terminal (CI logs, nohup)."""
 
-    ``how`` is ``(workers, scheduler, resume, batch_size)``.
+
+class ProgressLines:
+    """Progress for a standard error that is not a terminal: one plain line every
+    :data:`PROGRESS_EVERY` seconds (and at the end), ``label: done / total unit (percent), rate``."""
+
+    def __init__(self, label: str, total: float, unit: str) -> None:
+        self.label, self.total, self.unit, self.every = label, total, unit, PROGRESS_EVERY
+        self.start = self.last = time.perf_counter()
+
+    def __call__(self, done: float) -> None:
+        now = time.perf_counter()
+        if now - self.last < self.every and done < self.total:
+            return
+        self.last = now
+        elapsed = max(now - self.start, 1e-9)
+        err.print(f"{self.label}: {done:,.0f} / {self.total:,.0f} {self.unit} ({100 * done / self.total:.0f}%), "
+                  f"{done / elapsed:,.0f} {self.unit}/s, {elapsed:.0f} s", markup=False, soft_wrap=True)  # fmt: skip
+
+
+def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_target, how: tuple, start: float):
+    """Run a grid sweep with progress (a bar on a terminal, lines otherwise); write
+    certificate.json (and points.csv with ``csv``); exit 0/1.
+
+    ``how`` is ``(workers, scheduler, resume, batch_size, csv)``.
     """
-    workers, scheduler, resume, batch_size = how
+    workers, scheduler, resume, batch_size, csv = how
     try:
         grid = GridSpec.around(point, spec.reference.se3(), axes, spec.certify.gamma)
     except ValueError as exc:
@@ -374,55 +402,27 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
     try:
         with (
             resumable(f"dvfc certify {scenario} --out {directory} --resume"),
-            Progress(*columns, console=err, transient=True) as bar,
+            Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar,
         ):
             task = bar.add_task("grid", total=grid.size, rate="")
+            lines = None if err.is_terminal else ProgressLines("certify grid", grid.size, "points")
 
             def advance(done: int) -> None:
                 elapsed = max(time.perf_counter() - start, 1e-9)
                 bar.update(task, completed=done, rate=f"{done / elapsed:,.0f} points/s")
+                if lines is not None:
+                    lines(done)
 
-            state = run_sweep(
-                grid,
-                directory,
-                batch_size=batch_size,
-                workers=workers,
-                scheduler=scheduler,
-                resume=resume,
-                progress=advance,
-                scenario_sha256=sha,
-            )
+            state = run_sweep(grid, directory, batch_size=batch_size, workers=workers, scheduler=scheduler,
+                              resume=resume, progress=advance, scenario_sha256=sha)  # fmt: skip
+            files = {"points_dataset": str(directory / POINTS)}
+            if csv:
+                export_csv(directory, directory / "points.csv")
+                files["points_csv"] = str(directory / "points.csv")
     except ValueError as exc:
         raise fail(str(exc)) from exc
-
-    def record(entry):
-        if entry is None:
-            return None
-        d = grid.designs(entry[1], entry[1] + 1)
-        gp = GainPoint(d["k_xi"][0], d["k_c"][0], d["k_e"][0], Weights(*d["w"][0]))
-        return {"index": entry[1], **point_record(gp, certificate_for(spec, gp))}
-
-    best, worst = record(state.best), record(state.worst)
-    planar = spec.loop == "planar"
-    result = {
-        "scenario": spec.name,
-        "loop": spec.loop,
-        "region": PLANAR_REGION if planar else region_text(math.radians(spec.certify.theta_max_deg)),
-        "assumptions": list(PLANAR_ASSUMPTIONS if planar else ASSUMPTIONS),
-        "gamma_required": spec.certify.gamma,
-        "grid": {name: values.tolist() if len(values) <= 1000 else f"{len(values)} values" for name, values in axes},
-        "points": [p for p in (best, worst) if p is not None],
-        "points_file": str(directory / "points.csv"),
-        "points_jsonl": str(directory / "points.jsonl"),
-        "summary": {
-            "points": grid.size,
-            "certified": state.certified,
-            "gamma_min": best["gamma"] if best else None,
-            "seconds": time.perf_counter() - start,
-        },
-        "provenance": command_provenance(scenario),
-    }
-    emit(result, directory / "certificate.json", json_target, lambda r: show_grid(r, best, worst))
+    result = grid_result(spec, grid, state, files, command_provenance(scenario), time.perf_counter() - start)
+    emit(result, directory / "certificate.json", json_target, show_grid)
     if state.certified < grid.size:
         raise typer.Exit(1)
 
@@ -500,26 +500,26 @@ def verify_command(
         raise typer.Exit(1)
 
 
-def show_grid(result: dict, best: dict | None, worst: dict | None) -> None:
-    """Human output of a grid sweep: the best and worst points, the region, the count."""
+def show_grid(result: dict) -> None:
+    """Human output of a grid sweep: the named points (each labelled), the region, the count."""
     table = Table(title=f"Theorem 2 over the grid: {result['scenario']}")
-    for col in ("", "gamma", "k_xi", "k_c", "k_e", "w_pc, w_rc, w_pe, w_re", "certified"):
-        table.add_column(col)
-    for label, p in (("best", best), ("worst", worst)):
-        if p is not None:
-            g = p["gains"]
-            gamma = "-" if p["gamma"] is None else f"{p['gamma']:.6g}"
-            weights = ", ".join(f"{v:g}" for v in p["weights"].values())
-            table.add_row(label, gamma, str(g["k_xi"][:3]) + "...", str(g["k_c"]), str(g["k_e"]), weights,
-                          str(p["certified"]))  # fmt: skip
+    for col in ("point", "gamma", "k_xi", "k_c", "k_e", "w_pc, w_rc, w_pe, w_re", "certified"):
+        table.add_column(Text(col))
+    for p in result["points"]:
+        g = p["gains"]
+        gamma = "-" if p["gamma"] is None else f"{p['gamma']:.6g}"
+        weights = ", ".join(f"{v:g}" for v in p["weights"].values())
+        short = lambda v: Text(", ".join(f"{x:.3g}" for x in v))  # noqa: E731
+        table.add_row(Text(p["label"]), gamma, short(g["k_xi"]), short(g["k_c"]), short(g["k_e"]), weights,
+                      str(p["certified"]))  # fmt: skip
     out.print(table)
     out.print(
         f"region: {result['region']}; method: exact closed form (fact 3), blockwise-minimum K_e (fact 5)",
         markup=False,
     )
     summary_ = result["summary"]
-    out.print(f"{summary_['certified']} of {summary_['points']} points certified; results: {result['points_file']}",
-              markup=False)  # fmt: skip
+    stored = result.get("points_csv") or result["points_dataset"]
+    out.print(f"{summary_['certified']} of {summary_['points']} points certified; results: {stored}", markup=False)
 
 
 def show_synthesis(record: dict) -> None:

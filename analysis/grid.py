@@ -1,4 +1,4 @@
-"""Gain-grid sweeps of the Theorem 2 certificate: batched, streamed, resumable.
+"""Gain-grid sweeps of the Theorem 2 certificate: batched, stored as Parquet, resumable.
 
 The cartesian product of the ``[grid]`` axes is enumerated by a flat index; batches of
 consecutive indices are certified with the exact closed form (MATH fact 3) and an
@@ -6,18 +6,16 @@ a posteriori eigenvalue check of the ``(e_c, e_e)`` block of ``P`` (the ``xi`` b
 diagonal and checked directly). Anisotropic ``K_e`` uses the blockwise-minimum bound
 (MATH fact 5), sound for every ``R_ec``; grids do not run the worst-rotation search.
 
-Results are appended to ``points.csv`` batch by batch; after each batch the byte length
-of the CSV and the number of points done are written atomically to ``sweep.json``. A
-resumed sweep truncates the CSV to the recorded length and continues at the recorded
-point: nothing lost, nothing repeated.
+Each batch is written as one Parquet file (zstd) in ``points/``, atomically (temporary
+file, then rename): the folder is one dataset for pyarrow, pandas, polars and Dask. After
+each batch the number of points done is written atomically to ``sweep.json``. A resumed
+sweep removes any batch file past the recorded point and continues there: nothing lost,
+nothing repeated. :func:`export_csv` writes the same rows as one CSV file.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import json
-import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -25,6 +23,9 @@ from pathlib import Path
 
 import casadi as cs
 import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
 
 from analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
 from analysis.output import atomic_write, interrupted, json_text
@@ -147,6 +148,7 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     certified = reason == 0
     return {
         "index": np.arange(start, stop),
+        "gain_norm": np.linalg.norm(np.hstack([d["k_xi"], d["k_c"], d["k_e"]]), axis=1),
         "gamma": np.where(finite, gamma, np.nan),
         "margin": margin,
         "certified": certified,
@@ -163,61 +165,63 @@ def batches(start: int, total: int, size: int) -> Iterator[tuple[int, int]]:
         yield lo, min(lo + size, total)
 
 
-def csv_rows(result: dict[str, np.ndarray], axes: list[str]) -> str:
-    """A batch as CSV text (no header)."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    columns = [
-        result["index"],
-        *(result[a] for a in axes),
-        result["certified"],
-        result["gamma"],
-        result["margin"],
-        result["reason"],
-    ]
-    for row in zip(*columns, strict=True):
-        idx, *vals, ok, gamma, margin, code = row
-        writer.writerow(
-            [
-                int(idx),
-                *(repr(float(v)) for v in vals),
-                int(ok),
-                "" if np.isnan(gamma) else repr(float(gamma)),
-                "" if np.isnan(margin) else repr(float(margin)),
-                int(code),
-            ]
-        )
-    return buffer.getvalue()
+POINTS = "points"
+"""Folder of the grid's results in the output directory: one Parquet file per batch."""
+
+BYTES_PER_POINT = 20
+"""Disk size of one grid point in Parquet (zstd), for the estimate printed before a sweep:
+gamma and margin (8 bytes each, nearly incompressible) plus the index, the axis values,
+the flag and the reason code (a few bytes after dictionary and run-length encoding);
+measured 17-18 bytes a point on grids of 1e5-1e6 points (benchmarks/certify.py)."""
 
 
-def jsonl_rows(result: dict[str, np.ndarray], axes: list[str]) -> str:
-    """A batch as JSON Lines, one object per point (null where no gamma exists)."""
-    finite = lambda v: None if np.isnan(v) else float(v)  # noqa: E731
-    lines = []
-    for k in range(len(result["index"])):
-        code = int(result["reason"][k])
-        lines.append(json.dumps({
-            "index": int(result["index"][k]),
-            **{a: float(result[a][k]) for a in axes},
-            "certified": bool(result["certified"][k]),
-            "gamma": finite(result["gamma"][k]),
-            "margin": finite(result["margin"][k]),
-            "reason": REASON_TEXT.get(code),
-        }))  # fmt: skip
-    return "".join(line + "\n" for line in lines)
+def batch_table(result: dict[str, np.ndarray], axes: list[str]) -> pa.Table:
+    """A batch as a table: ``index``, the axis values, ``certified``, ``gamma`` and ``margin``
+    (null where no gamma exists) and ``reason`` (code, see :data:`REASON_TEXT`)."""
+    nan = lambda v: pa.array(v, mask=np.isnan(v))  # noqa: E731
+    return pa.table({
+        "index": pa.array(result["index"], pa.uint64()),
+        **{a: pa.array(result[a], pa.float64()) for a in axes},
+        "certified": pa.array(result["certified"]),
+        "gamma": nan(result["gamma"]),
+        "margin": nan(result["margin"]),
+        "reason": pa.array(result["reason"].astype(np.uint8)),
+    })  # fmt: skip
 
 
-OUTPUTS = {"points.csv": csv_rows, "points.jsonl": jsonl_rows}
-"""Streamed result files and how a batch is written to each."""
+def part_path(directory: Path, start: int) -> Path:
+    """The Parquet file of the batch starting at point ``start`` (names sort by it)."""
+    return directory / POINTS / f"part-{start:012d}.parquet"
+
+
+def read_points(directory: Path) -> pa.Table:
+    """Every point of a sweep in ``directory``, in index order."""
+    return pq.read_table(directory / POINTS).sort_by("index")
+
+
+def export_csv(directory: Path, target: Path) -> None:
+    """The sweep's points as one CSV file (header, then one row per point), atomically."""
+    parts = sorted((directory / POINTS).glob("part-*.parquet"))
+
+    def write(handle) -> None:
+        for i, part in enumerate(parts):
+            pacsv.write_csv(pq.read_table(part), handle, pacsv.WriteOptions(include_header=i == 0))
+
+    atomic_write(target, write)
 
 
 @dataclass
 class SweepState:
+    """Progress of a sweep: points done and certified, and the points worth naming, each as
+    ``(value, index)``: ``best`` the smallest certified gamma, ``worst`` the largest gamma
+    (infinite when some point is not certified), ``cheapest`` the certified point of smallest
+    gain norm ``|[k_xi; k_c; k_e]|`` (with a gamma requirement: the cheapest meeting it)."""
+
     done: int
-    sizes: dict[str, int]
     certified: int
     best: tuple[float, int] | None
     worst: tuple[float, int] | None
+    cheapest: tuple[float, int] | None
 
 
 def run_sweep(
@@ -231,72 +235,65 @@ def run_sweep(
     progress: Callable[[int], None] | None = None,
     scenario_sha256: str = "",
 ) -> SweepState:
-    """Certify every grid point, streaming to ``points.csv`` and ``points.jsonl`` in
-    ``directory``; resumable."""
+    """Certify every grid point, one Parquet file per batch in ``directory / points``; resumable."""
     axes = [name for name, _ in spec.axes]
     state_path = directory / "sweep.json"
-    headers = {"points.csv": ",".join(["index", *axes, "certified", "gamma", "margin", "reason"]) + "\n",
-               "points.jsonl": ""}  # fmt: skip
+    folder = directory / POINTS
+    folder.mkdir(exist_ok=True)
     if resume and state_path.exists():
         saved = json.loads(state_path.read_text())
         if saved["scenario_sha256"] != scenario_sha256 or saved["total"] != spec.size:
             raise ValueError("--resume: the sweep in this directory belongs to another scenario or grid")
-        best, worst = (tuple(saved[k]) if saved[k] else None for k in ("best", "worst"))
-        state = SweepState(saved["done"], saved["sizes"], saved["certified"], best, worst)
-        for name, size in state.sizes.items():
-            with open(directory / name, "r+b") as handle:
-                handle.truncate(size)
+        state = SweepState(saved["done"], saved["certified"],
+                           *(tuple(saved[k]) if saved[k] else None for k in ("best", "worst", "cheapest")))  # fmt: skip
     else:
-        for name, header in headers.items():
-            (directory / name).write_text(header)
-        state = SweepState(0, {name: len(h.encode()) for name, h in headers.items()}, 0, None, None)
+        state = SweepState(0, 0, None, None, None)
+    for part in folder.glob("part-*.parquet"):  # batches past the recorded point (or of an old sweep)
+        if int(part.stem.removeprefix("part-")) >= state.done:
+            part.unlink()
 
     def save() -> None:
         data = {
             "scenario_sha256": scenario_sha256,
             "total": spec.size,
             "done": state.done,
-            "sizes": state.sizes,
             "certified": state.certified,
-            "best": list(state.best) if state.best else None,
-            "worst": list(state.worst) if state.worst else None,
-        }
+            **{k: list(v) if v else None for k, v in (("best", state.best), ("worst", state.worst),
+                                                     ("cheapest", state.cheapest))},
+        }  # fmt: skip
         atomic_write(state_path, lambda h: h.write(json_text(data).encode()))
 
     save()
-    files = {name: open(directory / name, "ab") for name in OUTPUTS}  # noqa: SIM115  (closed below)
-    try:
-        with BatchRunner(workers, scheduler) as submit:
-            for result in submit(spec, list(batches(state.done, spec.size, batch_size))):
-                if interrupted(None):  # Ctrl-C that native code swallowed: keep nothing of this batch
-                    raise KeyboardInterrupt
-                for name, handle in files.items():
-                    text = OUTPUTS[name](result, axes).encode()
-                    handle.write(text)
-                    handle.flush()
-                    os.fsync(handle.fileno())
-                    state.sizes[name] += len(text)
-                _record(state, result)
-                save()
-                if progress is not None:
-                    progress(state.done)
-    finally:
-        for handle in files.values():
-            handle.close()
+    with BatchRunner(workers, scheduler) as submit:
+        for result in submit(spec, list(batches(state.done, spec.size, batch_size))):
+            if interrupted(None):  # Ctrl-C that native code swallowed: keep nothing of this batch
+                raise KeyboardInterrupt
+            table = batch_table(result, axes)
+            atomic_write(part_path(directory, int(result["index"][0])),
+                         lambda h, table=table: pq.write_table(table, h, compression="zstd"))  # fmt: skip
+            _record(state, result)
+            save()
+            if progress is not None:
+                progress(state.done)
     return state
 
 
 def _record(state: SweepState, result: dict[str, np.ndarray]) -> None:
-    """Count a written batch into the sweep state (done, certified, best and worst)."""
+    """Count a written batch into the sweep state (done, certified, best, worst, cheapest)."""
     state.done = int(result["index"][-1]) + 1
-    state.certified += int(result["certified"].sum())
-    gammas = np.where(result["certified"], result["gamma"], np.inf)
+    certified = result["certified"]
+    state.certified += int(certified.sum())
+    gammas = np.where(certified, result["gamma"], np.inf)
     i = int(np.argmin(gammas))
     if np.isfinite(gammas[i]) and (state.best is None or gammas[i] < state.best[0]):
         state.best = (float(gammas[i]), int(result["index"][i]))
     j = int(np.argmax(gammas))
     if state.worst is None or gammas[j] > state.worst[0]:
         state.worst = (float(gammas[j]), int(result["index"][j]))
+    costs = np.where(certified, result["gain_norm"], np.inf)
+    k = int(np.argmin(costs))
+    if np.isfinite(costs[k]) and (state.cheapest is None or costs[k] < state.cheapest[0]):
+        state.cheapest = (float(costs[k]), int(result["index"][k]))
 
 
 def _windowed(submit_one: Callable, spec: GridSpec, ranges: list[tuple[int, int]], window: int):

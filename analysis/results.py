@@ -11,23 +11,26 @@ from analysis.certify import (
     ASSUMPTIONS,
     NOT_APPLICABLE,
     PLANAR_ASSUMPTIONS,
+    PLANAR_REGION,
     Certificate,
     GainPoint,
     TightCertificate,
     certify,
     certify_planar,
     exact_gamma,
+    region_text,
     tight_gamma,
     tight_gamma_planar,
 )
 from analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
 from analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
 from analysis.envelope import design_of, disturbance_bounds, envelope, start_storage
+from analysis.grid import GridSpec, SweepState
 from analysis.linearize import linearize, worst_case_disturbance
 from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings
 from analysis.verify import Claim, verify
-from models.loop import ClosedLoop
+from models.loop import ClosedLoop, Weights
 
 
 def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:
@@ -176,3 +179,42 @@ def verdict(certificate: dict, verification: dict) -> dict:
         headline = "NOT CERTIFIED" + (" and " + " and ".join(checks) if checks else "")
     return {"passed": bool(point["certified"]) and not checks, "headline": headline, "failed": failed,
             "inconclusive": inconclusive}  # fmt: skip
+
+
+def grid_result(spec: Scenario, grid: GridSpec, state: SweepState, files: dict[str, str], provenance: dict,
+                seconds: float) -> dict:
+    """The JSON result of a grid sweep: the points worth naming, each labelled and re-certified
+    alone (with the rotation search): the smallest certified gamma; with a ``[certify] gamma``
+    requirement, the cheapest point meeting it (smallest ``|K| = |[k_xi; k_c; k_e]|``); the largest
+    gamma (or a point not certified). ``files`` names the stored results."""  # fmt: skip
+    bound = spec.certify.gamma
+    named = [("smallest certified gamma", state.best)]
+    if bound is not None:
+        named.append((f"cheapest meeting gamma <= {bound:g} (smallest |K|)", state.cheapest))
+    named.append(("largest gamma (or not certified)", state.worst))
+    points = []
+    for label, entry in named:
+        if entry is None:
+            continue
+        d = grid.designs(entry[1], entry[1] + 1)
+        gp = GainPoint(d["k_xi"][0], d["k_c"][0], d["k_e"][0], Weights(*d["w"][0]))
+        points.append({"label": label, "index": entry[1], **point_record(gp, certificate_for(spec, gp))})
+    planar = spec.loop == "planar"
+    best = points[0] if state.best is not None else None
+    return {
+        "scenario": spec.name,
+        "loop": spec.loop,
+        "region": PLANAR_REGION if planar else region_text(math.radians(spec.certify.theta_max_deg)),
+        "assumptions": list(PLANAR_ASSUMPTIONS if planar else ASSUMPTIONS),
+        "gamma_required": bound,
+        "grid": {name: v.tolist() if len(v) <= 1000 else f"{len(v)} values" for name, v in grid.axes},
+        "points": points,
+        **files,
+        "summary": {
+            "points": grid.size,
+            "certified": state.certified,
+            "gamma_min": best["gamma"] if best else None,
+            "seconds": seconds,
+        },
+        "provenance": provenance,
+    }

@@ -14,15 +14,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tomli_w
+from typer.testing import CliRunner
 
+import analysis.cli as cli_module
 import analysis.grid as grid
 from analysis.certify import GainPoint, certify
-from analysis.grid import GridSpec, axis_value, gain_map, run_sweep
+from analysis.cli import app
+from analysis.grid import POINTS, GridSpec, axis_value, gain_map, read_points, run_sweep
+from analysis.scenario import gain_point
 from models.lie import SE3
 from models.loop import Weights
 from tests.conftest import scenario_dict
 
 REFERENCE = SE3.from_xyz_rpy([0.0, 0.0, 0.35], [0.0, 0.0, 0.0])
+runner = CliRunner()
 
 
 def small_grid(gamma_bound=None) -> GridSpec:
@@ -36,26 +41,20 @@ def small_grid(gamma_bound=None) -> GridSpec:
     return GridSpec.around(design, REFERENCE, axes, gamma_bound)
 
 
-def read_rows(path: Path) -> list[str]:
-    return path.read_text().splitlines()
-
-
 def test_grid_points_equal_single_point_certificates(tmp_path):
     spec = small_grid()
     run_sweep(spec, tmp_path, batch_size=7)
-    rows = read_rows(tmp_path / "points.csv")
-    assert len(rows) == 1 + spec.size
-    header = rows[0].split(",")
-    for line in rows[1:]:
-        row = dict(zip(header, line.split(","), strict=True))
-        i = int(row["index"])
+    rows = read_points(tmp_path).to_pylist()
+    assert [row["index"] for row in rows] == list(range(spec.size))
+    for row in rows:
+        i = row["index"]
         d = spec.designs(i, i + 1)
         cert = certify(
             GainPoint(d["k_xi"][0], d["k_c"][0], d["k_e"][0], Weights(*d["w"][0])), REFERENCE, with_sdp=False
         )
-        assert bool(int(row["certified"])) == cert.certified
+        assert row["certified"] == cert.certified
         if cert.certified:
-            assert float(row["gamma"]) == pytest.approx(cert.gamma, rel=1e-9)
+            assert row["gamma"] == pytest.approx(cert.gamma, rel=1e-9)
 
 
 def test_local_processes_equal_in_process(tmp_path):
@@ -63,7 +62,7 @@ def test_local_processes_equal_in_process(tmp_path):
     for name, workers in (("a", 1), ("b", 2)):
         (tmp_path / name).mkdir()
         run_sweep(spec, tmp_path / name, batch_size=5, workers=workers)
-    assert (tmp_path / "a" / "points.csv").read_bytes() == (tmp_path / "b" / "points.csv").read_bytes()
+    assert read_points(tmp_path / "a").equals(read_points(tmp_path / "b"))
 
 
 def test_dask_local_cluster_equals_local_sweep(tmp_path):
@@ -71,17 +70,18 @@ def test_dask_local_cluster_equals_local_sweep(tmp_path):
     for name, options in (("local", {}), ("dask", {"scheduler": "local", "workers": 2})):
         (tmp_path / name).mkdir()
         run_sweep(spec, tmp_path / name, batch_size=10, **options)
-    for file in ("points.csv", "points.jsonl"):
-        assert (tmp_path / "local" / file).read_bytes() == (tmp_path / "dask" / file).read_bytes()
+    assert read_points(tmp_path / "local").equals(read_points(tmp_path / "dask"))
 
 
-def write_grid_scenario(tmp_path: Path) -> Path:
+def write_grid_scenario(tmp_path: Path, gamma: float | None = None, k_c_num: int = 400) -> Path:
     def edit(data):
         data["grid"] = {
-            "k_c": {"start": 0.5, "stop": 10.0, "num": 400, "spacing": "log"},
+            "k_c": {"start": 0.5, "stop": 10.0, "num": k_c_num, "spacing": "log"},
             "k_e_r": {"start": 1.0, "stop": 20.0, "num": 50},
             "w_pc": [1.0, 2.0, 4.0, 8.0],
         }
+        if gamma is not None:
+            data["certify"] = {"gamma": gamma}
 
     path = tmp_path / "grid.toml"
     path.write_text(tomli_w.dumps(scenario_dict(edit)))
@@ -99,7 +99,7 @@ def cli(*args: str) -> subprocess.Popen:
 
 def test_sigkill_and_resume_equals_uninterrupted(tmp_path):
     """Real processes killed with SIGKILL at three moments of the sweep, each time resumed:
-    the final CSV is byte-identical to an uninterrupted sweep's."""
+    the final dataset equals an uninterrupted sweep's, point for point."""
     scenario = write_grid_scenario(tmp_path)
     reference = tmp_path / "reference"
     assert cli(str(scenario), "--out", str(reference), "--batch-size", "500").wait() in (0, 1)
@@ -125,8 +125,7 @@ def test_sigkill_and_resume_equals_uninterrupted(tmp_path):
         proc.wait()
     assert kills >= 1
     assert cli(str(scenario), "--out", str(out), "--batch-size", "500", "--resume").wait() in (0, 1)
-    for name in ("points.csv", "points.jsonl"):
-        assert (out / name).read_bytes() == (reference / name).read_bytes()
+    assert read_points(out).equals(read_points(reference))
     assert json.loads((out / "certificate.json").read_text())["summary"]["points"] == total
 
 
@@ -159,7 +158,7 @@ def test_ctrl_c_stops_cleanly_and_says_how_to_resume(tmp_path):
     assert cli(str(scenario), "--out", str(out), "--resume").wait() in (0, 1)
     reference = tmp_path / "reference"
     assert cli(str(scenario), "--out", str(reference)).wait() in (0, 1)
-    assert (out / "points.csv").read_bytes() == (reference / "points.csv").read_bytes()
+    assert read_points(out).equals(read_points(reference))
 
 
 DESIGN = GainPoint(np.full(6, 20.0), np.full(6, 3.0), np.full(6, 10.0), Weights(4, 1, 4, 1))
@@ -209,11 +208,12 @@ def crash_on(call: int, function):
     return wrapped
 
 
-@pytest.mark.parametrize("window", ["after both files, before the state", "between the two files"])
+@pytest.mark.parametrize("window", ["after the batch file, before the state", "while the batch file is written"])
 def test_crash_between_data_write_and_state_save_resumes_exactly(tmp_path, monkeypatch, window):
-    """A failure injected on the third batch after its rows reached the disk but before
-    ``sweep.json`` recorded them (deterministic, unlike a kill): the files then hold more than
-    the state says, and the resumed sweep is byte-identical to an uninterrupted one."""
+    """A failure injected on the third batch after its file reached the disk but before
+    ``sweep.json`` recorded it, or while the file is written (deterministic, unlike a kill):
+    the folder then holds at most a whole extra batch, never a partial file, and the resumed
+    sweep equals an uninterrupted one."""
     spec = small_grid()
     (tmp_path / "reference").mkdir()
     run_sweep(spec, tmp_path / "reference", batch_size=7)
@@ -223,11 +223,72 @@ def test_crash_between_data_write_and_state_save_resumes_exactly(tmp_path, monke
         if window.startswith("after"):
             patch.setattr(grid, "_record", crash_on(3, grid._record))
         else:
-            patch.setitem(grid.OUTPUTS, "points.jsonl", crash_on(3, grid.OUTPUTS["points.jsonl"]))
+            patch.setattr(grid.pq, "write_table", crash_on(3, grid.pq.write_table))
         with pytest.raises(InjectedError):
             run_sweep(spec, out, batch_size=7)
     state = json.loads((out / "sweep.json").read_text())
-    assert state["done"] == 14 and (out / "points.csv").stat().st_size > state["sizes"]["points.csv"]
+    files = sorted(f.name for f in (out / grid.POINTS).iterdir())
+    extra = ["part-000000000014.parquet"] if window.startswith("after") else []
+    assert state["done"] == 14 and files == ["part-000000000000.parquet", "part-000000000007.parquet", *extra]
     run_sweep(spec, out, batch_size=7, resume=True)
-    for name in ("points.csv", "points.jsonl"):
-        assert (out / name).read_bytes() == (tmp_path / "reference" / name).read_bytes()
+    assert read_points(out).equals(read_points(tmp_path / "reference"))
+
+
+def test_storage_is_at_most_30_bytes_a_point(tmp_path):
+    """1e5 points of three axes stored as Parquet take <= 30 bytes a point on disk (CSV and
+    JSON Lines side by side took about 310), and pandas-style readers see one dataset."""
+    axes = (("k_c", np.geomspace(0.5, 10, 50)), ("k_e_p", np.linspace(1, 20, 50)), ("k_e_r", np.linspace(1, 20, 40)))
+    spec = GridSpec.around(DESIGN, REFERENCE, axes)
+    run_sweep(spec, tmp_path)
+    size = sum(f.stat().st_size for f in (tmp_path / POINTS).iterdir())
+    assert size / spec.size <= 30, size / spec.size
+    table = read_points(tmp_path)
+    assert table.num_rows == spec.size and table.column_names[:4] == ["index", "k_c", "k_e_p", "k_e_r"]
+
+
+def test_named_points_are_the_smallest_gamma_and_the_cheapest_meeting_the_requirement(tmp_path):
+    """With ``[certify] gamma``: the point labelled smallest gamma has the smallest certified gamma
+    of the grid, the one labelled cheapest has the smallest |[k_xi; k_c; k_e]| among the points
+    certified with gamma <= the requirement; both read from the stored points."""
+    scenario = write_grid_scenario(tmp_path, gamma=1.0, k_c_num=40)
+    result = runner.invoke(app, ["certify", str(scenario), "--out", str(tmp_path / "out"), "--json", "-"])
+    assert result.exit_code == 1, result.output
+    named = {p["label"]: p for p in json.loads(result.stdout)["points"]}
+    rows = read_points(tmp_path / "out")
+    ok = rows.filter(rows["certified"])
+    assert named["smallest certified gamma"]["gamma"] == pytest.approx(min(ok["gamma"].to_pylist()), rel=1e-9)
+    cheapest = named["cheapest meeting gamma <= 1 (smallest |K|)"]
+    indices = ok["index"].to_numpy()
+    d = grid_designs(scenario, indices)
+    norms = np.linalg.norm(np.hstack([d["k_xi"], d["k_c"], d["k_e"]]), axis=1)
+    assert cheapest["index"] == int(indices[np.argmin(norms)]) and cheapest["gamma"] <= 1.0
+
+
+def grid_designs(scenario: Path, indices: np.ndarray) -> dict[str, np.ndarray]:
+    """The gains of the grid points ``indices`` of a scenario's sweep."""
+    spec, loop, _, _, axes = cli_module.load_scenario(scenario)
+    grid = GridSpec.around(gain_point(spec, loop.robot.n), spec.reference.se3(), axes)
+    rows = [grid.designs(int(i), int(i) + 1) for i in indices]
+    return {k: np.concatenate([r[k] for r in rows]) for k in ("k_xi", "k_c", "k_e")}
+
+
+def test_progress_lines_without_a_terminal(tmp_path, monkeypatch):
+    """Standard error not a terminal (CI, nohup): plain progress lines, here one per batch, the
+    expected size before the sweep, and a CSV export on request."""
+    monkeypatch.setattr(cli_module, "PROGRESS_EVERY", 0.0)
+    scenario = write_grid_scenario(tmp_path, k_c_num=40)
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["certify", str(scenario), "--out", str(out), "--batch-size", "2000", "--csv"])
+    assert result.exit_code in (0, 1), result.output
+    lines = result.stderr.splitlines()
+    assert lines[0].startswith("grid: 8,000 points, about 0.16 MB on disk (Parquet")
+    progress = [line for line in lines if line.startswith("certify grid: ")]
+    assert progress[0].startswith("certify grid: 2,000 / 8,000 points (25%)") and len(progress) == 4, lines
+    assert len((out / "points.csv").read_text().splitlines()) == 1 + 8000
+
+
+def test_large_grids_are_refused_by_size_on_disk(tmp_path, monkeypatch):
+    """Above the byte limit the sweep needs --large, and says how large it would be."""
+    monkeypatch.setattr(cli_module, "MAX_GRID_BYTES", 10_000)
+    result = runner.invoke(app, ["certify", str(write_grid_scenario(tmp_path, k_c_num=40)), "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "8,000 points, about 0 MB on disk" in result.stderr
