@@ -39,7 +39,10 @@ from analysis.synthesize import Bounds, synthesize
 from models.loop import Weights
 
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, help="Dynamic visual feedback control: simulate, verify, certify."
+    add_completion=False,
+    no_args_is_help=True,
+    rich_markup_mode=None,
+    help="Dynamic visual feedback control: simulate, verify, certify.",
 )
 err = Console(stderr=True)
 out = Console()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -13,6 +14,7 @@ import casadi as cs
 import numpy as np
 import pytest
 import tomli_w
+import typer
 from typer.testing import CliRunner
 
 from analysis.cli import app
@@ -406,3 +408,21 @@ def test_pose_shows_a_target_out_of_view(tmp_path):
 def test_target_placed_twice_is_refused(tmp_path):
     result = runner.invoke(app, ["pose", str(write(tmp_path, setter("target.relative_to_camera.xyz", [0, 0, 0.3])))])
     assert result.exit_code == 2 and "give either xyz/rpy (world frame) or relative_to_camera" in result.stderr
+
+
+def test_help_texts_print_every_bracketed_word():
+    """Every command's help prints its text as written: no ``[grid]``, ``[certify]`` or other
+    bracketed word swallowed as markup, and flags not shown as ``<bool>``."""
+    from reports.cli import app as full_app
+
+    commands = typer.main.get_command(full_app).commands
+    assert {"simulate", "certify", "verify", "synthesize", "report", "pose"} <= set(commands)
+    for name, command in commands.items():
+        result = runner.invoke(full_app, [name, "--help"], env={"COLUMNS": "100"})
+        assert result.exit_code == 0, result.output
+        printed = " ".join(result.stdout.split())
+        texts = [command.help or "", *(getattr(p, "help", None) or "" for p in command.params)]
+        words = {w for text in texts for w in re.findall(r"\[[A-Za-z_.]+\]", text)}
+        assert all(w in printed for w in words), (name, words - {w for w in words if w in printed})
+        assert "<bool>" not in printed, name
+    assert "[grid]" in " ".join(runner.invoke(full_app, ["certify", "--help"]).stdout.split())
