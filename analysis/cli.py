@@ -10,7 +10,6 @@ import math
 import os
 import sys
 import time
-import tomllib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
@@ -18,7 +17,6 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
-import tomli_w
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -35,7 +33,7 @@ from analysis.pose import initial_view
 from analysis.results import certificate_result, grid_result, point_record, verification_result
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import Simulator, summary
-from analysis.synthesize import Bounds, synthesize
+from analysis.synthesize import Bounds, rounded, scenario_text, synthesize
 from models.loop import Weights
 
 app = typer.Typer(
@@ -456,6 +454,8 @@ def synthesize_command(
             weights, spec.reference.se3(), n, bounds, gamma_target=cfg.gamma, search_weights=cfg.search_weights,
             theta_max=math.radians(spec.certify.theta_max_deg),
         )
+        result = rounded(result, spec.reference.se3(), bounds, gamma_target=cfg.gamma,
+                         theta_max=math.radians(spec.certify.theta_max_deg))  # fmt: skip
     record = {
         "scenario": spec.name,
         "status": result.status,
@@ -469,15 +469,10 @@ def synthesize_command(
         "provenance": command_provenance(scenario),
     }
     if result.point is not None:
-        data = tomllib.loads(Path(scenario).read_text())
-        p = result.point
-        data["name"] = f"{spec.name}-synthesized"
-        data["gains"] = {"k_xi": p.k_xi.tolist(), "k_c": p.k_c.tolist(), "k_e": p.k_e.tolist()}
-        data["weights"] = {k: float(v) for k, v in record["point"]["weights"].items()}
-        data.pop("grid", None)
-        if "robot" in data and "urdf" in data["robot"]:
-            data["robot"]["urdf"] = str(loop.robot.urdf)
-        atomic_write(target, lambda h: h.write(tomli_w.dumps(data).encode()))
+        urdf = str(loop.robot.urdf) if spec.robot.urdf is not None else None
+        text = scenario_text(Path(scenario).read_text(), result.point, name=f"{spec.name}-synthesized",
+                             weights=cfg.search_weights, urdf=urdf)  # fmt: skip
+        atomic_write(target, lambda h: h.write(text.encode()))
         record["scenario_file"] = str(target)
     emit(record, None, json_target, show_synthesis)
     if result.point is None:

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cvxpy as cp
 import numpy as np
+import tomlkit
 
 from analysis.certify import Certificate, GainPoint, certify, output_blocks, solve
 from models.lie import SE3
@@ -112,3 +113,50 @@ def synthesize(
         if better:
             best = Synthesis(point, cert, "ok", len(candidates))
     return best
+
+
+def _round(values: np.ndarray, digits: int) -> np.ndarray:
+    """``values`` to ``digits`` significant figures."""
+    return np.array([float(f"{v:.{digits}g}") for v in values])
+
+
+def rounded(
+    result: Synthesis, reference: SE3, bounds: Bounds, *, gamma_target: float | None = None, theta_max: float = math.pi
+) -> Synthesis:
+    """The synthesised gains rounded to the fewest significant figures (3 to 8) that stay within
+    the bounds and certify again, by the ordinary certifier, at a gamma meeting the target (or
+    within 0.1% of the unrounded one): a file shows ``20`` where the solver gave
+    ``19.99999997``, and its certificate is that of the values written."""
+    if result.point is None:
+        return result
+    p, limit = result.point, gamma_target or result.certificate.gamma * 1.001
+    for digits in range(3, 9):
+        gains = [_round(v, digits) for v in (p.k_xi, p.k_c, p.k_e)]
+        inside = all(np.all((g >= lo) & (g <= hi)) for g, (lo, hi) in zip(gains, (bounds.k_xi, bounds.k_c, bounds.k_e),
+                                                                          strict=True))  # fmt: skip
+        point = GainPoint(*gains, p.weights)
+        cert = certify(point, reference, theta_max=theta_max, gamma_bound=gamma_target)
+        if inside and cert.certified and cert.gamma <= limit:
+            return replace(result, point=point, certificate=cert)
+    return result
+
+
+def scenario_text(original: str, point: GainPoint, *, name: str, weights: bool, urdf: str | None) -> str:
+    """The user's scenario file with only the synthesised values replaced (tomlkit keeps its
+    comments and layout): ``name``, the ``[gains]`` (and the ``[weights]`` when they were
+    searched), the ``[grid]`` dropped so that ``certify`` certifies these gains, and a URDF
+    path made absolute (``urdf``) since the file is written elsewhere."""
+    doc = tomlkit.parse(original)
+    doc["name"] = name
+    gains = doc.setdefault("gains", tomlkit.table())
+    for key, values in (("k_xi", point.k_xi), ("k_c", point.k_c), ("k_e", point.k_e)):
+        gains[key] = [float(v) for v in values]
+    if weights:
+        w = point.weights
+        for key, value in (("w_pc", w.w_pc), ("w_rc", w.w_rc), ("w_pe", w.w_pe), ("w_re", w.w_re)):
+            doc["weights"][key] = float(value)
+    if "grid" in doc:
+        del doc["grid"]
+    if urdf is not None:
+        doc["robot"]["urdf"] = urdf
+    return tomlkit.dumps(doc)

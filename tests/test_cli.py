@@ -24,6 +24,7 @@ from tests.conftest import scenario_dict
 
 runner = CliRunner()
 EXAMPLES = Path(__file__).parent.parent / "examples"
+DEFAULT_SCENARIO_TEXT = (Path(__file__).parent.parent / "analysis" / "scenarios" / "ur5_circle.toml").read_text()
 
 
 def write(tmp_path: Path, edit=None, name="s.toml") -> Path:
@@ -426,3 +427,24 @@ def test_help_texts_print_every_bracketed_word():
         assert all(w in printed for w in words), (name, words - {w for w in words if w in printed})
         assert "<bool>" not in printed, name
     assert "[grid]" in " ".join(runner.invoke(full_app, ["certify", "--help"]).stdout.split())
+
+
+def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_path):
+    """The written scenario is the user's file, comments and layout kept, with only the name and
+    the gains changed (one line each, 3-8 significant figures, no ``19.99999997``); the gamma
+    reported is the certificate of exactly those rounded values."""
+    original = DEFAULT_SCENARIO_TEXT.replace("jit = true", "jit = false")
+    scenario = tmp_path / "commented.toml"
+    scenario.write_text(original)
+    target = tmp_path / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(scenario), "--out", str(target), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    before, after = original.splitlines(), target.read_text().splitlines()
+    changed = [(a, b) for a, b in zip(before, after, strict=True) if a != b]
+    assert [b.split(" = ")[0] for _, b in changed] == ["name", "k_xi", "k_c", "k_e"], changed
+    written = tomllib.loads(target.read_text())["gains"]
+    assert all(float(f"{v:.8g}") == v and len(repr(v)) <= 10 for key in written for v in written[key])
+    record = json.loads(result.stdout)
+    assert record["point"]["gains"] == written
+    again = json.loads(runner.invoke(app, ["certify", str(target), "--no-lower-bounds", "--json", "-"]).stdout)
+    assert again["points"][0]["gamma"] == record["point"]["gamma"]
