@@ -152,11 +152,19 @@ def simulate(
         TimeRemainingColumn(),
         console=err,
         transient=True,
+        disable=not err.is_terminal,
     ) as bar:
         task = bar.add_task("compiling" if settings.jit else spec.name, total=settings.duration)
         simulator = Simulator(loop, settings)
         bar.update(task, description=spec.name)
-        trajectory = simulator.run(s0, progress=lambda t: bar.update(task, completed=t))
+        lines = None if err.is_terminal else ProgressLines(f"simulate {spec.name}", settings.duration, "s")
+
+        def advance(t: float) -> None:
+            bar.update(task, completed=t)
+            if lines is not None:
+                lines(t)
+
+        trajectory = simulator.run(s0, progress=advance)
 
     result = {
         "scenario": spec.name,
@@ -374,8 +382,9 @@ class ProgressLines:
             return
         self.last = now
         elapsed = max(now - self.start, 1e-9)
-        err.print(f"{self.label}: {done:,.0f} / {self.total:,.0f} {self.unit} ({100 * done / self.total:.0f}%), "
-                  f"{done / elapsed:,.0f} {self.unit}/s, {elapsed:.0f} s", markup=False, soft_wrap=True)  # fmt: skip
+        err.print(f"{self.label}: {done:,.4g} / {self.total:,.4g} {self.unit} ({100 * done / self.total:.0f}%), "
+                  f"{done / elapsed:,.3g} {self.unit} a second, {elapsed:.0f} s elapsed", markup=False,
+                  soft_wrap=True)  # fmt: skip
 
 
 def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_target, how: tuple, start: float):

@@ -45,15 +45,18 @@ def report(
     )
     with (
         resumable(f"dvfc report {scenario} --out {directory} --resume"),
-        Progress(*columns, console=err, transient=True) as bar,
+        Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar,
     ):
         task = bar.add_task("", total=len(STEPS) + 1)
 
         def step(name: str) -> None:
-            bar.update(task, description=name, completed=STEPS.index(name))
+            done = STEPS.index(name) if name in STEPS else len(STEPS)
+            bar.update(task, description=name, completed=done)
+            if not err.is_terminal:  # CI logs, nohup: one plain line a stage
+                err.print(f"report: {name} ({done + 1}/{len(STEPS) + 1})", markup=False)
 
         data = assemble(spec, loop, s0, settings, provenance_, progress=step, cache=cache)
-        bar.update(task, description="HTML and PDF", completed=len(STEPS))
+        step("HTML and PDF")
         html, pdf = write(data, directory)
     out.print(f"report: {html}\n        {pdf}", markup=False)
     outcome = verdict(data.certificate, data.verification)

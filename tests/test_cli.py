@@ -17,6 +17,7 @@ import tomli_w
 import typer
 from typer.testing import CliRunner
 
+import analysis.cli as cli_module
 from analysis.cli import app
 from analysis.output import interrupt_aware, interrupted
 from models.robot import Robot, builtin_urdf
@@ -448,3 +449,14 @@ def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_pat
     assert record["point"]["gains"] == written
     again = json.loads(runner.invoke(app, ["certify", str(target), "--no-lower-bounds", "--json", "-"]).stdout)
     assert again["points"][0]["gamma"] == record["point"]["gamma"]
+
+
+def test_simulate_progress_lines_without_a_terminal(tmp_path, monkeypatch):
+    """Standard error not a terminal: plain progress lines of simulated time (here at every
+    chunk), ending at the horizon, and no bar's control characters."""
+    monkeypatch.setattr(cli_module, "PROGRESS_EVERY", 0.0)
+    result = runner.invoke(app, ["simulate", str(write(tmp_path)), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 0, result.output
+    lines = result.stderr.splitlines()
+    assert lines and all(line.startswith("simulate ") for line in lines), lines
+    assert "0.2 / 0.2 s (100%)" in lines[-1] and "\x1b" not in result.stderr
