@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 PYTHON ?= python3
 
-.PHONY: install system-deps demo test lint bench clean
+.PHONY: install system-deps demo test lint bench mutate clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -33,6 +33,10 @@ lint: install
 
 test: lint system-deps
 	$(BIN)/pytest -q --nbmake tests notebooks
+
+# make mutate: break the code on purpose (tests/mutate.py) and check every mutation is caught (~10 min).
+mutate: install
+	$(BIN)/python tests/mutate.py --write
 
 bench: install
 	$(BIN)/python benchmarks/simulate.py

@@ -1,0 +1,289 @@
+"""Mutation harness: break the code on purpose and check that the tests notice.
+
+Each :class:`Mutation` is a list of exact source-text substitutions and the tests expected to
+catch it. For each one the repository's tracked files are copied to a temporary directory,
+the substitutions are applied there (each pattern must occur exactly the stated number of
+times: a pattern that no longer matches the code is a harness error, never a silent pass),
+and pytest runs the named tests on the copy. The mutation is caught when pytest reports a
+failing test (exit status 1); it survives when they pass (exit 0); anything else (a
+collection error, no tests collected) is a harness error. The unmutated copy must pass the
+same tests first.
+
+Run ``make mutate`` (or ``.venv/bin/python tests/mutate.py [--only NAME] [--write]``);
+``--write`` rewrites the result table in ``MUTATIONS.md``. Exit status 0 only when every
+mutation is caught.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    what: str
+    path: str
+    substitutions: tuple[tuple[str, str], ...]
+    tests: tuple[str, ...]
+    count: int = 1
+    """How many times each pattern must occur in ``path``."""
+
+
+MUTATIONS = (
+    # --- the seven of the audit --------------------------------------------------------
+    Mutation(
+        "grid-kmin-max",
+        "the grid's sound K_e takes the blockwise max instead of the min (fact 5)",
+        "analysis/grid.py",
+        (('d["k_e"][:, :3].min(1), d["k_e"][:, 3:].min(1)', 'd["k_e"][:, :3].max(1), d["k_e"][:, 3:].max(1)'),),
+        ("tests/test_reference.py::test_grid_rows_are_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "xi-block-dropped",
+        "the xi block term dropped from the closed form (k_xi >= 1/2 + 1/(2 gamma^2))",
+        "analysis/certify.py",
+        (("    s = np.minimum(s, k_xi_min - 0.5)\n", ""),),
+        ("tests/test_reference.py::test_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "worst-rotation-search-off",
+        "the certifier's worst-rotation search disabled (identity only, no refinement)",
+        "analysis/certify.py",
+        (("    best = int(np.argmax(values))\n", "    best = 0\n"), ("    for _ in range(rounds):\n", "    for _ in ():\n")),  # noqa: E501
+        ("tests/test_reference.py::test_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "resume-no-truncate",
+        "a resumed sweep does not truncate its files to the recorded length",
+        "analysis/grid.py",
+        (("                handle.truncate(size)\n", "                pass\n"),),
+        ("tests/test_grid.py::test_crash_between_data_write_and_state_save_resumes_exactly",),
+    ),
+    Mutation(
+        "inflation-1e-3",
+        "the certified gamma inflated by 1e-3 instead of 1e-6 (not minimal)",
+        "analysis/certify.py",
+        (("INFLATION = 1e-6\n", "INFLATION = 1e-3\n"),),
+        ("tests/test_reference.py::test_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "coriolis-transposed",
+        "Coriolis matrix C = (Mdot - B + B^T)/2 (Mdot - 2C is still skew)",
+        "models/robot.py",
+        (("        return (mdot + b - b.T) / 2\n", "        return (mdot - b + b.T) / 2\n"),),
+        ("tests/test_robot.py",),
+    ),
+    Mutation(
+        "schur-a_ce-untransposed",
+        "the Schur complement uses A_ce instead of A_ce^T (equal at R_ec = I)",
+        "analysis/certify.py",
+        (('np.einsum("bji,bjk->bik", a_ce[ok]', 'np.einsum("bij,bjk->bik", a_ce[ok]'),),
+        ("tests/test_reference.py::test_certificate_is_sound_complete_and_minimal",),
+    ),
+    # --- the law, the observer, the camera ------------------------------------------------
+    Mutation(
+        "law-feedback-sign",
+        "the law (35) feeds back -J_b^T Ad^T W_c e_c (sign of the passivity term)",
+        "models/loop.py",
+        (("feedforward + r.body_jacobian.T @ ad_d.T", "feedforward - r.body_jacobian.T @ ad_d.T"),),
+        ("tests/test_loop.py",),
+    ),
+    Mutation(
+        "observer-input-sign",
+        "the observer (12) integrates -u_e instead of u_e",
+        "models/loop.py",
+        (("@ self.camera_velocity + self._camera_inputs[1]", "@ self.camera_velocity - self._camera_inputs[1]"),),
+        ("tests/test_loop.py",),
+    ),
+    Mutation(
+        "camera-jacobian-depth-term",
+        "the image Jacobian (19) with +l x / z^2 (sign of the depth derivative)",
+        "models/camera.py",
+        (("cs.horzcat(lam / z, 0, -lam * x / z**2)", "cs.horzcat(lam / z, 0, lam * x / z**2)"),),
+        ("tests/test_camera.py",),
+    ),
+    # --- certificates ------------------------------------------------------------------
+    Mutation(
+        "certifier-weight-scaling",
+        "the closed form scales the Schur complement by W_e^-1/2 instead of W_e^-1",
+        "analysis/certify.py",
+        (("        d = 1.0 / w_e[ok]  # D^-1/2 = W_e^-1\n", "        d = 1.0 / np.sqrt(w_e[ok])\n"),),
+        ("tests/test_reference.py::test_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "tight-gamma-half",
+        "the fact-4 gamma at alpha computed with alpha^2/4 instead of alpha^2/2",
+        "analysis/certify.py",
+        (("math.sqrt(alpha**2 / 2 * np.linalg.eigvalsh", "math.sqrt(alpha**2 / 4 * np.linalg.eigvalsh"),),
+        ("tests/test_reference.py::test_tight_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "tight-anisotropic-at-identity",
+        "the fact-4 certificate for anisotropic K_e evaluated at R = I with the true K_e (not sound for every R)",
+        "analysis/certify.py",
+        (("    sound = point if point.isotropic else point.with_k_e(", "    sound = point if True else point.with_k_e("),),  # noqa: E501
+        ("tests/test_reference.py::test_tight_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "planar-certifier-weight",
+        "the planar certificate (P11) weighs e_e by w_pc instead of w_pe",
+        "analysis/certify.py",
+        (("        np.full((1, TASK), w.w_pe),\n", "        np.full((1, TASK), w.w_pc),\n"),),
+        ("tests/test_reference.py::test_planar_certificates_are_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "grid-planar-weight",
+        "the planar grid weighs e_e by w_pc instead of w_pe",
+        "analysis/grid.py",
+        (('np.repeat(d["w"][:, 2:3], TASK, axis=1)', 'np.repeat(d["w"][:, 0:1], TASK, axis=1)'),),
+        ("tests/test_reference.py::test_grid_rows_are_sound_complete_and_minimal",),
+    ),
+    # --- lower bounds, Theorem 2 on trajectories, resume ---------------------------------
+    Mutation(
+        "lower-bound-doubled-energy",
+        "the worst-case search integrates 2 |x|^2 (its lower bound sqrt(2) too high)",
+        "analysis/linearize.py",
+        (('"quad": model.x.T @ model.x}', '"quad": 2 * model.x.T @ model.x}'),),
+        ("tests/test_theorem2.py",),
+    ),
+    Mutation(
+        "synthesis-objective",
+        "the smallest-gain synthesis leaves K_e out of the norm it minimises",
+        "analysis/synthesize.py",
+        (("cp.Minimize(cp.norm(cp.hstack([k_xi, k_ce])))", "cp.Minimize(cp.norm(cp.hstack([k_xi, k_c])))"),),
+        ("tests/test_synthesize.py",),
+    ),
+    Mutation(
+        "certified-gamma-under-reported",
+        "the certifier reports 0.9 gamma and its a posteriori check is fooled (P shifted by W / (2 gamma^2))",
+        "analysis/certify.py",
+        (("    gamma = gamma_exact * (1 + INFLATION)\n", "    gamma = 0.9 * gamma_exact * (1 + INFLATION)\n    a = a + w / (2 * gamma**2)\n"),),  # noqa: E501
+        ("tests/test_theorem2.py",),
+    ),
+    Mutation(
+        "resume-state-before-data",
+        "the sweep state is saved before the batch's data are written",
+        "analysis/grid.py",
+        (("                _record(state, result)\n                save()\n", ""), ("                for name, handle in files.items():\n", "                _record(state, result)\n                save()\n                for name, handle in files.items():\n")),  # noqa: E501
+        ("tests/test_grid.py::test_crash_between_data_write_and_state_save_resumes_exactly",),
+    ),
+)
+
+
+def tracked_files() -> list[str]:
+    """The repository's files as the working tree has them (tracked and new, not ignored)."""
+    out = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
+                         capture_output=True, check=True).stdout  # fmt: skip
+    return [f for f in out.decode().split("\0") if f and (ROOT / f).is_file()]
+
+
+def copy_repository(target: Path) -> None:
+    for name in tracked_files():
+        (target / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / name, target / name)
+
+
+def apply(mutation: Mutation, copy: Path) -> None:
+    """Apply the substitutions; a pattern found other than ``count`` times is a harness error."""
+    path = copy / mutation.path
+    text = path.read_text()
+    for old, new in mutation.substitutions:
+        found = text.count(old)
+        if found != mutation.count:
+            raise SystemExit(f"mutation {mutation.name}: pattern found {found} times in {mutation.path}, "
+                             f"expected {mutation.count}: {old!r}")  # fmt: skip
+        text = text.replace(old, new)
+    path.write_text(text)
+
+
+def pytest(copy: Path, tests: tuple[str, ...]) -> tuple[int, str, float]:
+    """Run pytest on the copy (its own modules first on the path); exit status, output, seconds."""
+    env = {**os.environ, "PYTHONPATH": str(copy), "PYTHONDONTWRITEBYTECODE": "1"}
+    start = time.perf_counter()
+    run = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests], cwd=copy,
+                         env=env, capture_output=True, text=True)  # fmt: skip
+    return run.returncode, run.stdout + run.stderr, time.perf_counter() - start
+
+
+def check_imports(copy: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(copy)}
+    out = subprocess.run([sys.executable, "-c", "import analysis, models; print(analysis.__file__, models.__file__)"],
+                         cwd=copy, env=env, capture_output=True, text=True, check=True).stdout  # fmt: skip
+    if not all(Path(p).resolve().is_relative_to(copy.resolve()) for p in out.split()):
+        raise SystemExit(f"the copy's modules are not the ones imported: {out}")
+
+
+def failing_test(output: str) -> str:
+    found = re.findall(r"^FAILED (\S+?(?:\[[^\]]*\])?)(?: - |$)", output, flags=re.MULTILINE)
+    return found[0] if found else "?"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", action="append", help="run only the named mutation(s)")
+    parser.add_argument("--write", action="store_true", help="rewrite the result table in MUTATIONS.md")
+    args = parser.parse_args()
+    chosen = [m for m in MUTATIONS if not args.only or m.name in args.only]
+    if args.only and len(chosen) != len(args.only):
+        raise SystemExit(f"unknown mutation among {args.only}")
+    rows, survived, start = [], [], time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="dvfc-mutate-") as tmp:
+        pristine = Path(tmp) / "pristine"
+        pristine.mkdir()
+        copy_repository(pristine)
+        check_imports(pristine)
+        baseline = sorted({t for m in chosen for t in m.tests})
+        code, output, seconds = pytest(pristine, tuple(baseline))
+        if code != 0:
+            print(output[-3000:])
+            raise SystemExit(f"the unmutated code fails its tests (exit {code}): fix that first")
+        print(f"baseline: {len(baseline)} test selections pass ({seconds:.0f} s)", flush=True)
+        for m in chosen:
+            copy = Path(tmp) / m.name
+            shutil.copytree(pristine, copy)
+            apply(m, copy)
+            code, output, seconds = pytest(copy, m.tests)
+            shutil.rmtree(copy)
+            if code == 1:
+                status, by = "caught", failing_test(output)
+            elif code == 0:
+                status, by = "SURVIVED", "-"
+                survived.append(m.name)
+            else:
+                print(output[-3000:])
+                raise SystemExit(f"mutation {m.name}: pytest exit {code} (not a test failure): harness error")
+            rows.append((m, status, by, seconds))
+            print(f"{status:8s} {m.name:32s} {seconds:6.1f} s  {by}", flush=True)
+    total = time.perf_counter() - start
+    print(f"{len(rows) - len(survived)}/{len(rows)} caught in {total:.0f} s")
+    if args.write:
+        write_table(rows, total)
+    return 1 if survived else 0
+
+
+def write_table(rows, total: float) -> None:
+    path = ROOT / "MUTATIONS.md"
+    marker = "<!-- results -->"
+    head = path.read_text().split(marker)[0] if path.exists() else ""
+    lines = [marker, "", f"Last run: {len(rows)} mutations, {total:.0f} s in all.", "",
+             "| mutation | file | what | result | caught by | seconds |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for m, status, by, seconds in rows:
+        what = m.what.replace("|", "\\|")  # a table cell
+        lines.append(f"| `{m.name}` | `{m.path}` | {what} | {status} | `{by}` | {seconds:.0f} |")
+    path.write_text(head + "\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
