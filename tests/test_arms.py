@@ -83,10 +83,12 @@ def test_redundant_arm_self_motion_is_bounded_by_xi(tmp_path):
 def test_planar_certificates_sit_above_the_lower_bounds(tmp_path):
     """The planar loop's certified gammas (paper's P and scaled storage) are upper bounds on
     its L2 gain: both lie above the linearisation's peak gain and the worst disturbance found
-    on the nonlinear loop (python-control agrees with the frequency sweep)."""
+    on the nonlinear loop. python-control's H-infinity norm (Hamiltonian bisection, stopped at
+    1e-6 relative) agrees with the attained peak of the frequency sweep (exact here: the peak is
+    at omega = 0, a grid point) to 1e-5 relative."""
     _, result = run("certify", str(short("planar2dd_reduced", tmp_path)))
     p = result["points"][0]
-    assert p["gamma_lower_linear"] == pytest.approx(p["hinf_python_control"], rel=1e-4)
+    assert p["gamma_lower_linear"] == pytest.approx(p["hinf_python_control"], rel=1e-5)
     assert p["gamma_lower_nonlinear"] <= p["gamma_lower"] == p["gamma_lower_linear"]
     assert p["gamma_lower"] <= p["gamma_tight"] <= p["gamma"]
 
@@ -109,7 +111,7 @@ def test_pinv_of_the_body_jacobian_is_a_right_inverse_only_for_n_at_least_6(name
     f = cs.Function("f", [arm.q], [arm.body_jacobian @ pseudo_inverse(arm.body_jacobian)])
     for q in rng.uniform(-2.5, 2.5, (5, arm.n)):
         product = np.asarray(f(q))
-        assert np.allclose(product, product @ product, atol=1e-10)  # a projector either way
+        assert np.allclose(product, product @ product, rtol=0, atol=1e-10)  # a projector either way
         assert (np.abs(product - np.eye(6)).max() < 1e-10) == identity
         assert round(np.trace(product)) == min(arm.n, 6)
 

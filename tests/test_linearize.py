@@ -38,13 +38,19 @@ def test_linearization_matches_small_signal_response(default):
 
 
 def test_python_control_norm_matches_frequency_peak(default):
-    """The H-infinity norm by python-control and the attained peak of sigma_max(G(jw))."""
+    """The H-infinity norm by python-control and the attained peak of sigma_max(G(jw)) agree to
+    1e-5 relative: python-control's bisection stops at 1e-6 relative, and the sweep's peak (a
+    log grid refined 400-fold around its maximum, so a frequency error ~3e-5 relative) is off
+    by its square times the peak's curvature, below 1e-8, or exact at omega = 0."""
     _, lin = default
     assert lin.hinf == pytest.approx(lin.peak_gain, rel=1e-5)
 
 
 def test_quotient_removes_only_unobservable_modes(default):
-    """The reduced system has the same frequency response as the full one (away from w = 0)."""
+    """The reduced system has the same frequency response as the full one (away from w = 0),
+    to 1e-8 of its largest entry: the quotient drops directions whose singular values in
+    ``[A; C]`` are below 1e-9 of the largest (the rank threshold), so the responses may differ
+    by that threshold times the resolvent's gain; measured 3e-12 at w = 0.1, 1 and 10."""
     _, lin = default
     for w in (0.1, 1.0, 10.0):
         full = control.evalfr(lin.system, 1j * w)
