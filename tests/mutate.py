@@ -65,11 +65,12 @@ MUTATIONS = (
         ("tests/test_reference.py::test_certificate_is_sound_complete_and_minimal",),
     ),
     Mutation(
-        "resume-no-truncate",
-        "a resumed sweep does not truncate its files to the recorded length",
+        "sweep-keeps-stale-parts",
+        "a sweep keeps the batch files beyond its recorded point (the audit's resume without truncation, "
+        "as it reads for one Parquet file per batch)",
         "analysis/grid.py",
-        (("                handle.truncate(size)\n", "                pass\n"),),
-        ("tests/test_grid.py::test_crash_between_data_write_and_state_save_resumes_exactly",),
+        (("            part.unlink()\n", "            pass\n"),),
+        ("tests/test_grid.py::test_new_sweep_replaces_an_older_larger_one",),
     ),
     Mutation(
         "inflation-1e-3",
@@ -174,9 +175,19 @@ MUTATIONS = (
     ),
     Mutation(
         "resume-state-before-data",
-        "the sweep state is saved before the batch's data are written",
+        "the sweep state is saved before the batch's file is written",
         "analysis/grid.py",
-        (("                _record(state, result)\n                save()\n", ""), ("                for name, handle in files.items():\n", "                _record(state, result)\n                save()\n                for name, handle in files.items():\n")),  # noqa: E501
+        (
+            (
+                "            table = batch_table(result, axes)\n",
+                "            _record(state, result)\n            save()\n"
+                "            table = batch_table(result, axes)\n",
+            ),
+            (
+                "            _record(state, result)\n            save()\n            if progress",
+                "            if progress",
+            ),
+        ),
         ("tests/test_grid.py::test_crash_between_data_write_and_state_save_resumes_exactly",),
     ),
 )

@@ -292,3 +292,16 @@ def test_large_grids_are_refused_by_size_on_disk(tmp_path, monkeypatch):
     monkeypatch.setattr(cli_module, "MAX_GRID_BYTES", 10_000)
     result = runner.invoke(app, ["certify", str(write_grid_scenario(tmp_path, k_c_num=40)), "--out", str(tmp_path)])
     assert result.exit_code == 2 and "8,000 points, about 0 MB on disk" in result.stderr
+
+
+def test_new_sweep_replaces_an_older_larger_one(tmp_path):
+    """A sweep started (not resumed) in a directory holding an older, larger sweep leaves none
+    of the older batch files behind: its points equal those of a sweep in an empty directory."""
+    spec = small_grid()
+    smaller = GridSpec.around(DESIGN, REFERENCE, (("k_c", np.geomspace(0.5, 10, 3)), ("k_e_r", np.array([1.0, 5.0]))))
+    for name in ("reused", "fresh"):
+        (tmp_path / name).mkdir()
+    run_sweep(spec, tmp_path / "reused", batch_size=7)
+    run_sweep(smaller, tmp_path / "reused", batch_size=7)
+    run_sweep(smaller, tmp_path / "fresh", batch_size=7)
+    assert read_points(tmp_path / "reused").equals(read_points(tmp_path / "fresh"))
