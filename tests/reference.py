@@ -108,6 +108,12 @@ def lambda_min(m: np.ndarray) -> np.ndarray:
     return np.linalg.eigvalsh((m + np.swapaxes(m, -1, -2)) / 2)[..., 0]
 
 
+def round_off(m: np.ndarray) -> float:
+    """Backward error of ``eigvalsh`` on a symmetric ``m`` of size up to ~24, with room for a
+    congruence by a rotation: ``64 eps ||m||_F`` (``size * eps * ||m||`` with a factor 3)."""
+    return 64 * np.finfo(float).eps * float(np.linalg.norm(m))
+
+
 def largest_s(a: np.ndarray, w: np.ndarray, bisections: int = BISECTIONS) -> np.ndarray:
     """``s* = sup {s : A - s W >= 0}`` by bisection (batched over ``a`` (..., m, m)); ``-inf``
     where ``lambda_min(A) <= 0`` (no positive ``s``)."""

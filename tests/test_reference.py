@@ -14,7 +14,7 @@ Designs are drawn on purpose on both sides of the boundary: generic gains, ``k_x
 above and below 1/2, weak control-error gains (uncertified), anisotropic ``K_e`` within a
 block, rotated desired poses, regions smaller than SO(3).
 
-Tolerances. The sign checks allow ``eigvalsh``'s backward error: :func:`round_off` =
+Tolerances. The sign checks allow ``eigvalsh``'s backward error: :func:`tests.reference.round_off` =
 ``64 eps ||P||_F`` (``m eps ||P||`` with ``m <= 19`` and a factor 3 for the congruence by a
 rotation); the certified gamma is inflated by 1e-6, whose margin ``2e-6 s* v^T W v`` is far
 above it for the designs drawn. Gammas are compared to ``2e-6`` relative: the 1e-6
@@ -55,15 +55,10 @@ def budget(examples: int) -> settings:
                     suppress_health_check=[HealthCheck.too_slow])  # fmt: skip
 
 
-def round_off(p: np.ndarray) -> float:
-    """Backward error of ``eigvalsh`` on ``P`` (see the module docstring)."""
-    return 64 * np.finfo(float).eps * float(np.linalg.norm(p))
-
-
 def p_min(design: ref.Design, gamma: float, r_ec: np.ndarray) -> tuple[float, float]:
     """Reference ``lambda_min(P(gamma))`` at ``R_ec`` and its round-off."""
     p = ref.p_matrix(design.a(r_ec), design.weight, gamma)
-    return float(ref.lambda_min(p)), round_off(p)
+    return float(ref.lambda_min(p)), ref.round_off(p)
 
 
 def gain_point(design: ref.Design) -> GainPoint:
@@ -170,7 +165,7 @@ def test_tight_certificate_is_sound_complete_and_minimal(design, seed):
     rng = np.random.default_rng(seed)
     for r_ec, r_ee in zip(ref.random_rotations(6, math.pi, rng), ref.random_rotations(6, math.pi, rng), strict=True):
         lmi = design.tight_lmi(tight.alpha, tight.gamma, r_ec, r_ee)
-        assert ref.lambda_min(lmi) >= -round_off(lmi)
+        assert ref.lambda_min(lmi) >= -ref.round_off(lmi)
 
 
 @st.composite
@@ -201,14 +196,14 @@ def test_planar_certificates_are_sound_complete_and_minimal(design):
     if cert.certified:
         assert abs(cert.gamma / expected - 1) <= AGREE
         p = ref.p_matrix(a, weight, cert.gamma)
-        assert ref.lambda_min(p) >= -round_off(p)
+        assert ref.lambda_min(p) >= -ref.round_off(p)
         p = ref.p_matrix(a, weight, cert.gamma * (1 - STEP))
-        assert ref.lambda_min(p) < -round_off(p)
+        assert ref.lambda_min(p) < -ref.round_off(p)
     tight = tight_gamma_planar(point)
     best, _ = ref.smallest_tight_gamma(a + 0.5 * np.eye(len(a)), weight)
     assert tight.gamma * (1 - STEP) < best <= tight.gamma * (1 + AGREE)
     lmi = ref.tight_lmi(a + 0.5 * np.eye(len(a)), g, tight.alpha, tight.gamma)
-    assert ref.lambda_min(lmi) >= -round_off(lmi)
+    assert ref.lambda_min(lmi) >= -ref.round_off(lmi)
 
 
 GRIDS = {
@@ -256,7 +251,7 @@ def test_grid_rows_are_sound_complete_and_minimal():
             check_reference_agrees(row, gamma, bool(rows["certified"][i]))
             if gamma is not None:
                 p = ref.p_matrix(row.a(rotations), row.weight, gamma)
-                assert np.all(ref.lambda_min(p) >= -round_off(p[0]))
+                assert np.all(ref.lambda_min(p) >= -ref.round_off(p[0]))
 
 
 def test_reference_matrices_match_the_model():
