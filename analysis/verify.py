@@ -11,12 +11,14 @@ with an absolute slack of 1e-9 times the storage scale (round-off of the evaluat
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import casadi as cs
 import numpy as np
 
-from analysis.envelope import level_bounds
+from analysis.adversary import worst_disturbance
+from analysis.envelope import DisturbanceBounds, level_bounds
 from analysis.linearize import linearize, peak_sinusoid, run_from_rest
 from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals
 from models.disturbance import BandLimitedNoise
@@ -391,7 +393,28 @@ def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: d
                              "<= 0 px (distance outside the box)", bool(out.size and worst <= 0),
                              f"{int(inside.sum())} of {len(t)} steps have V <= c = {env['level']:.4g}"))  # fmt: skip
     claims.extend(_ultimate_errors(loop, traj, env, bound, k0))
+    claims.append(adversarial_claim(loop, s0, env))
     return claims
+
+
+def adversarial_claim(loop: ClosedLoop, s0: np.ndarray, env: dict) -> Claim:
+    """The worst ``V(T)`` found by :func:`analysis.adversary.worst_disturbance` from ``V(0) = 0``
+    against fact 7's ``c_inf (1 - exp(-kappa T))``, with the errors there against the ultimate
+    bounds (the envelope's tightness)."""
+    d = env["disturbance"]
+    bounds = DisturbanceBounds(d["target_speed"], d["target_rate"], d["torque"])
+    name = "worst V(T) found by adversarial search from V(0) = 0"
+    try:
+        worst = worst_disturbance(loop, s0[: loop.robot.n], bounds, horizon=3.0, intervals=6, iterations=3)
+    except RuntimeError as exc:  # CVODES stopped (a singular arm on the way, say)
+        return Claim(name, "fact 7", float("nan"), "<= c_inf (1 - exp(-kappa T))", None,
+                     f"the search could not run: {str(exc).splitlines()[0]}", inconclusive=True)  # fmt: skip
+    limit = env["ultimate_V"] * (1 - math.exp(-env["rate"] * worst["horizon_s"]))
+    errors = ", ".join(f"{k} {v:.3g} (bound {env['bounds'][k]:.3g})" for k, v in worst["errors"].items()
+                       if v is not None)  # fmt: skip
+    return Claim(name, "fact 7", worst["V"],
+                 f"<= c_inf (1 - exp(-kappa T)) = {limit:.4g}", worst["V"] <= limit * (1 + 1e-9) + 1e-12,
+                 f"T = {worst['horizon_s']:g} s; worst / c_inf = {worst['V'] / env['ultimate_V']:.3g}; there {errors}")
 
 
 def _ultimate_errors(loop: ClosedLoop, traj: Trajectory, env: dict, bound: np.ndarray, k0: int) -> list[Claim]:
