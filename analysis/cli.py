@@ -30,7 +30,7 @@ from analysis.certify import (
 from analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
 from analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
 from analysis.pose import initial_view
-from analysis.results import certificate_result, grid_result, point_record, verification_result
+from analysis.results import certificate_result, grid_envelope_for, grid_result, point_record, verification_result
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import Simulator, summary
 from analysis.synthesize import Bounds, rounded, scenario_text, synthesize
@@ -288,7 +288,7 @@ def certify_command(
                   f"a point{'; plus CSV, about 4x more' if csv else ''})", markup=False, soft_wrap=True)  # fmt: skip
         directory = prepare_out_dir(out_dir or Path("out") / f"{spec.name}-grid")
         how = (workers, scheduler, resume, batch_size, csv)
-        sweep(spec, scenario, point, axes, directory, json_target, how, start)
+        sweep(spec, scenario, point, axes, directory, json_target, how, start, grid_envelope_for(spec, loop, point))
         return
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("certifying and measuring lower bounds on the L2 gain"):
@@ -387,7 +387,8 @@ class ProgressLines:
                   soft_wrap=True)  # fmt: skip
 
 
-def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_target, how: tuple, start: float):
+def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_target, how: tuple, start: float,
+          envelope=None):
     """Run a grid sweep with progress (a bar on a terminal, lines otherwise); write
     certificate.json (and points.csv with ``csv``); exit 0/1.
 
@@ -395,7 +396,7 @@ def sweep(spec, scenario: Path, point: GainPoint, axes, directory: Path, json_ta
     """
     workers, scheduler, resume, batch_size, csv = how
     try:
-        grid = GridSpec.around(point, spec.reference.se3(), axes, spec.certify.gamma)
+        grid = GridSpec.around(point, spec.reference.se3(), axes, spec.certify.gamma, envelope)
     except ValueError as exc:
         raise fail(str(exc)) from exc
     if resume and not (directory / "sweep.json").exists():

@@ -576,3 +576,104 @@ def start_storage(loop, s0: np.ndarray) -> dict:
     values = cs.Function("V0", [loop.t, loop.state], [loop.storage, kinetic])(0.0, s0)
     total, kin = (float(v) for v in values)
     return {"V0": total, "kinetic": kin, "pose": total - kin}
+
+
+GRID_GOLDEN_STEPS = 8
+"""Golden-section steps per grid point (the bracket shrinks to 2% of ``s_lim / 2``; ``s kappa``
+is flat at its maximum, so ``c_inf`` is within a few 1e-4 of its minimum: a tightness loss only)."""
+
+
+@dataclass(frozen=True)
+class GridEnvelope:
+    """What the envelope columns of a grid need besides each point's gains and weights (plain,
+    picklable data): the ``theta_bar`` used for every point, the mass bounds, the camera and
+    the features at the reference (None for the planar loop), and ``torque^2 + rate^2``."""
+
+    theta_bar: float
+    mass: MassBounds
+    camera: Camera
+    desired: np.ndarray | None
+    other2: float
+
+
+def grid_envelope(
+    design: Design, camera: Camera, disturbance: DisturbanceBounds, theta_bar: float | None
+) -> GridEnvelope:
+    """The grid context of a scenario: ``theta_bar`` given, or the one giving the design's largest
+    certified target speed (with an image; else the smallest self-consistent one), used for
+    every point of the grid."""
+    desired = desired_features(camera, design.reference) if design.rotational else None
+    if theta_bar is None and design.rotational:
+        candidates = decays(design, THETA_GRID)
+        cap = visible_level(design, camera, desired)
+        wbar2 = disturbance.wbar**2
+        if camera.has_image and candidates:
+            theta_bar = max(candidates, key=lambda d: min(d.c_max, cap) / d.rho).theta_bar
+        else:
+            consistent = [d for d in candidates if d.rho * wbar2 <= d.c_max]
+            theta_bar = consistent[0].theta_bar if consistent else math.radians(30.0)
+    return GridEnvelope(theta_bar or 0.0, design.mass, camera, desired,
+                        disturbance.torque**2 + disturbance.target_rate**2)  # fmt: skip
+
+
+def envelope_columns(ctx: GridEnvelope, nkn: np.ndarray, wdiag: np.ndarray, k_xi_min: np.ndarray,
+                     weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched fact 7-8 for grid points at ``ctx.theta_bar``: the certified rate (NaN where none,
+    re-checked a posteriori on ``Q - kappa D``) and the largest target speed keeping every
+    feature in view ultimately (NaN without an image or a visible level). ``nkn`` (B, 2t, 2t)
+    is ``N^T K N`` on ``(e_c, e_e)`` (sound ``K_e``), ``wdiag`` (B, 2t) the diagonal of ``W``
+    there, ``weights`` (B, 4)."""  # fmt: skip
+    b, t2 = nkn.shape[:2]
+    rotational = ctx.desired is not None
+    if rotational:  # D of fact 7 on (e_c, e_e)
+        r = 1.0 / (1.0 + math.cos(ctx.theta_bar))
+        scales = weights * np.array([0.5, r, 0.5, r])
+        d = np.repeat(scales, 3, axis=1)
+    else:  # D of (P13)
+        d = np.repeat(weights[:, [0, 2]] / 2, t2 // 2, axis=1)
+    inv = 1.0 / np.sqrt(d)
+    a = inv[:, :, None] * nkn * inv[:, None, :]
+    w = wdiag * inv**2
+    eye = np.eye(t2)
+    root = np.sqrt(wdiag)
+    lim = 1.0 / np.linalg.eigvalsh(root[:, :, None] * np.linalg.inv(nkn) * root[:, None, :])[:, -1]
+    lim = np.minimum(lim, k_xi_min)
+    half_mass = ctx.mass.m_hi / 2
+
+    def value(s: np.ndarray) -> np.ndarray:
+        ce = np.linalg.eigvalsh(a - s[:, None, None] * (w[:, :, None] * eye))[:, 0]
+        return np.minimum((k_xi_min - s) / half_mass, ce)
+
+    ratio = (math.sqrt(5) - 1) / 2
+    lo, hi = lim / 2, lim.copy()
+    c, dd = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+    fc, fd = c * value(c), dd * value(dd)
+    for _ in range(GRID_GOLDEN_STEPS):
+        left = fc >= fd
+        hi, lo = np.where(left, dd, hi), np.where(left, lo, c)
+        fresh = np.where(left, hi - ratio * (hi - lo), lo + ratio * (hi - lo))
+        f_fresh = fresh * value(fresh)
+        c, dd, fc, fd = (np.where(left, fresh, dd), np.where(left, c, fresh),
+                         np.where(left, f_fresh, fd), np.where(left, fc, f_fresh))  # fmt: skip
+    s = (lo + hi) / 2
+    kappa = value(s) * (1 - SHRINK)
+    check = np.linalg.eigvalsh(nkn - s[:, None, None] * (wdiag[:, :, None] * eye) - kappa[:, None, None]
+                               * (d[:, :, None] * eye))[:, 0]  # fmt: skip
+    ok = (kappa > 0) & (check >= 0) & (k_xi_min - s - kappa * half_mass >= 0) & (lim > 0)
+    rate = np.where(ok, kappa, np.nan)
+    speed = np.full(b, np.nan)
+    if rotational and ctx.camera.has_image:
+        c_max = np.minimum(weights[:, 1], weights[:, 3]) * (1 - math.cos(ctx.theta_bar))
+        unique, which = np.unique(weights, axis=0, return_inverse=True)
+        c_vis = np.array([_visible_level_of(ctx, row) for row in unique])[which.ravel()]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wbar2 = np.minimum(c_max, c_vis) * 4 * s * kappa
+            speed = np.where(ok & (wbar2 >= ctx.other2), np.sqrt(np.maximum(wbar2 - ctx.other2, 0.0)), np.nan)
+    return rate, speed
+
+
+def _visible_level_of(ctx: GridEnvelope, weights: np.ndarray) -> float:
+    """:func:`visible_level` for one row of weights (boxes depend on the weights, not the gains)."""
+    stub = Design(np.zeros((12, 12)), np.zeros(12), 0.0, ctx.mass, tuple(float(v) for v in weights), True,
+                  None, None, (np.zeros((1, 1)), np.zeros((1, 1))))  # fmt: skip
+    return visible_level(stub, ctx.camera, ctx.desired)

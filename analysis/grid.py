@@ -28,6 +28,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
+from analysis.envelope import GridEnvelope, envelope_columns
 from analysis.output import atomic_write, interrupted, json_text
 from models.lie import SE3, SO3
 from models.planar import TASK, planar_output_matrix
@@ -64,6 +65,9 @@ class GridSpec:
     r_d: np.ndarray
     axes: tuple[tuple[str, np.ndarray], ...]
     gamma_bound: float | None = None
+    envelope: GridEnvelope | None = None
+    """With a scenario's ``[envelope]``: the context of the columns ``rate`` and
+    ``max_target_speed`` (:func:`analysis.envelope.envelope_columns`)."""
 
     @property
     def planar(self) -> bool:
@@ -71,7 +75,9 @@ class GridSpec:
         return len(self.k_c) == TASK
 
     @staticmethod
-    def around(point: GainPoint, reference: SE3, axes, gamma_bound: float | None = None) -> GridSpec:
+    def around(
+        point: GainPoint, reference: SE3, axes, gamma_bound: float | None = None, envelope: GridEnvelope | None = None
+    ) -> GridSpec:
         """The grid of ``axes`` (name, values) around the design ``point`` (of the paper's
         loop, or of the planar loop when its ``K_c`` has two entries)."""
         w = point.weights
@@ -82,7 +88,7 @@ class GridSpec:
         return GridSpec(
             point.k_xi, point.k_c, point.k_e, np.array([w.w_pc, w.w_rc, w.w_pe, w.w_re], dtype=float),
             np.asarray(cs.DM(reference.translation)).ravel(), np.asarray(cs.DM(reference.rotation.matrix)),
-            tuple(axes), gamma_bound,
+            tuple(axes), gamma_bound, envelope,
         )  # fmt: skip
 
     @property
@@ -146,7 +152,12 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     if spec.gamma_bound is not None:
         reason = np.where((reason == 0) & (gamma > spec.gamma_bound), 5, reason)
     certified = reason == 0
+    extra = {}
+    if spec.envelope is not None:
+        nkn = a + 0.5 * np.eye(2 * t)
+        extra["rate"], extra["max_target_speed"] = envelope_columns(spec.envelope, nkn, w_ce, k_xi_min, d["w"])
     return {
+        **extra,
         "index": np.arange(start, stop),
         "gain_norm": np.linalg.norm(np.hstack([d["k_xi"], d["k_c"], d["k_e"]]), axis=1),
         "gamma": np.where(finite, gamma, np.nan),
@@ -186,7 +197,12 @@ def batch_table(result: dict[str, np.ndarray], axes: list[str]) -> pa.Table:
         "gamma": nan(result["gamma"]),
         "margin": nan(result["margin"]),
         "reason": pa.array(result["reason"].astype(np.uint8)),
+        **{k: nan(result[k]) for k in ENVELOPE_COLUMNS if k in result},
     })  # fmt: skip
+
+
+ENVELOPE_COLUMNS = ("rate", "max_target_speed")
+"""Columns added when the scenario has an ``[envelope]`` (null where not certified)."""
 
 
 def part_path(directory: Path, start: int) -> Path:

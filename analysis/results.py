@@ -24,7 +24,7 @@ from analysis.certify import (
 )
 from analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
 from analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
-from analysis.envelope import design_of, disturbance_bounds, envelope, start_storage
+from analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
 from analysis.grid import GridSpec, SweepState
 from analysis.linearize import linearize, worst_case_disturbance
 from analysis.scenario import Scenario, gain_point
@@ -91,6 +91,16 @@ def envelope_record(spec: Scenario, loop: ClosedLoop, s0: np.ndarray, point: Gai
         else "anisotropic: blockwise-minimum K_min, sound for every R_ec (fact 5)",
         "assumptions": list(PLANAR_ENVELOPE_ASSUMPTIONS if planar else ENVELOPE_ASSUMPTIONS),
     }
+
+
+def grid_envelope_for(spec: Scenario, loop: ClosedLoop, point: GainPoint) -> GridEnvelope | None:
+    """The context of a grid's envelope columns when the scenario has an ``[envelope]``."""
+    if spec.envelope is None:
+        return None
+    planar = spec.loop == "planar"
+    design = design_of(point, None if planar else spec.reference.se3(), loop.robot.mass_bounds)
+    theta = None if spec.envelope.theta_bar_deg is None else math.radians(spec.envelope.theta_bar_deg)
+    return grid_envelope(design, loop.camera, disturbance_bounds(spec.envelope, loop), theta)
 
 
 def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, bounded: bool = True) -> Certificate:

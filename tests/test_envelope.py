@@ -28,6 +28,8 @@ from analysis.envelope import (
     recheck,
     start_storage,
 )
+from analysis.grid import GridSpec, certify_batch
+from analysis.results import grid_envelope_for
 from analysis.scenario import Scenario, build, gain_point, load
 from analysis.verify import envelope_claims, rotation_angles
 from models.camera import Camera
@@ -299,3 +301,24 @@ def test_p13_planar_envelope_holds_on_a_run():
     assert np.all(vdot + env.rate * v - w2 / (4 * s) <= 1e-8 * (v + w2))
     bound = np.exp(-env.rate * traj.t) * v[0] + env.ultimate_v * np.maximum.accumulate(w2) / env.wbar**2
     assert np.all(v <= bound * (1 + 1e-9))
+
+
+def test_grid_columns_match_the_single_design_envelope():
+    """A grid's ``rate`` and ``max_target_speed`` columns at the design's own gains agree with the
+    single-design envelope at the same ``theta_bar`` (from ``V(0) = 0``): the grid's few
+    golden-section steps can only lose tightness (speed at most the single one's, within 1e-3;
+    the optimum of ``s kappa(s)`` is flat), and a larger ``k_c`` never lowers either column's
+    speed (``N^T K N`` grows with every gain)."""
+    spec, base = load(EXAMPLES / "ur5_envelope.toml")
+    loop, _, _ = build(spec, base)
+    point = gain_point(spec, 6)
+    context = grid_envelope_for(spec, loop, point)
+    grid = GridSpec.around(point, loop.reference, [("k_c", np.array([2.0, 3.0, 4.5]))], None, context)
+    columns = certify_batch(grid, 0, grid.size)
+    design = design_of(point, loop.reference, loop.robot.mass_bounds)
+    single = envelope(design, loop.camera, disturbance_bounds(spec.envelope, loop), {"V0": 0.0},
+                      context.theta_bar)  # fmt: skip
+    assert columns["max_target_speed"][1] <= single.max_target_speed * (1 + 1e-9)
+    assert columns["max_target_speed"][1] >= single.max_target_speed * (1 - 1e-3)
+    assert columns["rate"][1] == pytest.approx(single.rate, rel=2e-2)
+    assert np.all(np.diff(columns["max_target_speed"]) >= 0)
