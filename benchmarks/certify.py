@@ -116,7 +116,7 @@ def envelope_grid(design: GainPoint, reference: SE3, axes, plain: float) -> None
     for lo in range(0, spec.size, 20000):
         certify_batch(spec, lo, min(lo + 20000, spec.size))
     rate = spec.size / (time.perf_counter() - start)
-    print(f"grid with the envelope columns                {rate:12,.0f} points/s  ({rate / plain:.2f} of the plain grid)")
+    print(f"grid with the envelope columns          {rate:12,.0f} points/s  ({rate / plain:.2f} of the plain grid)")
 
 
 if __name__ == "__main__":
