@@ -30,9 +30,17 @@ from analysis.certify import (
 from analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
 from analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
 from analysis.pose import initial_view
-from analysis.results import certificate_result, grid_envelope_for, grid_result, point_record, verification_result
+from analysis.results import (
+    certificate_result,
+    grid_envelope_for,
+    grid_result,
+    implementation_record,
+    point_record,
+    verification_result,
+)
+from analysis.sampled import as_implemented, limit_record, robot_limits
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
-from analysis.simulate import Simulator, summary
+from analysis.simulate import summary
 from analysis.synthesize import Bounds, rounded, scenario_text, synthesize
 from models.loop import Weights
 
@@ -155,7 +163,7 @@ def simulate(
         disable=not err.is_terminal,
     ) as bar:
         task = bar.add_task("compiling" if settings.jit else spec.name, total=settings.duration)
-        simulator = Simulator(loop, settings)
+        simulator = as_implemented(loop, settings)
         bar.update(task, description=spec.name)
         lines = None if err.is_terminal else ProgressLines(f"simulate {spec.name}", settings.duration, "s")
 
@@ -169,11 +177,16 @@ def simulate(
     result = {
         "scenario": spec.name,
         "mode": loop.mode,
+        "implementation": implementation_record(settings),
         "summary": summary(trajectory),
+        "limits": limit_record(trajectory, robot_limits(loop, settings)),
         "outputs": {"trajectory": str(directory / "trajectory.npz"), "summary": str(directory / "summary.json")},
         "provenance": command_provenance(scenario),
     }
-    arrays = {"t": trajectory.t, **trajectory.signals, **{f"int_{k}": v for k, v in trajectory.integrals.items()}}
+    urdf = robot_limits(loop, settings)
+    limits = {"effort_limit": urdf.effort, "velocity_limit": urdf.velocity}
+    integrals = {f"int_{k}": v for k, v in trajectory.integrals.items()}
+    arrays = {"t": trajectory.t, **trajectory.signals, **integrals, **limits}
     atomic_write(directory / "trajectory.npz", lambda h: np.savez_compressed(h, **arrays))
     emit(result, directory / "summary.json", json_target, show)
     if trajectory.status != "ok":
@@ -212,6 +225,13 @@ def show_pose(result: dict) -> None:
     out.print(table)
 
 
+def _worst(ratios: list[float]) -> str:
+    """The largest of per-joint ratios to a limit, with its joint and a plain verdict."""
+    j = int(np.argmax(ratios))
+    verdict = "within the URDF limit" if ratios[j] <= 1 else "EXCEEDS the URDF limit"
+    return f"{ratios[j]:.3g} (joint {j + 1}, {verdict})"
+
+
 def _number(value: float | None) -> str:
     return "-" if value is None else f"{value:.3e}"
 
@@ -233,6 +253,8 @@ def show(result: dict) -> None:
          f"{f['e_e_position']:.3e} m, {_number(f['e_e_rotation'])}"),
         ("V(0) -> V(T)", f"{s['V0']:.4g} -> {s['VT']:.4g}"),
         ("max |tau|", f"{s['max_torque']:.4g} N m"),
+        ("peak |tau| / effort limit", _worst(result["limits"]["torque_commanded_ratio"])),
+        ("peak |qd| / velocity limit", _worst(result["limits"]["speed_ratio"])),
         ("Lemma 2 identity residual", f"{r['passivity']:.2e}"),
         ("(43) identity residual", f"{r['dissipation']:.2e}"),
         ("max |e_e(image) - e_e|", f"{s['image_estimate_gap_max']:.3e}"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import asdict
 
 import numpy as np
 
@@ -31,6 +32,19 @@ from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings
 from analysis.verify import Claim, verify
 from models.loop import ClosedLoop, Weights
+
+
+def implementation_record(settings: Settings) -> dict:
+    """How the run was implemented: the digital controller (None: the paper's continuous
+    loop), the plant's departure from the URDF (None: none)."""
+    imp, plant = settings.implementation, settings.plant
+    return {
+        "controller": None if imp is None else asdict(imp),
+        "plant": None if plant is None else {
+            "payload": None if plant.payload is None else asdict(plant.payload), "mass_scale": plant.mass_scale
+        },
+        "view_checked": settings.view,
+    }  # fmt: skip
 
 
 def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:

@@ -19,13 +19,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from analysis.certify import GainPoint
+from analysis.implementation import Implementation
 from analysis.simulate import Settings
 from models.camera import Camera
 from models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
 from models.lie import SE3
 from models.loop import ClosedLoop, Gains, Weights
 from models.planar import TASK, PlanarLoop
-from models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, Robot, RobotModelError, builtin_urdf
+from models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, Payload, Robot, RobotModelError, builtin_urdf
 from models.target import TargetMotion
 
 DEFAULT_SCENARIO = Path(__file__).parent / "scenarios" / "ur5_circle.toml"
@@ -228,6 +229,66 @@ class SimulationSection(_Strict):
         return self
 
 
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class ImplementationSection(_Strict):
+    """The digital controller (:class:`analysis.implementation.Implementation`); absent: the
+    paper's continuous loop."""
+
+    control_rate: Positive
+    camera_rate: Positive | None = None
+    latency: NonNegative = 0.0
+    pixel_noise: NonNegative = 0.0
+    quantization: NonNegative = 0.0
+    e_e: Literal["ideal", "image"] | None = None
+    saturate: bool = False
+    torque_scale: Positive = 1.0
+    velocity_limits: Literal["report", "stop"] = "report"
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _samples(self) -> ImplementationSection:
+        periods = self.latency * self.control_rate
+        if abs(periods - round(periods)) > 1e-6:
+            raise ValueError(
+                f"latency {self.latency:g} s is not a whole number of control periods "
+                f"({1 / self.control_rate:g} s): images are used at control samples"
+            )
+        if self.camera_rate is not None and self.camera_rate > self.control_rate:
+            raise ValueError(f"camera_rate {self.camera_rate:g} Hz exceeds control_rate {self.control_rate:g} Hz")
+        return self
+
+    def implementation(self) -> Implementation:
+        return Implementation(
+            self.control_rate,
+            self.camera_rate or self.control_rate,
+            self.latency,
+            self.pixel_noise,
+            self.quantization,
+            self.saturate,
+            self.torque_scale,
+            self.velocity_limits,
+            self.seed,
+        )
+
+
+class PayloadSection(_Strict):
+    """A body on the camera link that the controller does not know: mass (kg), centre of mass
+    (m, link frame), inertia about it ``[ixx, ixy, ixz, iyy, iyz, izz]`` (kg m^2)."""
+
+    mass: NonNegative
+    com: Vector3 = [0.0, 0.0, 0.0]
+    inertia: Annotated[list[Finite], Field(min_length=6, max_length=6)] = [0.0] * 6
+
+
+class PlantSection(_Strict):
+    """The arm as it is, when it differs from the URDF the controller uses."""
+
+    payload: PayloadSection | None = None
+    mass_scale: Positive = 1.0
+
+
 class CertifySection(_Strict):
     """Region and requirement of the Theorem 2 certificate."""
 
@@ -337,6 +398,8 @@ class Scenario(_Strict):
     gains: GainsSection
     disturbance: DisturbancesSection = DisturbancesSection()
     simulation: SimulationSection = SimulationSection()
+    implementation: ImplementationSection | None = None
+    plant: PlantSection = PlantSection()
     certify: CertifySection = CertifySection()
     envelope: EnvelopeSection | None = None
     grid: GridSection | None = None
@@ -590,16 +653,64 @@ def build(
         reference=scenario.reference.se3(),
         weights=point.weights,
         gains=Gains(point.k_xi, point.k_c, point.k_e),
-        mode=mode or scenario.simulation.mode,
+        mode=mode or _implementation_mode(scenario),
         disturbances=disturbances(scenario.disturbance, n),
     )
     o = scenario.observer
     s0 = loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
     if check_view:
         _check_initial_view(loop, s0, scenario.simulation.sigma_min)
+        if scenario.loop == "paper":
+            _check_reference_view(loop.camera, loop.reference)
     sim = scenario.simulation
-    settings = Settings(sim.duration, sim.dt, sim.rtol, sim.atol, sim.jit, sim.time_budget, sigma_min=sim.sigma_min)
+    settings = Settings(
+        sim.duration,
+        sim.dt,
+        sim.rtol,
+        sim.atol,
+        sim.jit,
+        sim.time_budget,
+        sigma_min=sim.sigma_min,
+        implementation=_implementation(scenario, loop.mode),
+        plant=_plant(scenario.plant, robot),
+        view=loop.camera.has_image,
+    )
     return loop, s0, settings
+
+
+def _implementation_mode(scenario: Scenario) -> str:
+    """``[implementation] e_e`` when given, else ``[simulation] mode``."""
+    imp = scenario.implementation
+    return imp.e_e if imp is not None and imp.e_e is not None else scenario.simulation.mode
+
+
+def _implementation(scenario: Scenario, mode: str) -> Implementation | None:
+    """The digital controller, checked against the output grid and the ``e_e`` it uses."""
+    section = scenario.implementation
+    if section is None:
+        return None
+    if mode == "ideal" and (section.pixel_noise > 0 or section.quantization > 0):
+        name = "pixel_noise" if section.pixel_noise > 0 else "quantization"
+        raise ScenarioError(f"implementation.{name}: needs e_e = \"image\" (the ideal e_e uses no pixels)")
+    dt = scenario.simulation.dt
+    periods = dt * section.control_rate
+    if abs(periods - round(periods)) > 1e-6 or round(periods) < 1:
+        raise ScenarioError(
+            f"simulation.dt: {dt:g} s is not a whole number of control periods ({1 / section.control_rate:g} s)"
+        )
+    return section.implementation()
+
+
+def _plant(section: PlantSection, robot: Robot) -> Robot | None:
+    """The arm as it is (None when it is the URDF's)."""
+    p = section.payload
+    payload = None if p is None else Payload(p.mass, tuple(p.com), tuple(p.inertia))
+    if payload is None and section.mass_scale == 1.0:
+        return None
+    try:
+        return Robot(robot.urdf, robot.frame, robot.mount, robot.armature, payload, section.mass_scale)
+    except RobotModelError as exc:
+        raise ScenarioError(f"plant: {exc}") from exc
 
 
 def gain_point(scenario: Scenario, n: int) -> GainPoint:
@@ -613,6 +724,23 @@ def gain_point(scenario: Scenario, n: int) -> GainPoint:
         _vector(g.k_e, task, "gains.k_e"),
         Weights(**scenario.weights.model_dump()),
     )
+
+
+def _check_reference_view(camera: Camera, reference: SE3) -> None:
+    """At the reference pose ``g_d`` every feature must be in front of the camera and inside
+    the image (when its size is given): the loop is to hold the target there."""
+    depth = np.asarray(cs.DM(camera.depths(reference))).ravel()
+    if (bad := np.flatnonzero(~(depth > 1e-9))).size:
+        i = int(bad[0])
+        raise ScenarioError(f"reference: feature point {i} is at depth {depth[i]:.4g} m (not in front of the camera)")
+    f = np.asarray(cs.DM(camera.project(reference))).ravel()
+    if camera.has_image and (outside := camera.outside_image(f)).size:
+        i = int(outside[0])
+        u, v = f[2 * i : 2 * i + 2] + camera.centre
+        raise ScenarioError(
+            f"reference: feature point {i} is at pixel ({u:.1f}, {v:.1f}), outside the "
+            f"{camera.width:g} x {camera.height:g} image (camera.width, camera.height)"
+        )
 
 
 def _check_initial_view(loop: ClosedLoop, s0: np.ndarray, threshold: float) -> None:

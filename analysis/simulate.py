@@ -17,8 +17,10 @@ import casadi as cs
 import numpy as np
 
 from analysis.compile import compiled
+from analysis.implementation import Implementation
 from analysis.output import interrupted
 from models.loop import QUADRATURES, ClosedLoop
+from models.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -45,6 +47,13 @@ class Settings:
         Output steps of the first CVODES call; later calls are sized to take about
         :data:`CHUNK_SECONDS` of wall time each (CVODES restarts at every call, so
         fewer calls are faster; the calls are where progress is shown and checked).
+    implementation, plant
+        The loop as it runs on the robot (:func:`analysis.sampled.as_implemented`): the
+        digital controller (None: the paper's continuous loop), the arm as it really is
+        (None: the URDF's).
+    view
+        End the run with status ``"out_of_view"`` when a feature leaves the camera's image
+        (when its size is known).
     """
 
     duration: float = 10.0
@@ -55,6 +64,9 @@ class Settings:
     time_budget: float = 600.0
     chunk: int = 100
     sigma_min: float = 0.02
+    implementation: Implementation | None = None
+    plant: Robot | None = None
+    view: bool = False
 
 
 CHUNK_SECONDS = 0.5
@@ -76,6 +88,8 @@ class Trajectory:
     message: str = ""
     wall_time: float = 0.0
     stats: dict[str, float] = field(default_factory=dict)
+    peaks: dict[str, np.ndarray] = field(default_factory=dict)
+    """Per-joint peaks ``|tau|``, ``|tau_applied|``, ``|qd|`` over every control sample (sampled runs)."""
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]
@@ -83,13 +97,15 @@ class Trajectory:
 
 def dynamics_function(loop: ClosedLoop) -> cs.Function:
     """The DAE of the loop in CasADi's integrator signature, with the time offset of the
-    chunk as parameter ``p`` (the integrator's own clock starts at 0 every chunk)."""
+    chunk as parameter ``p`` (the integrator's own clock starts at 0 every chunk), followed
+    by the held inputs of the sampled loop (:attr:`models.loop.ClosedLoop.hold`)."""
     t_local, offset = cs.SX.sym("t"), cs.SX.sym("p")
     ode, quad = cs.substitute([loop.state_rate, loop.quadratures], [loop.t], [t_local + offset])
     empty = cs.SX(0, 1)
+    parameters = cs.vertcat(offset, loop.hold) if loop.sampled else offset
     return cs.Function(
-        "dvfc_dynamics",
-        [t_local, loop.state, empty, offset, empty],
+        "dvfc_dynamics_sampled" if loop.sampled else "dvfc_dynamics",
+        [t_local, loop.state, empty, parameters, empty],
         [ode, empty, quad, empty],
         cs.dyn_in(),
         cs.dyn_out(),
@@ -148,15 +164,19 @@ class Simulator:
             self._integrators[count] = cs.integrator("closed_loop", "cvodes", self._dae, 0.0, grid, options)
         return self._integrators[count]
 
-    def evaluate_signals(self, t: np.ndarray, states: np.ndarray) -> dict[str, np.ndarray]:
-        """All signals at times ``t`` (``states``: one column per time), evaluated in one
-        mapped call writing straight into NumPy arrays (CasADi's buffer interface)."""
+    def evaluate_signals(
+        self, t: np.ndarray, states: np.ndarray, holds: np.ndarray | None = None
+    ) -> dict[str, np.ndarray]:
+        """All signals at times ``t`` (``states``, and ``holds`` of the sampled loop: one column
+        per time), evaluated in one mapped call writing straight into NumPy arrays (CasADi's
+        buffer interface)."""
         count = len(t)
         if count not in self._mapped:
             mapped = self.signal_function.map(count)
             self._mapped[count] = (mapped, *mapped.buffer())
         mapped, buffer, trigger = self._mapped[count]
-        inputs = [np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(states.T, dtype=float)]
+        columns = [states] if holds is None else [states, holds]
+        inputs = [np.ascontiguousarray(t, dtype=float), *(np.ascontiguousarray(c.T, dtype=float) for c in columns)]
         outputs = {k: np.empty((count, mapped.size1_out(i))) for i, k in enumerate(self.signal_names)}
         assert all(mapped.nnz_out(i) == v.size for i, v in enumerate(outputs.values())), "signals must be dense"
         for i, value in enumerate(inputs):
@@ -172,13 +192,23 @@ class Simulator:
         signals = self._signals(t, states)
         return signals["sigma_min_arm_jacobian"][:, 0], signals["cond_image_jacobian"][:, 0]
 
-    def _signals(self, t: np.ndarray, states: np.ndarray) -> dict[str, np.ndarray]:
+    def _signals(self, t: np.ndarray, states: np.ndarray, holds: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """:meth:`evaluate_signals` with the conditioning of the two Jacobians the law inverts."""
-        signals = self.evaluate_signals(t, states)
+        signals = self.evaluate_signals(t, states, holds)
         flat = np.hstack([signals["body_jacobian"], signals["image_jacobian"]])
         sigma, cond = conditioning_of(flat, self._shapes)
         signals["sigma_min_arm_jacobian"], signals["cond_image_jacobian"] = sigma[:, None], cond[:, None]
         return signals
+
+    def outside_image(self, f: np.ndarray) -> np.ndarray:
+        """Which points of the features ``f`` (one row per time) lie outside the image, when
+        the settings ask for it and the camera's size is known (one column per point)."""
+        camera = self.loop.camera
+        xy = f.reshape(len(f), -1, 2)
+        if not (self.settings.view and camera.has_image):
+            return np.zeros(xy.shape[:2], dtype=bool)
+        low, high = camera.image_window()
+        return np.any((xy < low) | (xy > high), axis=2)
 
     def _singularity(self, t: np.ndarray, sigma: np.ndarray, cond: np.ndarray) -> tuple[int, str] | None:
         """The first of the times ``t`` where the law would divide by a near-zero (``sigma``,
@@ -267,9 +297,15 @@ class Simulator:
         signals = {name: np.concatenate([c[name] for c in chunks]) for name in chunks[0]}
         signals["state"] = states.T
         behind = np.flatnonzero(np.any(signals["depth"] <= 0, axis=1))
+        outside = self.outside_image(signals["f"])
+        lost = np.flatnonzero(outside.any(axis=1))
         if status == "ok" and behind.size:
             i = int(behind[0])
             status, message = "behind_camera", f"a feature point is behind the camera at t = {t[i]:.4g} s"
+        elif status == "ok" and lost.size:
+            i = int(lost[0])
+            point = int(np.flatnonzero(outside[i])[0])
+            status, message = "out_of_view", f"feature {point} left the image at t = {t[i]:.4g} s"
         return Trajectory(
             t=t,
             signals=signals,

@@ -36,9 +36,9 @@ from models.target import TargetMotion
 
 Mode = Literal["ideal", "image"]
 
-QUADRATURES = ("supply_u_nu", "supply_x_G_w", "dissipation_nu_K_nu", "x_squared", "w_squared")
+QUADRATURES = ("supply_u_nu", "supply_x_G_w", "dissipation_nu_K_nu", "x_squared", "w_squared", "unmodelled_supply")
 """Integrals accumulated by the integrator: ``u^T nu``, ``x^T G w``, ``nu^T K nu``,
-``|x|^2`` and ``|w|^2``."""
+``|x|^2``, ``|w|^2`` and ``xi^T delta`` (:attr:`ClosedLoop.unmodelled_torque`)."""
 
 
 @dataclass(frozen=True)
@@ -142,6 +142,14 @@ class ClosedLoop:
     inputs
         When given, the open loop (36) driven by ``u(t)`` (a function of the time
         symbol returning ``n + 12`` entries) instead of the feedback (42).
+    plant
+        The arm as it really is (a payload, other masses), when it differs from ``robot``:
+        the law keeps ``robot``'s model, the joints move by ``plant``'s (33).
+    sampled
+        The loop as a digital controller runs it: the torque applied and the ``e_e`` the
+        law and observer use are held inputs (:attr:`hold`), set at the samples by
+        :class:`analysis.sampled.SampledSimulator`, instead of (35) and (15)/(21) evaluated
+        continuously.
     """
 
     robot: Robot
@@ -153,6 +161,8 @@ class ClosedLoop:
     mode: Mode = "ideal"
     disturbances: list[Disturbance] = field(default_factory=list)
     inputs: Callable[[cs.SX], Matrix] | None = None
+    plant: Robot | None = None
+    sampled: bool = False
 
     task_dim = 6
     """Entries of ``e_c``, ``e_e``, ``u_d`` and ``u_e``."""
@@ -218,7 +228,11 @@ class ClosedLoop:
     @cached_property
     def e_e_image(self) -> Matrix:
         """``pinv(J(gbar)) (f - fbar)`` (21)."""
-        return self.camera.estimation_error(self.features, self.estimate)
+        return self.image_estimate(self.features)
+
+    def image_estimate(self, f: Matrix) -> Matrix:
+        """``e_e`` the observer computes from a measured image ``f`` (21)."""
+        return self.camera.estimation_error(f, self.estimate)
 
     # --- passivity structure ----------------------------------------------------
     @cached_property
@@ -239,9 +253,21 @@ class ClosedLoop:
         if self.inputs is not None:
             u = self.inputs(self.t)
             return u[n : n + 6], u[n + 6 : n + 12]
-        e_e_law = self.e_e if self.mode == "ideal" else self.e_e_image
-        nu_ce = self.output_matrix[n:, n:] @ cs.vertcat(self.e_c, e_e_law)
+        nu_ce = self.output_matrix[n:, n:] @ cs.vertcat(self.e_c, self.e_e_law)
         return -cs.DM(self.gains.k_c) * nu_ce[0:6], -cs.DM(self.gains.k_e) * nu_ce[6:12]
+
+    @cached_property
+    def hold(self) -> cs.SX:
+        """Inputs held between samples in the sampled loop: ``[tau applied; e_e measured]``."""
+        return cs.SX.sym("hold", self.robot.n + self.task_dim)
+
+    @cached_property
+    def e_e_law(self) -> Matrix:
+        """The ``e_e`` the law and the observer use: exact (15), from the image (21), or the
+        latest measurement held (sampled loop)."""
+        if self.sampled:
+            return self.hold[self.robot.n :]
+        return self.e_e if self.mode == "ideal" else self.e_e_image
 
     @cached_property
     def camera_velocity(self) -> Matrix:
@@ -308,10 +334,36 @@ class ClosedLoop:
         return feedforward + r.body_jacobian.T @ ad_d.T @ self.weights.control @ self.e_c + self.u[0 : r.n]
 
     @cached_property
+    def applied_torque(self) -> Matrix:
+        """The torque the joints receive: (35), or the value held since the last sample."""
+        return self.hold[: self.robot.n] if self.sampled else self.tau
+
+    @cached_property
+    def plant_dynamics(self) -> tuple[Matrix, Matrix]:
+        """``(M, C qd + g)`` of (33) for the arm as it is (:attr:`plant`, else :attr:`robot`)."""
+        p = self.plant or self.robot
+        m, bias = p.mass_matrix, p.coriolis @ p.qd + p.gravity
+        if p is self.robot:
+            return m, bias
+        return tuple(cs.substitute([m, bias], [p.q, p.qd], [self.q, self.qd]))
+
+    @cached_property
     def qdd(self) -> Matrix:
-        """Joint acceleration from (33): ``M qdd = tau + tau_d - C qd - g``."""
+        """Joint acceleration from (33): ``M qdd = tau + tau_d - C qd - g``, with the plant's
+        ``M``, ``C``, ``g`` and the applied torque."""
+        m, bias = self.plant_dynamics
+        return cs.solve(m, self.applied_torque + self.tau_d - bias)
+
+    @cached_property
+    def unmodelled_torque(self) -> Matrix:
+        """``delta = M qdd + C qd + g - tau - tau_d`` with the law's model (``robot``) along the
+        actual motion and the law's torque (35): zero for the paper's loop. Otherwise the
+        derivation of Lemma 2 gains one term, ``dV/dt = u^T nu + x^T G w + xi^T delta``:
+        sampling, saturation and model error enter the storage only through ``delta``."""
+        if self.plant is None and not self.sampled:
+            return cs.DM.zeros(self.robot.n)
         r = self.robot
-        return cs.solve(r.mass_matrix, self.tau + self.tau_d - r.coriolis @ self.qd - r.gravity)
+        return r.mass_matrix @ self.qdd + r.coriolis @ self.qd + r.gravity - self.tau - self.tau_d
 
     @cached_property
     def state_rate(self) -> Matrix:
@@ -349,7 +401,14 @@ class ClosedLoop:
         """Integrands of :data:`QUADRATURES`."""
         nu, x, w = self.nu, self.x, self.w
         k = self.gains.matrix
-        return cs.vertcat(self.u.T @ nu, x.T @ self.disturbance_matrix @ w, nu.T @ k @ nu, x.T @ x, w.T @ w)
+        return cs.vertcat(
+            self.u.T @ nu,
+            x.T @ self.disturbance_matrix @ w,
+            nu.T @ k @ nu,
+            x.T @ x,
+            w.T @ w,
+            self.xi.T @ self.unmodelled_torque,
+        )
 
     @cached_property
     def signals(self) -> dict[str, Matrix]:
@@ -359,6 +418,7 @@ class ClosedLoop:
             "q": self.q,
             "qd": self.qd,
             "tau": self.tau,
+            "tau_applied": self.applied_torque,
             "tau_d": self.tau_d,
             "g": cs.vec(self.relative_pose.as_matrix()),
             "g_tracking": cs.vec(self.tracking_error.as_matrix()),
@@ -382,17 +442,25 @@ class ClosedLoop:
             "body_jacobian": cs.vec(self.conditioning[self._arm_matrix]),
         }
 
+    @property
+    def arguments(self) -> tuple[list[cs.SX], list[str]]:
+        """The symbols every expression of the loop depends on: ``(t, s)``, and :attr:`hold`
+        for the sampled loop."""
+        if self.sampled:
+            return [self.t, self.state, self.hold], ["t", "s", "hold"]
+        return [self.t, self.state], ["t", "s"]
+
     def rhs_function(self) -> cs.Function:
-        """``(t, s) -> (ds/dt, quadrature integrands)``."""
-        return cs.Function(
-            "rhs", [self.t, self.state], [self.state_rate, self.quadratures], ["t", "s"], ["ode", "quad"]
-        )
+        """``(t, s[, hold]) -> (ds/dt, quadrature integrands)``."""
+        symbols, names = self.arguments
+        return cs.Function("rhs", symbols, [self.state_rate, self.quadratures], names, ["ode", "quad"])
 
     def signals_function(self) -> cs.Function:
-        """``(t, s) -> signals``: one output per entry of :attr:`signals`."""
+        """``(t, s[, hold]) -> signals``: one output per entry of :attr:`signals`."""
         names = list(self.signals)
         values = [cs.densify(v) for v in self.signals.values()]  # dense: structural zeros stored too
-        return cs.Function("signals", [self.t, self.state], values, ["t", "s"], names)
+        symbols, arguments = self.arguments
+        return cs.Function("signals", symbols, values, arguments, names)
 
     def initial_state(self, q0: np.ndarray, qd0: np.ndarray, estimation_error: SE3) -> np.ndarray:
         """``s(0)`` with ``gbar(0) = g(0) g_ee(0)^-1`` for a given initial estimation error."""

@@ -168,10 +168,9 @@ class PlanarLoop(ClosedLoop):
         """``A = dfbar/dpbar`` (P12)."""
         return cs.jacobian(self.estimated_features, self.pbar)
 
-    @cached_property
-    def e_e_image(self) -> Matrix:
+    def image_estimate(self, f: Matrix) -> Matrix:
         """``pinv(A) (f - fbar)`` (P12): exact when every feature keeps its depth."""
-        return pseudo_inverse(self.image_map) @ (self.features - self.estimated_features)
+        return pseudo_inverse(self.image_map) @ (f - self.estimated_features)
 
     # --- passivity structure (P9) ----------------------------------------------------
     @cached_property
@@ -189,8 +188,7 @@ class PlanarLoop(ClosedLoop):
         if self.inputs is not None:
             u = self.inputs(self.t)
             return u[n : n + TASK], u[n + TASK : n + 2 * TASK]
-        e_e_law = self.e_e if self.mode == "ideal" else self.e_e_image
-        nu_ce = self.output_matrix[n:, n:] @ cs.vertcat(self.e_c, e_e_law)
+        nu_ce = self.output_matrix[n:, n:] @ cs.vertcat(self.e_c, self.e_e_law)
         return -cs.DM(self.gains.k_c) * nu_ce[:TASK], -cs.DM(self.gains.k_e) * nu_ce[TASK:]
 
     @cached_property

@@ -11,6 +11,7 @@ the body Jacobian of the camera frame is the derivative of its forward kinematic
 from __future__ import annotations
 
 import difflib
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -18,6 +19,7 @@ from importlib.metadata import PackageNotFoundError, distribution
 from pathlib import Path
 
 import casadi as cs
+import numpy as np
 from adam.casadi import KinDynComputations
 
 from models.inertia import MassBounds, mass_matrix_bounds
@@ -54,6 +56,30 @@ of Armstrong et al. (1986) as in Corke's Robotics Toolbox (they dominate the wri
 
 class RobotModelError(ValueError):
     """The URDF cannot be read, or it does not have the frame or joints asked for."""
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """The URDF's ``<limit>`` of each joint of the chain (``inf`` where the file gives none):
+    ``effort`` (N m or N), ``velocity`` (rad/s or m/s), ``lower``/``upper`` (rad or m)."""
+
+    effort: np.ndarray
+    velocity: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+@dataclass(frozen=True)
+class Payload:
+    """A rigid body fixed to the camera link, unknown to the controller (a camera, a gripper).
+
+    ``com`` is its centre of mass in the link frame (m); ``inertia`` its inertia about the
+    centre of mass, axes of the link frame, as the URDF's ``[ixx, ixy, ixz, iyy, iyz, izz]``.
+    """
+
+    mass: float
+    com: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inertia: tuple[float, ...] = (0.0,) * 6
 
 
 def builtin_urdf(name: str) -> Path:
@@ -99,6 +125,48 @@ def chain_joints(urdf: Path, frame: str) -> list[str]:
     return names[::-1]
 
 
+def joint_limits(urdf: Path, joints: list[str]) -> JointLimits:
+    """The ``<limit>`` attributes of ``joints`` (in that order) from the URDF."""
+    by_name = {j.get("name"): j.find("limit") for j in _parse(urdf).findall("joint")}  # not <transmission>
+    values = {key: [] for key in ("effort", "velocity", "lower", "upper")}
+    default = {"effort": math.inf, "velocity": math.inf, "lower": -math.inf, "upper": math.inf}
+    for name in joints:
+        limit = by_name.get(name)
+        for key, out in values.items():
+            text = None if limit is None else limit.get(key)
+            out.append(default[key] if text is None else float(text))
+    for key in ("effort", "velocity"):  # a zero limit in a URDF means "not given"
+        values[key] = [math.inf if v <= 0 else v for v in values[key]]
+    return JointLimits(**{key: np.asarray(v) for key, v in values.items()})
+
+
+def perturbed_urdf(text: str, frame: str, payload: Payload | None, mass_scale: float) -> str:
+    """The URDF ``text`` with every link's mass and inertia scaled by ``mass_scale`` and
+    ``payload`` fixed to the link ``frame``: the arm the plant is, not the one the
+    controller models."""
+    root = ET.fromstring(text)
+    for inertial in root.iter("inertial"):
+        mass = inertial.find("mass")
+        if mass is not None:
+            mass.set("value", repr(float(mass.get("value")) * mass_scale))
+        inertia = inertial.find("inertia")
+        if inertia is not None:
+            for key, value in inertia.attrib.items():
+                inertia.set(key, repr(float(value) * mass_scale))
+    if payload is not None:
+        link = ET.SubElement(root, "link", name=f"{frame}_payload")
+        inertial = ET.SubElement(link, "inertial")
+        ET.SubElement(inertial, "origin", xyz=" ".join(map(repr, payload.com)), rpy="0 0 0")
+        ET.SubElement(inertial, "mass", value=repr(payload.mass))
+        keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+        ET.SubElement(inertial, "inertia", **{k: repr(v) for k, v in zip(keys, payload.inertia, strict=True)})
+        joint = ET.SubElement(root, "joint", name=f"{frame}_payload_joint", type="fixed")
+        ET.SubElement(joint, "parent", link=frame)
+        ET.SubElement(joint, "child", link=f"{frame}_payload")
+        ET.SubElement(joint, "origin", xyz="0 0 0", rpy="0 0 0")
+    return ET.tostring(root, encoding="unicode")
+
+
 def frozen_urdf(urdf: Path, joints: list[str]) -> str:
     """The URDF with every movable joint outside ``joints`` (a gripper's fingers, say) fixed at
     zero and without ``mimic`` and ``dynamics`` tags and top-level elements other than links,
@@ -131,24 +199,42 @@ class Robot:
         Fixed transform from that link to the camera frame (optical axis = z).
     armature
         Reflected motor inertias added to the diagonal of ``M(q)`` (one per joint), or empty.
+    payload, mass_scale
+        The arm as it really is, when it differs from the URDF: a body fixed to ``frame``,
+        and a factor on every link's mass and inertia (:func:`perturbed_urdf`).
     """
 
     urdf: Path
     frame: str
     mount: SE3 = field(default_factory=SE3.identity)
     armature: tuple[float, ...] = ()
+    payload: Payload | None = None
+    mass_scale: float = 1.0
 
     def __post_init__(self) -> None:
         self.urdf = Path(self.urdf)
         self.joints = chain_joints(self.urdf, self.frame)
         try:
-            self._kindyn = KinDynComputations(frozen_urdf(self.urdf, self.joints), self.joints)
+            text = frozen_urdf(self.urdf, self.joints)
+            if self.perturbed:
+                text = perturbed_urdf(text, self.frame, self.payload, self.mass_scale)
+            self._kindyn = KinDynComputations(text, self.joints)
         except Exception as exc:  # adam raises bare exceptions on malformed files
             raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {exc}") from exc
         if self.armature and len(self.armature) != self.n:
             raise RobotModelError(f"armature: expected {self.n} entries (one per joint), got {len(self.armature)}")
         self.q = cs.SX.sym("q", self.n)
         self.qd = cs.SX.sym("qd", self.n)
+
+    @property
+    def perturbed(self) -> bool:
+        """Whether this arm differs from its URDF (a payload or a mass scale)."""
+        return self.payload is not None or self.mass_scale != 1.0
+
+    @cached_property
+    def limits(self) -> JointLimits:
+        """The URDF's joint limits of the chain."""
+        return joint_limits(self.urdf, self.joints)
 
     @property
     def n(self) -> int:

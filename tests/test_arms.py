@@ -37,7 +37,7 @@ def run(*args: str) -> tuple[int, dict]:
     return result.exit_code, json.loads(result.stdout) if result.stdout.strip() else {}
 
 
-@pytest.mark.parametrize("name", ["ur5_circle", "panda_circle", "puma560_circle", "planar2dd_reduced"])
+@pytest.mark.parametrize("name", ["ur5_paper_ideal", "panda_circle", "puma560_circle", "planar2dd_reduced"])
 def test_simulate_runs_and_keeps_the_identities(name, tmp_path):
     """Each arm tracks its target; Lemma 2's identity holds to integration accuracy."""
     code, result = run("simulate", str(short(name, tmp_path, 3.0)), "--out", str(tmp_path / "out"))
@@ -64,13 +64,40 @@ def test_certify_each_arm(name, tmp_path):
     assert point["margin"] >= 0 and point["gamma_tight"] <= point["gamma"]
 
 
+LIMIT_CLAIMS = ("as implemented", "URDF <limit effort>", "URDF <limit velocity>")
+
+
 @pytest.mark.parametrize("name", ["panda_circle", "puma560_circle", "planar2dd_reduced"])
-def test_verify_every_claim_holds(name, tmp_path):
+def test_verify_every_claim_of_the_paper_holds(name, tmp_path):
     """n = 7 (J_b pinv(J_b) = I_6 since J_b has full row rank), n = 6, and the reduced planar
-    loop: every claim passes on simulation."""
+    loop: every claim of the paper passes on simulation. Whether the run stays within the
+    arm's limits is measured beside them and decides the exit status (the Panda and Puma
+    examples' laws ask for more torque than their URDFs allow)."""
     code, result = run("verify", str(short(name, tmp_path)))
-    failed = [c for c in result["claims"] if c["status"] == "FAIL"]
-    assert code == 0 and not failed, failed
+    paper = [c for c in result["claims"] if c["paper"] not in LIMIT_CLAIMS]
+    limits = [c for c in result["claims"] if c["paper"] in LIMIT_CLAIMS]
+    assert not [c for c in paper if c["status"] == "FAIL"]
+    assert len(limits) == 3 and code == int(any(c["status"] == "FAIL" for c in limits))
+
+
+def test_default_example_is_a_loop_a_ur5_can_run(tmp_path):
+    """The default example runs sampled (500 Hz torques, 60 Hz images 20 ms late, noisy
+    pixels) within the UR5's effort and velocity limits for its whole run, every feature in
+    its 1280 x 1024 image, and verify passes (the identity claims on the paper's loop, the
+    limits on the run as implemented)."""
+    data = tomllib.loads((EXAMPLES / "ur5_circle.toml").read_text())
+    imp = data["implementation"]
+    assert (imp["control_rate"], imp["camera_rate"], imp["latency"]) == (500.0, 60.0, 0.02)
+    path = tmp_path / "ur5_circle.toml"
+    path.write_text(tomli_w.dumps(data))
+    code, result = run("simulate", str(path), "--out", str(tmp_path / "out"))
+    assert code == 0 and result["summary"]["status"] == "ok"
+    assert result["limits"]["within_effort"] and result["limits"]["within_velocity"]
+    trajectory = np.load(tmp_path / "out" / "trajectory.npz")
+    pixels = trajectory["f"].reshape(len(trajectory["t"]), -1, 2) + np.array([640.0, 512.0])
+    assert np.all((pixels >= 0) & (pixels <= [1280.0, 1024.0]))
+    code, result = run("verify", str(path))
+    assert code == 0 and all(c["status"] in ("PASS", "MEASURED") for c in result["claims"])
 
 
 def test_redundant_arm_self_motion_is_bounded_by_xi(tmp_path):

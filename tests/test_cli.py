@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 import analysis.cli as cli_module
 from analysis.cli import app
 from analysis.output import interrupt_aware, interrupted
+from analysis.scenario import DEFAULT_SCENARIO
 from models.robot import Robot, builtin_urdf
 from tests.conftest import scenario_dict
 
@@ -155,6 +156,36 @@ BAD_SCENARIOS.update({
         lambda d: d["camera"].update(width=160, height=120),
         "target.points: feature point 0 is at pixel",
     ),
+    "zero control rate": (setter("implementation", {"control_rate": 0.0}), "implementation.control_rate"),
+    "negative camera rate": (
+        setter("implementation", {"control_rate": 500.0, "camera_rate": -60.0}), "implementation.camera_rate"
+    ),
+    "camera faster than control": (
+        setter("implementation", {"control_rate": 500.0, "camera_rate": 1000.0}),
+        "implementation: camera_rate 1000 Hz exceeds control_rate 500 Hz",
+    ),
+    "negative latency": (setter("implementation", {"control_rate": 500.0, "latency": -0.02}), "implementation.latency"),
+    "negative pixel noise": (
+        setter("implementation", {"control_rate": 500.0, "pixel_noise": -1.0, "e_e": "image"}),
+        "implementation.pixel_noise",
+    ),
+    "latency between control samples": (
+        setter("implementation", {"control_rate": 500.0, "latency": 0.021}),
+        "implementation: latency 0.021 s is not a whole number of control periods (0.002 s)",
+    ),
+    "pixel noise on the ideal e_e": (
+        setter("implementation", {"control_rate": 500.0, "pixel_noise": 0.5, "e_e": "ideal"}),
+        "implementation.pixel_noise: needs e_e = \"image\"",
+    ),
+    "output step between control samples": (
+        setter("implementation", {"control_rate": 250.0}), "simulation.dt: 0.01 s is not a whole number"
+    ),
+    "payload without mass": (setter("plant.payload", {"com": [0.0, 0.0, 0.05]}), "plant.payload.mass"),
+    "negative payload mass": (setter("plant.payload", {"mass": -1.0}), "plant.payload.mass"),
+    "reference behind the camera": (setter("reference.xyz", [0.0, 0.0, -0.35]), "reference: feature point 0"),
+    "reference outside the image": (
+        setter("reference.xyz", [0.5, 0.0, 0.35]), "reference: feature point 0 is at pixel"
+    ),
 })  # fmt: skip
 
 COMMANDS = ("simulate", "certify", "verify", "synthesize")
@@ -270,8 +301,12 @@ def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
 
 
 def test_verify_passes_and_writes_json(tmp_path):
+    """The default example (the loop as a UR5 runs it) over 4 s: every claim holds."""
     out = tmp_path / "v"
-    scenario = write(tmp_path, setter("simulation.duration", 4.0))
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["simulation"]["duration"] = 4.0
+    scenario = tmp_path / "default.toml"
+    scenario.write_text(tomli_w.dumps(data))
     result = runner.invoke(app, ["verify", str(scenario), "--out", str(out), "--json", "-"])
     assert result.exit_code == 0, result.output
     data = json.loads((out / "verification.json").read_text())
@@ -279,11 +314,12 @@ def test_verify_passes_and_writes_json(tmp_path):
 
 
 def test_verify_short_horizon_fails_convergence(tmp_path):
-    """0.2 s is too short for x -> 0: verify says FAIL and exits 1."""
+    """0.2 s is too short for x -> 0: verify says FAIL and exits 1; the idealised law's torque
+    exceeds the UR5's wrist effort limit, also a FAIL."""
     result = runner.invoke(app, ["verify", str(write(tmp_path)), "--json", "-"])
     assert result.exit_code == 1
     failed = [c["claim"] for c in json.loads(result.stdout)["claims"] if c["status"] == "FAIL"]
-    assert failed == ["x -> 0"]
+    assert failed == ["x -> 0", "torques within effort limits"]
 
 
 def test_verify_table_shows_the_reason_beside_a_fail(tmp_path):

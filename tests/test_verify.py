@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from analysis.certify import GainPoint, certify
-from analysis.verify import Claim, fastest_rate, kinematic_claims, lemma_2, lyapunov_derivative, verify
+from analysis.verify import Claim, fastest_rate, kinematic_claims, lemma_2, lyapunov_derivative, verify_paper
 from models.loop import ClosedLoop
 from tests.conftest import build_loop
 
@@ -19,7 +19,7 @@ from tests.conftest import build_loop
 def claims_of(loop, s0, settings):
     g = loop.gains
     gamma = certify(GainPoint(g.k_xi, g.k_c, g.k_e, loop.weights), loop.reference, with_sdp=False).gamma
-    return verify(loop, s0, replace(settings, duration=4.0), gamma)
+    return verify_paper(loop, s0, replace(settings, duration=4.0), gamma)
 
 
 def rotating_target(data):
