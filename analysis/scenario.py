@@ -229,9 +229,6 @@ class SimulationSection(_Strict):
         return self
 
 
-NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-
-
 class ImplementationSection(_Strict):
     """The digital controller (:class:`analysis.implementation.Implementation`); absent: the
     paper's continuous loop."""
