@@ -43,7 +43,6 @@ def implementation_record(settings: Settings) -> dict:
         "plant": None if plant is None else {
             "payload": None if plant.payload is None else asdict(plant.payload), "mass_scale": plant.mass_scale
         },
-        "view_checked": settings.view,
     }  # fmt: skip
 
 

@@ -40,8 +40,9 @@ from models.robot import JointLimits
 def as_implemented(loop: ClosedLoop, settings: Settings) -> Simulator:
     """The simulator of the loop as it runs on the robot: the plant of ``settings`` (the law
     keeps ``loop``'s model), sampled by :class:`SampledSimulator` when ``settings`` has an
-    implementation, else continuous."""
+    implementation, else continuous; a feature leaving the image ends the run."""
     loop = replace(loop, plant=settings.plant)
+    settings = replace(settings, view=True)
     imp = settings.implementation
     if imp is None:
         return Simulator(loop, settings)

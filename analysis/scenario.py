@@ -670,7 +670,6 @@ def build(
         sigma_min=sim.sigma_min,
         implementation=_implementation(scenario, loop.mode),
         plant=_plant(scenario.plant, robot),
-        view=loop.camera.has_image,
     )
     return loop, s0, settings
 

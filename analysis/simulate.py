@@ -53,7 +53,7 @@ class Settings:
         (None: the URDF's).
     view
         End the run with status ``"out_of_view"`` when a feature leaves the camera's image
-        (when its size is known).
+        (when its size is known): the runs as implemented do, the paper's claims do not.
     """
 
     duration: float = 10.0
