@@ -32,6 +32,9 @@ def test_body_velocity_matches_finite_differences(kind):
 
 
 def test_circle_starts_at_start_and_has_radius():
+    """The circle starts at the start pose (exactly: the offset is ``radius (cos 0 - 1) = 0``, so
+    1e-15 is round-off of O(1) coordinates) with the stated radius (half the chord over half a
+    period; 1e-12 is round-off of sines and cosines of O(1) arguments)."""
     motion = MOTIONS["circle"]
     t = cs.SX.sym("t")
     p = cs.Function("p", [t], [motion.pose(t).translation])
