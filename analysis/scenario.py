@@ -754,14 +754,16 @@ def _check_initial_view(loop: ClosedLoop, s0: np.ndarray, threshold: float) -> N
             i = int(bad[0])
             depth_i = z.ravel()[i]
             raise ScenarioError(
-                f"{name}: feature point {i} is at depth {depth_i:.4g} m at t = 0 (not in front of the camera)"
+                f"{name}: feature point {i} is at depth {depth_i:.4g} m at t = 0 (not in front of the camera; "
+                "dvfc pose shows where every point lands)"
             )
     if cam.has_image and (outside := cam.outside_image(f)).size:
         i = int(outside[0])
         u, v = f.ravel()[2 * i : 2 * i + 2] + cam.centre
         raise ScenarioError(
             f"target.points: feature point {i} is at pixel ({u:.1f}, {v:.1f}) at t = 0, outside the "
-            f"{cam.width:g} x {cam.height:g} image (camera.width, camera.height)"
+            f"{cam.width:g} x {cam.height:g} image (camera.width, camera.height; dvfc pose shows where every point "
+            "lands)"
         )
     s = np.linalg.svd(jac, compute_uv=False)
     if s[-1] < 1e-9 * s[0]:

@@ -439,7 +439,8 @@ def test_pose_shows_a_target_out_of_view(tmp_path):
         data["target"]["relative_to_camera"]["xyz"] = [0.5, 0.0, 0.35]
 
     path = write(tmp_path, aside)
-    assert runner.invoke(app, ["simulate", str(path)]).exit_code == 2
+    refused = runner.invoke(app, ["simulate", str(path)])
+    assert refused.exit_code == 2 and "dvfc pose shows where every point lands" in refused.stderr
     result = runner.invoke(app, ["pose", str(path)], env={"COLUMNS": "200"})
     assert result.exit_code == 1 and "NO" in result.stdout and "u [px]" in result.stdout, result.output
 
