@@ -28,10 +28,12 @@ from analysis.certify import (
     GainPoint,
 )
 from analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
+from analysis.margins import MarginError, margins, planned_runs, run_tasks, runs_done
 from analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
 from analysis.pose import initial_view
 from analysis.results import (
     certificate_result,
+    design_limits,
     grid_envelope_for,
     grid_result,
     implementation_record,
@@ -506,9 +508,71 @@ def synthesize_command(
                              weights=cfg.search_weights, urdf=urdf)  # fmt: skip
         atomic_write(target, lambda h: h.write(text.encode()))
         record["scenario_file"] = str(target)
+        with err.status("simulating the design against the arm's limits"):
+            record["limits"] = design_limits(target)
     emit(record, None, json_target, show_synthesis)
     if result.point is None:
         raise typer.Exit(1)
+
+
+@app.command("margins")
+def margins_command(
+    scenario: ScenarioArg = DEFAULT_SCENARIO,
+    out_dir: OutOpt = None,
+    json_target: JsonOpt = None,
+    workers: Annotated[int, typer.Option(min=1, help="Local worker processes (one search per parameter).")] = 1,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
+    ] = None,
+    resume: Annotated[bool, typer.Option(help="Reuse the runs of an interrupted search in --out.")] = False,
+) -> None:
+    """Measure where the loop as implemented stops holding: latency, camera rate, payload
+    mass, pixel noise and torque-limit scale, each by bisection on the nonlinear loop; and
+    the delay margin of the linearised loop. Exit 0 done, 1 no margin (the scenario's own run
+    fails), 2 bad input."""
+    spec, _, _, settings, _ = load_scenario(scenario)
+    if settings.implementation is None:
+        raise fail("implementation: margins are of the loop as implemented; add an [implementation] section")
+    check_json_target(json_target)
+    directory = prepare_out_dir(out_dir or Path("out") / f"{spec.name}-margins")
+    if resume and not any(directory.glob("*.jsonl")):
+        raise fail(f"--resume: no margin search to resume in {directory}")
+    columns = (TextColumn("[bold]margins[/]"), BarColumn(), MofNCompleteColumn(), TextColumn("runs"),
+               TimeElapsedColumn())  # fmt: skip
+    try:
+        with (
+            resumable(f"dvfc margins {scenario} --out {directory} --resume"),
+            Progress(*columns, console=err, transient=True) as bar,
+        ):
+            task = bar.add_task("margins", total=planned_runs())
+            poll = lambda: bar.update(task, completed=runs_done(directory))  # noqa: E731
+            result = margins(
+                scenario,
+                directory,
+                map_tasks=lambda f, args: run_tasks(f, args, workers, scheduler, poll),
+                resume=resume,
+            )
+    except MarginError as exc:
+        err.print(f"no margins: {exc}", markup=False, soft_wrap=True)
+        raise typer.Exit(1) from None
+    result["provenance"] = command_provenance(scenario)
+    emit(result, directory / "margins.json", json_target, show_margins)
+
+
+def show_margins(result: dict) -> None:
+    """Human output of ``margins``: each parameter's breaking point, measured."""
+    table = Table(title=f"Margins of the loop as implemented: {result['scenario']} (measured)")
+    for col in ("parameter", "margin", "holds at", "breaks at", "note"):
+        table.add_column(col)
+    fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
+    for name, m in result["margins"].items():
+        value = "none in range" if m["value"] is None and m["holds_at"] is not None else fmt(m["value"])
+        table.add_row(name, f"{value} {m['unit']}", fmt(m["holds_at"]), fmt(m["breaks_at"]), m.get("reason") or "")
+    out.print(table)
+    linear = result["linear_delay_margin"]
+    out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
+    out.print(f"linearised loop's delay margin: {fmt(linear)} s ({result['linear_delay_margin_method']})",
+              markup=False, soft_wrap=True)  # fmt: skip
 
 
 @app.command("verify")
@@ -565,6 +629,10 @@ def show_synthesis(record: dict) -> None:
         f"scenario written: {record['scenario_file']}",
         markup=False,
     )
+    limits = record["limits"]
+    out.print(f"run of the design ({limits['status']}): peak |tau| / effort limit "
+              f"{_worst(limits['torque_commanded_ratio'])}, peak |qd| / velocity limit "
+              f"{_worst(limits['speed_ratio'])}", markup=False, soft_wrap=True)  # fmt: skip
 
 
 def show_claims(result: dict, claims: list) -> None:

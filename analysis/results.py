@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict
+from pathlib import Path
 
 import numpy as np
 
@@ -28,10 +29,20 @@ from analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
 from analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
 from analysis.grid import GridSpec, SweepState
 from analysis.linearize import linearize, worst_case_disturbance
-from analysis.scenario import Scenario, gain_point
+from analysis.sampled import as_implemented, limit_record, robot_limits
+from analysis.scenario import Scenario, build, gain_point, load
 from analysis.simulate import Settings
 from analysis.verify import Claim, verify
 from models.loop import ClosedLoop, Weights
+
+
+def design_limits(path: Path) -> dict:
+    """The design of the scenario file ``path`` run as implemented (its controller, plant
+    and image): status and, per joint, the peak torque and speed against the URDF's limits."""
+    spec, base = load(path)
+    loop, s0, settings = build(spec, base)
+    traj = as_implemented(loop, settings).run(s0)
+    return {"status": traj.status, "message": traj.message, **limit_record(traj, robot_limits(loop, settings))}
 
 
 def implementation_record(settings: Settings) -> dict:

@@ -295,6 +295,8 @@ def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
     result = runner.invoke(app, ["synthesize", str(write(tmp_path)), "--out", str(target), "--json", "-"])
     assert result.exit_code == 0, result.output
     record = json.loads(result.stdout)
+    limits = record["limits"]  # the design run against the UR5's limits, stated whichever way it goes
+    assert limits["within_effort"] == all(r <= 1 for r in limits["torque_ratio"]) and len(limits["effort_limit"]) == 6
     check = runner.invoke(app, ["certify", str(target), "--json", "-"])
     assert check.exit_code == 0
     assert json.loads(check.stdout)["points"][0]["gamma"] == pytest.approx(record["point"]["gamma"], rel=1e-9)
