@@ -376,6 +376,16 @@ class GainMap:
     gamma: np.ndarray
     certified: np.ndarray
     note: str
+    quantity: str = "gamma"
+    """What the map shows: ``gamma``, or an envelope column (``rate``, ``max_target_speed``)."""
+    values: np.ndarray | None = None
+    """The shown quantity (NaN where not certified); None for ``gamma``."""
+
+    def shown(self) -> np.ndarray:
+        """The map's values, NaN where nothing is certified."""
+        if self.values is None:
+            return np.where(self.certified, self.gamma, np.nan)
+        return self.values
 
     def best(self) -> dict[str, float]:
         """The certified point of smallest gamma: axis values and gamma."""
@@ -394,10 +404,12 @@ MAP_RESOLUTION = 81
 
 
 def gain_map(
-    point: GainPoint, reference: SE3, axes=None, gamma_bound: float | None = None, resolution: int = MAP_RESOLUTION
+    point: GainPoint, reference: SE3, axes=None, gamma_bound: float | None = None, resolution: int = MAP_RESOLUTION,
+    envelope: GridEnvelope | None = None, quantity: str = "gamma",
 ) -> GainMap:
     """Certify the plane of the first two of ``axes`` (name, values) through the design
-    ``point``; without axes, ``k_c`` and ``k_e`` from a tenth to ten times their mean."""
+    ``point``; without axes, ``k_c`` and ``k_e`` from a tenth to ten times their mean. With an
+    ``envelope`` context, ``quantity`` may be one of :data:`ENVELOPE_COLUMNS`."""  # fmt: skip
     if not axes:
         axes = [(name, np.geomspace(v.mean() / 10, v.mean() * 10, resolution))
                 for name, v in (("k_c", point.k_c), ("k_e", point.k_e))]  # fmt: skip
@@ -410,12 +422,14 @@ def gain_map(
     for name, values in axes[:2]:
         pick = np.unique(np.linspace(0, len(values) - 1, min(len(values), resolution)).round().astype(int))
         plane.append((name, np.asarray(values, dtype=float)[pick]))
-    spec = GridSpec.around(point, reference, plane[::-1], gamma_bound)  # last axis fastest: x
+    spec = GridSpec.around(point, reference, plane[::-1], gamma_bound, envelope)  # last axis fastest: x
     result = certify_batch(spec, 0, spec.size)
     x_name, x = plane[0]
     y_name, y = plane[1] if len(plane) > 1 else (None, np.zeros(1))
     shape = (len(y), len(x))
-    return GainMap(x_name, y_name, x, y, result["gamma"].reshape(shape), result["certified"].reshape(shape), note)
+    values = None if quantity == "gamma" else result[quantity].reshape(shape)
+    return GainMap(x_name, y_name, x, y, result["gamma"].reshape(shape), result["certified"].reshape(shape), note,
+                   quantity, values)  # fmt: skip
 
 
 def axis_value(point: GainPoint, name: str) -> float:

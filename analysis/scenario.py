@@ -305,6 +305,13 @@ class EnvelopeSection(_Strict):
     theta_bar_deg: Annotated[float, Field(gt=0, lt=180, allow_inf_nan=False)] | None = None
 
 
+class ReportSection(_Strict):
+    """What the report's gain map shows: the certified gamma, or (with an ``[envelope]``) the
+    certified decay rate or the largest certified target speed."""
+
+    map: Literal["gamma", "rate", "max_target_speed"] = "gamma"
+
+
 Interval = Annotated[list[Positive], Field(min_length=2, max_length=2)]
 
 
@@ -399,8 +406,15 @@ class Scenario(_Strict):
     plant: PlantSection = PlantSection()
     certify: CertifySection = CertifySection()
     envelope: EnvelopeSection | None = None
+    report: ReportSection = ReportSection()
     grid: GridSection | None = None
     synthesize: SynthesizeSection = SynthesizeSection()
+
+    @model_validator(mode="after")
+    def _map_needs_envelope(self) -> Scenario:
+        if self.report.map != "gamma" and self.envelope is None:
+            raise ValueError(f"report.map = {self.report.map!r} needs an [envelope] section")
+        return self
 
 
 _UNION_TAGS = {"float", "int", "str", "bool", "list", "dict", "none"}

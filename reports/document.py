@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
-from analysis.grid import GainMap, axis_value, gain_map
+from analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
 from analysis.output import atomic_write, interrupted
 from analysis.pose import xyz_rpy
-from analysis.results import certificate_result, verdict, verification_result
+from analysis.results import certificate_result, grid_envelope_for, verdict, verification_result
 from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, summary
 from models.loop import ClosedLoop
@@ -101,7 +101,13 @@ def assemble(
     gamma_certified = certificate["points"][0]["gamma"]
     gmap, design = None, {"gamma": gamma_certified}
     if gamma_certified is not None:  # no map where Theorem 2 does not apply (the paper's loop with n < 6)
-        gmap = gain_map(point, spec.reference.se3(), axes, spec.certify.gamma)
+        quantity = spec.report.map
+        context = grid_envelope_for(spec, loop, point) if quantity != "gamma" else None
+        gmap = gain_map(point, spec.reference.se3(), axes, spec.certify.gamma, envelope=context, quantity=quantity)
+        if context is not None:  # the design's own value on the map, by the same batched route
+            itself = [("w_pc", np.array([point.weights.w_pc]))]  # a one-point grid: the design exactly
+            own = GridSpec.around(point, spec.reference.se3(), itself, None, context)
+            design[quantity] = float(certify_batch(own, 0, 1)[quantity][0])
         design |= {name: axis_value(point, name) for name in (gmap.x_axis, gmap.y_axis) if name is not None}
     progress(STEPS[4])
     gamma = verification["gamma"]

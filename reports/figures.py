@@ -184,23 +184,35 @@ def l2_inequality(traj: Trajectory, gamma: float) -> str:
     return svg(fig)
 
 
+MAP_LABELS = {
+    "gamma": ("certified gamma [-]", "Theorem 2: certified gamma over the gains", "viridis_r"),
+    "rate": ("certified decay rate kappa [1/s]", "Fact 7: certified decay rate over the gains", "viridis"),
+    "max_target_speed": ("largest certified target speed [m/s]",
+                         "Facts 7-8: largest target speed kept in view over the gains", "viridis"),
+}  # fmt: skip
+"""Per quantity of a :class:`GainMap`: axis label, title, colour map (dark = better)."""
+
+
 def gain_map(m: GainMap, design: dict[str, float]) -> str:
-    """Certified gamma over the map's axes, the certified region outlined, the scenario's
-    design marked (``design`` holds its value on each axis and its ``gamma``)."""
+    """The map's quantity (certified gamma, or an envelope column) over its axes, the certified
+    region outlined, the scenario's design marked (``design`` holds its value on each axis and
+    on the quantity)."""
+    label, title, cmap = MAP_LABELS[m.quantity]
     fig, ax = plt.subplots(figsize=(6.0, 4.6))
-    gamma = np.where(m.certified, m.gamma, np.nan)
+    values = m.shown()
+    shown = np.isfinite(values)
     if m.y_axis is None:
-        ax.plot(m.x, gamma[0], color=BOUND, label="certified gamma")
-        ax.set_ylabel("certified gamma [-]")
+        ax.plot(m.x, values[0], color=BOUND, label=label.split(" [")[0])
+        ax.set_ylabel(label)
         ax.set_yscale("log")
-        marker = (design[m.x_axis], design["gamma"])
+        marker = (design[m.x_axis], design[m.quantity])
     else:
-        finite = gamma[np.isfinite(gamma)]
+        finite = values[shown]
         norm = LogNorm(finite.min(), finite.max()) if finite.size and finite.max() > finite.min() else None
-        mesh = ax.pcolormesh(m.x, m.y, gamma, shading="nearest", cmap="viridis_r", norm=norm, rasterized=True)
-        fig.colorbar(mesh, ax=ax, label="certified gamma [-] (blank: not certified)")
-        if m.certified.any() and not m.certified.all():
-            ax.contour(m.x, m.y, m.certified.astype(float), levels=[0.5], colors="k", linewidths=1.5)
+        mesh = ax.pcolormesh(m.x, m.y, values, shading="nearest", cmap=cmap, norm=norm, rasterized=True)
+        fig.colorbar(mesh, ax=ax, label=f"{label} (blank: not certified)")
+        if shown.any() and not shown.all():
+            ax.contour(m.x, m.y, shown.astype(float), levels=[0.5], colors="k", linewidths=1.5)
             ax.plot([], [], color="k", label="edge of the certified region")
         ax.set_ylabel(f"{m.y_axis} [-]")
         ax.set_yscale("log" if _spread(m.y) else "linear")
@@ -208,7 +220,7 @@ def gain_map(m: GainMap, design: dict[str, float]) -> str:
     ax.plot(*marker, "r*", ms=12, label="scenario's design")
     ax.set_xscale("log" if _spread(m.x) else "linear")
     ax.set_xlabel(f"{m.x_axis} [-]")
-    ax.set_title("Theorem 2: certified gamma over the gains")
+    ax.set_title(title)
     ax.legend(loc="upper right")
     return svg(fig)
 

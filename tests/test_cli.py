@@ -126,6 +126,7 @@ BAD_SCENARIOS.update({
     "reversed synthesis bounds": (setter("synthesize.k_c", [5.0, 1.0]), "synthesize"),
     "negative gamma requirement": (setter("certify.gamma", -1.0), "certify.gamma"),
     "negative envelope speed": (setter("envelope.target_speed", -0.1), "envelope.target_speed"),
+    "rate map without an envelope": (setter("report.map", "rate"), "needs an [envelope] section"),
     "theta_bar at 180 degrees": (setter("envelope.theta_bar_deg", 180.0), "envelope.theta_bar_deg"),
     "width without height": (remover("camera.height"), "camera: give both width and height"),
     "principal point off the image": (
