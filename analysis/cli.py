@@ -34,16 +34,18 @@ from analysis.pose import initial_view
 from analysis.results import (
     certificate_result,
     design_limits,
+    envelope_record,
     grid_envelope_for,
     grid_result,
     implementation_record,
     point_record,
+    speed_theta_bar,
     verification_result,
 )
 from analysis.sampled import as_implemented, limit_record, robot_limits
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import summary
-from analysis.synthesize import Bounds, rounded, scenario_text, synthesize
+from analysis.synthesize import Bounds, rounded, scenario_text, synthesize, synthesize_speed
 from models.loop import Weights
 
 app = typer.Typer(
@@ -471,29 +473,35 @@ def synthesize_command(
     json_target: JsonOpt = None,
 ) -> None:
     """Choose diagonal gains within the [synthesize] bounds that minimise the certified gamma
-    (fact 6), or reach [synthesize] gamma with the smallest gains; write them as a scenario."""
+    (fact 6), reach [synthesize] gamma with the smallest gains, or (objective = "target_speed")
+    maximise the envelope's certified target speed (facts 7-8); write them as a scenario."""
     start = time.perf_counter()
     spec, loop, _, _, _ = load_scenario(scenario)
     n = loop.robot.n
+    cfg = spec.synthesize
     if spec.loop != "paper" or n < 6:
         raise fail(f"loop: gain synthesis is for the paper's loop with n >= 6 joints (this is {spec.loop}, n = {n})")
     check_json_target(json_target)
     target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
     prepare_out_dir(target.parent)
-    cfg = spec.synthesize
     bounds = Bounds(tuple(cfg.k_xi), tuple(cfg.k_c), tuple(cfg.k_e))
     weights = Weights(**spec.weights.model_dump())
-    with err.status("solving the gain-synthesis SDP"):
-        result = synthesize(
-            weights, spec.reference.se3(), n, bounds, gamma_target=cfg.gamma, search_weights=cfg.search_weights,
-            theta_max=math.radians(spec.certify.theta_max_deg),
-        )
-        result = rounded(result, spec.reference.se3(), bounds, gamma_target=cfg.gamma,
-                         theta_max=math.radians(spec.certify.theta_max_deg))  # fmt: skip
+    theta_max = math.radians(spec.certify.theta_max_deg)
+    speed = cfg.objective == "target_speed"
+    with err.status("solving the gain-synthesis SDP" + ("s (golden section over s)" if speed else "")):
+        if speed:
+            theta = speed_theta_bar(spec, loop, gain_point(spec, n))
+            result = synthesize_speed(weights, spec.reference.se3(), n, bounds, loop.robot.mass_bounds, theta,
+                                      theta_max=theta_max)  # fmt: skip
+        else:
+            result = synthesize(weights, spec.reference.se3(), n, bounds, gamma_target=cfg.gamma,
+                                search_weights=cfg.search_weights, theta_max=theta_max)  # fmt: skip
+            result = rounded(result, spec.reference.se3(), bounds, gamma_target=cfg.gamma, theta_max=theta_max)
+    objective = "minimise gamma" if cfg.gamma is None else f"smallest gains with gamma <= {cfg.gamma:g}"
     record = {
         "scenario": spec.name,
         "status": result.status,
-        "objective": "minimise gamma" if cfg.gamma is None else f"smallest gains with gamma <= {cfg.gamma:g}",
+        "objective": "maximise the certified target speed (facts 7-8)" if speed else objective,
         "bounds": {"k_xi": cfg.k_xi, "k_c": cfg.k_c, "k_e": cfg.k_e},
         "weights_tried": result.weights_tried,
         "point": None if result.point is None else point_record(result.point, result.certificate),
@@ -502,16 +510,28 @@ def synthesize_command(
         "seconds": time.perf_counter() - start,
         "provenance": command_provenance(scenario),
     }
+    if speed:
+        record["synthesis_theta_bar_deg"] = math.degrees(theta)
+        record["max_target_speed"] = None
     if result.point is not None:
         urdf = str(loop.robot.urdf) if spec.robot.urdf is not None else None
         text = scenario_text(Path(scenario).read_text(), result.point, name=f"{spec.name}-synthesized",
                              weights=cfg.search_weights, urdf=urdf)  # fmt: skip
         atomic_write(target, lambda h: h.write(text.encode()))
         record["scenario_file"] = str(target)
+        if speed:  # re-certified by the ordinary route: the written file's own envelope
+            with err.status("certifying the written design's operating envelope"):
+                written, written_loop, written_s0, _, _ = load_scenario(target)
+                env = envelope_record(written, written_loop, written_s0, gain_point(written, n))
+            record["point"]["envelope"] = env
+            record["max_target_speed"] = env["max_target_speed"]
+            if env["max_target_speed"] is None:
+                record["status"] = f"uncertified: no target speed certified for the written design ({env['reason']})"
         with err.status("simulating the design against the arm's limits"):
             record["limits"] = design_limits(target)
+        record["seconds"] = time.perf_counter() - start
     emit(record, None, json_target, show_synthesis)
-    if result.point is None:
+    if result.point is None or (speed and record["max_target_speed"] is None):
         raise typer.Exit(1)
 
 
@@ -629,6 +649,11 @@ def show_synthesis(record: dict) -> None:
         f"scenario written: {record['scenario_file']}",
         markup=False,
     )
+    if "max_target_speed" in record:
+        speed = record["max_target_speed"]
+        line = (f"NOT CERTIFIED: {record['status']}" if speed is None
+                else f"certified max target speed = {speed:.6g} m/s ({p['envelope']['statement']})")  # fmt: skip
+        out.print(line, markup=False, soft_wrap=True)
     limits = record["limits"]
     out.print(f"run of the design ({limits['status']}): peak |tau| / effort limit "
               f"{_worst(limits['torque_commanded_ratio'])}, peak |qd| / velocity limit "

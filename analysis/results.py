@@ -127,6 +127,17 @@ def grid_envelope_for(spec: Scenario, loop: ClosedLoop, point: GainPoint) -> Gri
     return grid_envelope(design, loop.camera, disturbance_bounds(spec.envelope, loop), theta)
 
 
+def speed_theta_bar(spec: Scenario, loop: ClosedLoop, point: GainPoint) -> float:
+    """The ``theta_bar`` (radians) at which the target-speed synthesis works: the scenario's
+    ``[envelope] theta_bar_deg``, else the one giving the scenario design's largest certified
+    target speed (:func:`analysis.envelope.grid_envelope`, the gain map's rule)."""
+    section = spec.envelope
+    if section is not None and section.theta_bar_deg is not None:
+        return math.radians(section.theta_bar_deg)
+    design = design_of(point, spec.reference.se3(), loop.robot.mass_bounds)
+    return grid_envelope(design, loop.camera, disturbance_bounds(section, loop), None).theta_bar
+
+
 def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, bounded: bool = True) -> Certificate:
     """Theorem 2 for the scenario's loop: the paper's over the ``[certify]`` region, or the
     reduced planar loop's; ``bounded`` applies the ``[certify]`` gamma requirement."""

@@ -316,12 +316,14 @@ Interval = Annotated[list[Positive], Field(min_length=2, max_length=2)]
 
 
 class SynthesizeSection(_Strict):
-    """Gain bounds ``[lower, upper]`` for ``synthesize``, an optional gamma target, and
-    whether to search the weights on a log grid around the scenario's."""
+    """Gain bounds ``[lower, upper]`` for ``synthesize``, the objective (the certified gamma, or
+    the envelope's certified target speed), an optional gamma target, and whether to search
+    the weights on a log grid around the scenario's."""
 
     k_xi: Interval = [1.0, 100.0]
     k_c: Interval = [0.1, 20.0]
     k_e: Interval = [0.1, 50.0]
+    objective: Literal["gamma", "target_speed"] = "gamma"
     gamma: Positive | None = None
     search_weights: bool = False
 
@@ -331,6 +333,10 @@ class SynthesizeSection(_Strict):
             lo, hi = getattr(self, name)
             if lo > hi:
                 raise ValueError(f"{name}: lower bound {lo} exceeds upper bound {hi}")
+        if self.objective == "target_speed" and self.gamma is not None:
+            raise ValueError('gamma: a gamma target applies to objective = "gamma" only')
+        if self.objective == "target_speed" and self.search_weights:
+            raise ValueError('search_weights: not available with objective = "target_speed"')
         return self
 
 

@@ -12,6 +12,13 @@ The decision variables are ``K_xi`` (n entries), ``K_c`` (6) and a block-isotrop
 The result is handed to the ordinary certifier (closed form, SDP cross-check, a
 posteriori eigenvalue check): the synthesised gamma is the certifier's, not the solver's.
 Optionally the weights are searched on a log grid around the scenario's (outer loop).
+
+For the operating envelope (MATH facts 7-8) the objective is the certified target speed
+instead (:func:`synthesize_speed`): at fixed ``s = 1/(2 gamma'^2)`` and ``theta_bar``, ``D``
+does not depend on the gains and ``Q(s) = N^T K N - s W`` is linear in them, so
+``maximize kappa`` subject to ``Q(s) - kappa D >= 0`` (and the ``xi`` block) is one SDP; the
+largest certified ``wbar^2`` is ``min(c_max, c_vis) 4 s kappa`` with ``c_max`` and ``c_vis``
+independent of the gains, so ``s kappa*(s)`` is maximised over ``s`` by golden section.
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ import numpy as np
 import tomlkit
 
 from analysis.certify import Certificate, GainPoint, certify, output_blocks, solve
+from analysis.envelope import GOLDEN_STEPS, design_of, s_limit
+from models.inertia import MassBounds
 from models.lie import SE3
 from models.loop import Weights
 
@@ -113,6 +122,84 @@ def synthesize(
         if better:
             best = Synthesis(point, cert, "ok", len(candidates))
     return best
+
+
+def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, m_hi: float, theta_bar: float):
+    """The fact-7 SDP at a parameter ``s``: ``maximize kappa`` subject to
+    ``N^T K N - s W - kappa D >= 0`` on ``(e_c, e_e)``, ``k_xi - s - kappa m_hi/2 >= 0`` (the
+    decoupled ``xi`` block) and the gain bounds. Returns ``(problem, s, kappa, gains)``."""
+    w = np.array([[weights.w_pc, weights.w_rc, weights.w_pe, weights.w_re]], dtype=float)
+    n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
+    k_xi, k_c = cp.Variable(n), cp.Variable(6)
+    k_ep, k_er = cp.Variable(), cp.Variable()
+    kappa, s = cp.Variable(), cp.Parameter(nonneg=True)
+    k_ce = cp.hstack([k_c, k_ep, k_ep, k_ep, k_er, k_er, k_er])
+    w_ce = np.diag(np.r_[np.zeros(6), np.repeat([weights.w_pe**2, weights.w_re**2], 3)])
+    rot = 1.0 / (1.0 + math.cos(theta_bar))  # D of fact 7 on (e_c, e_e)
+    d_ce = np.diag(np.repeat([weights.w_pc / 2, weights.w_rc * rot, weights.w_pe / 2, weights.w_re * rot], 3))
+    q_ce = n_ce.T @ cp.diag(k_ce) @ n_ce - s * w_ce - kappa * d_ce
+    constraints = [
+        (q_ce + q_ce.T) / 2 >> 0,
+        k_xi - s - kappa * (m_hi / 2) >= 0,
+        k_xi >= bounds.k_xi[0], k_xi <= bounds.k_xi[1],
+        k_c >= bounds.k_c[0], k_c <= bounds.k_c[1],
+        cp.hstack([k_ep, k_er]) >= bounds.k_e[0], cp.hstack([k_ep, k_er]) <= bounds.k_e[1],
+    ]  # fmt: skip
+    return cp.Problem(cp.Maximize(kappa), constraints), s, kappa, (k_xi, k_c, k_ep, k_er)
+
+
+def synthesize_speed(
+    weights: Weights,
+    reference: SE3,
+    n: int,
+    bounds: Bounds,
+    mass: MassBounds,
+    theta_bar: float,
+    *,
+    theta_max: float = math.pi,
+) -> Synthesis:
+    """Gains within ``bounds`` maximising the certified target speed of the envelope at
+    ``theta_bar`` (radians; MATH facts 7-8): ``max over s of s kappa*(s)``, ``kappa*(s)`` the
+    SDP of :func:`_speed_problem`.
+
+    ``kappa*`` is concave in ``s`` (the value of a convex program whose constraints are jointly
+    linear in ``(s, gains, kappa)``), so ``log(s kappa*)`` is concave and its maximum lies in
+    ``[s_top/2, s_top]`` (the tangent argument of :func:`analysis.envelope.best_s`), ``s_top``
+    the largest ``s`` with a positive rate: that of the upper gains, since ``N^T K N`` grows
+    with every gain. The result carries the ordinary Theorem 2 certificate over
+    ``|theta_ec| <= theta_max``; its envelope is computed by the ordinary route by the caller."""
+    upper = GainPoint(np.full(n, bounds.k_xi[1]), np.full(6, bounds.k_c[1]), np.full(6, bounds.k_e[1]), weights)
+    top = s_limit(design_of(upper, reference, mass))
+    failed = Synthesis(None, None, "infeasible: no gains within the bounds give a positive decay rate")
+    if top <= 0:
+        return failed
+    problem, s, kappa, (k_xi, k_c, k_ep, k_er) = _speed_problem(weights, reference, n, bounds, mass.m_hi, theta_bar)
+
+    def value(x: float) -> float:
+        s.value = x
+        solved = solve(problem)[0] is not None and kappa.value is not None
+        return x * float(kappa.value) if solved else -math.inf
+
+    ratio = (math.sqrt(5) - 1) / 2
+    lo, hi = top / 2, top
+    c, d = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+    fc, fd = value(c), value(d)
+    for _ in range(GOLDEN_STEPS):
+        if fc >= fd:
+            hi, d, fd = d, c, fc
+            c = hi - ratio * (hi - lo)
+            fc = value(c)
+        else:
+            lo, c, fc = c, d, fd
+            d = lo + ratio * (hi - lo)
+            fd = value(d)
+    if value((lo + hi) / 2) <= 0:
+        return failed
+    clip = lambda v, b: np.clip(np.asarray(v, dtype=float), *b)  # noqa: E731  (solver round-off)
+    k_e = np.repeat([float(k_ep.value), float(k_er.value)], 3)
+    point = GainPoint(clip(k_xi.value, bounds.k_xi), clip(k_c.value, bounds.k_c), clip(k_e, bounds.k_e), weights)
+    cert = certify(point, reference, theta_max=theta_max)
+    return Synthesis(point, cert, "ok")
 
 
 def _round(values: np.ndarray, digits: int) -> np.ndarray:

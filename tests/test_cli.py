@@ -124,6 +124,10 @@ BAD_SCENARIOS.update({
     "negative grid value": (setter("grid", {"k_c": [1.0, -2.0]}), "grid.k_c"),
     "grid range of zero points": (setter("grid", {"k_c": {"start": 1.0, "stop": 2.0, "num": 0}}), "grid.k_c"),
     "reversed synthesis bounds": (setter("synthesize.k_c", [5.0, 1.0]), "synthesize"),
+    "unknown synthesis objective": (setter("synthesize.objective", "speed"), "synthesize.objective"),
+    "gamma target for the target speed": (
+        setter("synthesize", {"objective": "target_speed", "gamma": 0.5}), "a gamma target applies to objective"
+    ),
     "negative gamma requirement": (setter("certify.gamma", -1.0), "certify.gamma"),
     "negative envelope speed": (setter("envelope.target_speed", -0.1), "envelope.target_speed"),
     "rate map without an envelope": (setter("report.map", "rate"), "needs an [envelope] section"),
