@@ -43,6 +43,7 @@ singular (not implied by ``V <= c``); ``m_hi``, ``m_lo`` over every configuratio
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import casadi as cs
@@ -194,25 +195,27 @@ def best_s(design: Design, theta_bar: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """
     theta_bar = np.atleast_1d(theta_bar)
     top = s_limit(design)
-    lo, hi = np.full(len(theta_bar), top / 2), np.full(len(theta_bar), top)
-    ratio = (math.sqrt(5) - 1) / 2
-
     scaled = _scaled(design, theta_bar)
+    s = golden_max(lambda x: x * _rates(design, scaled, x), np.full(len(theta_bar), top), GOLDEN_STEPS)
+    return s, _rates(design, scaled, s)
 
-    def value(s: np.ndarray) -> np.ndarray:
-        return s * _rates(design, scaled, s)
 
+def golden_max(value: Callable[[np.ndarray], np.ndarray], top: np.ndarray, steps: int) -> np.ndarray:
+    """Batched golden-section search for the maximiser of ``value`` (elementwise, log-concave)
+    on ``[top/2, top]`` (where the maximum of ``s kappa(s)`` lies, :func:`best_s`): the bracket
+    shrinks by 0.618 per step; returns its midpoint (B,)."""
+    ratio = (math.sqrt(5) - 1) / 2
+    lo, hi = np.asarray(top, dtype=float) / 2, np.asarray(top, dtype=float).copy()
     c, d = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
     fc, fd = value(c), value(d)
-    for _ in range(GOLDEN_STEPS):
+    for _ in range(steps):
         left = fc >= fd  # the maximum lies in [lo, d]: d becomes the upper end, c the new d
         hi, lo = np.where(left, d, hi), np.where(left, lo, c)
         fresh = np.where(left, hi - ratio * (hi - lo), lo + ratio * (hi - lo))
         f_fresh = value(fresh)
         c, d, fc, fd = (np.where(left, fresh, d), np.where(left, c, fresh),
                         np.where(left, f_fresh, fd), np.where(left, fc, f_fresh))  # fmt: skip
-    s = (lo + hi) / 2
-    return s, _rates(design, scaled, s)
+    return (lo + hi) / 2
 
 
 def recheck(design: Design, s: float, theta_bar: float, kappa: float) -> float:
@@ -644,18 +647,7 @@ def envelope_columns(ctx: GridEnvelope, nkn: np.ndarray, wdiag: np.ndarray, k_xi
         ce = np.linalg.eigvalsh(a - s[:, None, None] * (w[:, :, None] * eye))[:, 0]
         return np.minimum((k_xi_min - s) / half_mass, ce)
 
-    ratio = (math.sqrt(5) - 1) / 2
-    lo, hi = lim / 2, lim.copy()
-    c, dd = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
-    fc, fd = c * value(c), dd * value(dd)
-    for _ in range(GRID_GOLDEN_STEPS):
-        left = fc >= fd
-        hi, lo = np.where(left, dd, hi), np.where(left, lo, c)
-        fresh = np.where(left, hi - ratio * (hi - lo), lo + ratio * (hi - lo))
-        f_fresh = fresh * value(fresh)
-        c, dd, fc, fd = (np.where(left, fresh, dd), np.where(left, c, fresh),
-                         np.where(left, f_fresh, fd), np.where(left, fc, f_fresh))  # fmt: skip
-    s = (lo + hi) / 2
+    s = golden_max(lambda x: x * value(x), lim, GRID_GOLDEN_STEPS)
     kappa = value(s) * (1 - SHRINK)
     check = np.linalg.eigvalsh(nkn - s[:, None, None] * (wdiag[:, :, None] * eye) - kappa[:, None, None]
                                * (d[:, :, None] * eye))[:, 0]  # fmt: skip

@@ -32,7 +32,7 @@ import numpy as np
 import tomlkit
 
 from analysis.certify import Certificate, GainPoint, certify, output_blocks, solve
-from analysis.envelope import GOLDEN_STEPS, design_of, s_limit
+from analysis.envelope import GOLDEN_STEPS, design_of, golden_max, s_limit
 from models.inertia import MassBounds
 from models.lie import SE3
 from models.loop import Weights
@@ -180,20 +180,8 @@ def synthesize_speed(
         solved = solve(problem)[0] is not None and kappa.value is not None
         return x * float(kappa.value) if solved else -math.inf
 
-    ratio = (math.sqrt(5) - 1) / 2
-    lo, hi = top / 2, top
-    c, d = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
-    fc, fd = value(c), value(d)
-    for _ in range(GOLDEN_STEPS):
-        if fc >= fd:
-            hi, d, fd = d, c, fc
-            c = hi - ratio * (hi - lo)
-            fc = value(c)
-        else:
-            lo, c, fc = c, d, fd
-            d = lo + ratio * (hi - lo)
-            fd = value(d)
-    if value((lo + hi) / 2) <= 0:
+    best = float(golden_max(lambda x: np.array([value(float(v)) for v in x]), np.array([top]), GOLDEN_STEPS)[0])
+    if value(best) <= 0:  # also leaves the solver's variables at the chosen s
         return failed
     clip = lambda v, b: np.clip(np.asarray(v, dtype=float), *b)  # noqa: E731  (solver round-off)
     k_e = np.repeat([float(k_ep.value), float(k_er.value)], 3)
