@@ -20,7 +20,14 @@ from jinja2 import Environment, PackageLoader, StrictUndefined
 from analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
 from analysis.output import atomic_write, interrupted
 from analysis.pose import xyz_rpy
-from analysis.results import certificate_result, grid_envelope_for, verdict, verification_result
+from analysis.results import (
+    certificate_result,
+    grid_envelope_for,
+    implementation_record,
+    verdict,
+    verification_result,
+)
+from analysis.sampled import as_implemented, limit_record, robot_limits
 from analysis.scenario import Scenario, gain_point
 from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, summary
 from models.loop import ClosedLoop
@@ -44,6 +51,9 @@ class ReportData:
     design: dict[str, float]
     figures: dict[str, str]
     provenance: dict
+    implemented: dict
+    """The run as implemented (:func:`analysis.sampled.as_implemented`): how, its summary, and
+    per joint its peak torque and speed against the URDF's limits."""
 
 
 CACHE = ".dvfc-report"
@@ -91,6 +101,7 @@ def assemble(
     stage = cache or StageCache(None, "", False)
     progress(STEPS[0])
     trajectory = stage("simulation", lambda: Simulator(loop, settings).run(s0))
+    implemented = stage("implemented", lambda: as_implemented(loop, settings).run(s0))
     progress(STEPS[1])
     certificate = stage("certificate", lambda: certificate_result(spec, loop, s0, provenance)[0])
     progress(STEPS[2])
@@ -121,10 +132,18 @@ def assemble(
         "l2": figures.l2_inequality(trajectory, gamma) if gamma is not None else None,
         "map": figures.gain_map(gmap, design) if gmap is not None else None,
         "envelope": _envelope_figure(trajectory, loop, certificate["points"][0].get("envelope")),
+        "implemented": figures.implemented_image(implemented, loop.camera.centre, (loop.camera.width,
+                                                 loop.camera.height)) if loop.camera.has_image else None,
+    }  # fmt: skip
+    as_built = {
+        "implementation": implementation_record(settings),
+        "summary": summary(implemented),
+        "limits": limit_record(implemented, robot_limits(loop, settings)),
     }
     return ReportData(
-        spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance
-    )
+        spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance,
+        as_built,
+    )  # fmt: skip
 
 
 def supply_facts(traj: Trajectory) -> dict[str, float | bool]:
@@ -187,6 +206,9 @@ def render(data: ReportData) -> str:
         best=data.gain_map.best() if data.gain_map is not None and data.gain_map.certified.any() else None,
         figures=data.figures,
         lemma2=supply_facts(data.trajectory),
+        implemented=data.implemented,
+        mode=data.loop.mode,
+        camera_size=(data.loop.camera.width, data.loop.camera.height),
         provenance=data.provenance,
     )
 

@@ -87,13 +87,26 @@ def envelope_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, floa
     """The image (its border), the certified feature regions of MATH fact 8 (boxes at the
     certified level, and at the ultimate level ``c_inf``) and the simulated feature tracks."""
     fig, ax = plt.subplots(figsize=(6.0, 5.0))
-    width, height = size
-    ax.add_patch(Rectangle((0, 0), width, height, fill=False, color="black", lw=1.5, label="image border"))
     for name, style, label in (("boxes_px", "-", "certified region (V <= c)"),
                                ("ultimate_boxes_px", ":", "ultimate region (V <= c_inf)")):  # fmt: skip
         for i, (u0, v0, u1, v1) in enumerate(envelope.get(name) or []):
             ax.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, color=BOUND, ls=style,
                                    label=label if i == 0 else None))  # fmt: skip
+    _tracks_in_image(ax, traj, centre, size, "Certified feature regions (fact 8) and the simulated tracks")
+    return svg(fig)
+
+
+def implemented_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, float]) -> str:
+    """The feature tracks of the run as implemented inside the image border (pixels)."""
+    fig, ax = plt.subplots(figsize=(6.0, 5.0))
+    _tracks_in_image(ax, traj, centre, size, "Features of the run as implemented, in the image")
+    return svg(fig)
+
+
+def _tracks_in_image(ax, traj: Trajectory, centre: np.ndarray, size: tuple[float, float], title: str) -> None:
+    """The image border and the simulated feature tracks, in pixels (rows downwards)."""
+    width, height = size
+    ax.add_patch(Rectangle((0, 0), width, height, fill=False, color="black", lw=1.5, label="image border"))
     f = traj["f"].reshape(len(traj.t), -1, 2) + centre
     for i in range(f.shape[1]):
         ax.plot(f[:, i, 0], f[:, i, 1], color=BOUNDED, lw=1, label="simulated features" if i == 0 else None)
@@ -103,9 +116,8 @@ def envelope_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, floa
     ax.set_aspect("equal")
     ax.set_xlabel("u [px]")
     ax.set_ylabel("v [px]")
-    ax.set_title("Certified feature regions (fact 8) and the simulated tracks")
+    ax.set_title(title)
     ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    return svg(fig)
 
 
 def errors(traj: Trajectory) -> str:

@@ -216,3 +216,20 @@ def test_interrupted_report_resumes(tmp_path):
     resumed = subprocess.run([*command, "--resume"], capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr
     assert finished.stat().st_mtime_ns == stamp and (out / "report.pdf").exists()
+
+
+def test_as_implemented_section_states_the_limits(report):
+    """Section "As implemented": the sampled run of the default example (500 Hz, 60 Hz camera,
+    20 ms), labelled as a measurement, per joint its peak torque and speed against the URDF's
+    limits (six rows, each ratio below 1: the default stays within them), and its feature
+    tracks drawn inside the image border."""
+    html = report[0].read_text()
+    section = html[html.index("<h2>6. As implemented</h2>") : html.index("<h2>7.")]
+    assert "500 Hz" in section and "60 Hz" in section and "20 ms" in section and "not certificates" in section
+    rows = section[section.index('<table id="limits">') :].split("</tr>")[1:-1]
+    assert len(rows) == 6
+    cells = [re.findall(r'<td class="num">([0-9.e+-]+)</td>', row) for row in rows]
+    ratios = [float(c[i]) for c in cells for i in (3, 6)]  # torque / effort, speed / velocity
+    assert len(ratios) == 12 and max(ratios) < 1
+    assert "Within the effort limits; within the velocity limits." in section
+    assert re.search(r'<figure id="fig-implemented"><svg', section)
