@@ -307,6 +307,21 @@ def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
     assert json.loads(check.stdout)["points"][0]["gamma"] == pytest.approx(record["point"]["gamma"], rel=1e-9)
 
 
+def test_target_speed_synthesis_reports_the_written_designs_certified_speed(tmp_path):
+    """``objective = "target_speed"``: the speed reported is the envelope that ``certify``
+    computes for the file written (the ordinary route), not the synthesis' own value."""
+    bounds = {"objective": "target_speed", "k_xi": [1.0, 30.0], "k_c": [0.5, 5.0], "k_e": [0.5, 15.0]}
+    target = tmp_path / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(write(tmp_path, setter("synthesize", bounds))), "--out",
+                                 str(target), "--json", "-"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.stdout)
+    check = runner.invoke(app, ["certify", str(target), "--json", "-"])
+    assert check.exit_code == 0
+    speed = json.loads(check.stdout)["points"][0]["envelope"]["max_target_speed"]
+    assert record["max_target_speed"] is not None and record["max_target_speed"] == speed
+
+
 def test_verify_passes_and_writes_json(tmp_path):
     """The default example (the loop as a UR5 runs it) over 4 s: every claim holds."""
     out = tmp_path / "v"
