@@ -142,6 +142,7 @@ def load_scenario(path: Path, mode: str | None = None, check_view: bool = True):
 ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (default: the built-in UR5 scenario).")]
 OutOpt = Annotated[Path | None, typer.Option("--out", help="Output directory (default: out/<scenario name>).")]
 JsonOpt = Annotated[str | None, typer.Option("--json", help="Write the JSON summary to FILE, or '-' for stdout.")]
+SchedulerOpt = Annotated[str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")]
 
 
 @app.command()
@@ -282,9 +283,7 @@ def certify_command(
     out_dir: OutOpt = None,
     json_target: JsonOpt = None,
     workers: Annotated[int, typer.Option(min=1, help="Local worker processes for a grid.")] = 1,
-    scheduler: Annotated[
-        str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
-    ] = None,
+    scheduler: SchedulerOpt = None,
     resume: Annotated[bool, typer.Option(help="Continue an interrupted grid sweep in --out.")] = False,
     large: Annotated[
         bool, typer.Option(help=f"Allow grids of more than {MAX_GRID_POINTS:.0e} points or {MAX_GRID_BYTES:.0e} bytes.")
@@ -541,9 +540,7 @@ def margins_command(
     out_dir: OutOpt = None,
     json_target: JsonOpt = None,
     workers: Annotated[int, typer.Option(min=1, help="Local worker processes (one search per parameter).")] = 1,
-    scheduler: Annotated[
-        str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
-    ] = None,
+    scheduler: SchedulerOpt = None,
     resume: Annotated[bool, typer.Option(help="Reuse the runs of an interrupted search in --out.")] = False,
 ) -> None:
     """Measure where the loop as implemented stops holding: latency, camera rate, payload
