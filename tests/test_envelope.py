@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from analysis.adversary import worst_disturbance
 from analysis.certify import output_blocks, random_rotations
 from analysis.cli import app
 from analysis.envelope import (
@@ -29,8 +30,10 @@ from analysis.envelope import (
     start_storage,
 )
 from analysis.grid import GridSpec, certify_batch
+from analysis.linearize import driven, driven_at_rest, equilibrium_configuration
 from analysis.results import grid_envelope_for
 from analysis.scenario import Scenario, build, gain_point, load
+from analysis.simulate import Settings, Simulator
 from analysis.verify import envelope_claims, rotation_angles
 from models.camera import Camera
 from models.disturbance import Sine
@@ -322,3 +325,38 @@ def test_grid_columns_match_the_single_design_envelope():
     assert columns["max_target_speed"][1] >= single.max_target_speed * (1 - 1e-3)
     assert columns["rate"][1] == pytest.approx(single.rate, rel=2e-2)
     assert np.all(np.diff(columns["max_target_speed"]) >= 0)
+
+
+def test_worst_motion_at_095_of_the_largest_certified_speed_keeps_every_feature_in_view():
+    """Facts 7-8 at the edge: with the target speed at 0.95 of ``max_target_speed`` (rate and
+    torque as the scenario bounds them) the statement still holds, so from the equilibrium
+    (``V(0) = 0``) under the worst target motion and joint torques the adversarial search finds,
+    ``V(t)`` stays below the certified level and every feature stays in its box and in the image
+    at every output step. The boxes are rigorous; the only tolerance is the integrator's
+    (1e-9 relative on ``V``, run at rtol 1e-10)."""
+    spec, base = load(EXAMPLES / "ur5_envelope.toml")
+    loop, s0, _ = build(spec, base)
+    design = design_of(gain_point(spec, 6), loop.reference, loop.robot.mass_bounds)
+    given = disturbance_bounds(spec.envelope, loop)
+    top = envelope(design, loop.camera, given, start_storage(loop, s0)).max_target_speed
+    bounds = DisturbanceBounds(0.95 * top, given.target_rate, given.torque)
+    q_eq = equilibrium_configuration(loop, s0[: loop.robot.n])
+    _, s_eq = driven_at_rest(loop, cs.SX.zeros(loop.robot.n + 6), q_eq)
+    env = envelope(design, loop.camera, bounds, {"V0": 0.0, "kinetic": 0.0, "pose": 0.0}, search=False)
+    assert env.visible and env.level >= env.ultimate_v
+    worst = worst_disturbance(loop, s0[: loop.robot.n], bounds, horizon=3.0, intervals=6, iterations=3)  # as verify
+    pieces, h = np.asarray(worst["w"]), worst["horizon_s"] / worst["intervals"]
+
+    def disturbance(t):
+        w = cs.DM(pieces[-1])
+        for k in range(len(pieces) - 2, -1, -1):
+            w = cs.if_else(t < (k + 1) * h, cs.DM(pieces[k]), w)
+        return w
+
+    traj = Simulator(driven(loop, disturbance), Settings(duration=worst["horizon_s"], dt=0.01)).run(s_eq)
+    assert traj.status == "ok"
+    assert np.all(traj["V"][:, 0] <= env.level * (1 + 1e-9))
+    boxes = np.asarray(env.boxes)
+    pixels = traj["f"].reshape(len(traj.t), -1, 2) + loop.camera.centre
+    assert np.all(pixels >= boxes[None, :, :2]) and np.all(pixels <= boxes[None, :, 2:])
+    assert np.all(pixels >= 0) and np.all(pixels <= [loop.camera.width, loop.camera.height])
