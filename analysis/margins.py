@@ -166,13 +166,14 @@ def search(path: str, name: str, bound: float, log: str | None = None) -> dict:
         return done[value]["holds"]
 
     start = base_value(name, settings)
-    margin = {"value": None, "unit": p.unit, "holds_at": None, "breaks_at": None, "range": [start, p.end]}
-    if (p.worse == "down" and start <= p.end) or (p.worse == "up" and start >= p.end):
-        return {**margin, "reason": "the scenario's value is already beyond the searched range"}
-    if run(p.end):
-        return {**margin, "holds_at": p.end, "reason": "holds over the whole searched range", "runs": len(done)}
-    good, bad = start, p.end
     period = 1.0 / settings.implementation.control_rate
+    end = round(p.end / period) * period if name == "latency" else p.end  # the latency actually simulated
+    margin = {"value": None, "unit": p.unit, "holds_at": None, "breaks_at": None, "range": [start, end]}
+    if (p.worse == "down" and start <= end) or (p.worse == "up" and start >= end):
+        return {**margin, "reason": "the scenario's value is already beyond the searched range"}
+    if run(end):
+        return {**margin, "holds_at": end, "reason": "holds over the whole searched range", "runs": len(done)}
+    good, bad = start, end
     for _ in range(STEPS):
         mid = math.sqrt(good * bad) if p.worse == "down" else (good + bad) / 2
         if name == "latency":

@@ -115,6 +115,7 @@ class SampledSimulator(Simulator):
         applied = cs.fmin(cs.fmax(commanded, -effort), effort) if implementation.saturate else commanded
         result = integrator(x0=s, p=cs.vertcat(t, applied, e))
         self._step = cs.Function("step", [t, s, e], [commanded, applied, result["xf"], result["qf"]])
+        self._last = cs.Function("last", [t, s, e], [commanded, applied])  # at t = T: the law, no integration
         f = cs.SX.sym("f", loop.features.numel())
         camera = [loop.features, loop.e_e, loop.image_estimate(f), loop.camera.depths(loop.relative_pose)]
         self._camera = cs.Function("camera", [loop.t, loop.state, f], camera)
@@ -177,7 +178,8 @@ class SampledSimulator(Simulator):
                 )
                 break
             try:
-                commanded, applied, xf, qf = (np.asarray(v).ravel() for v in self._step(t, s, e_held))
+                step = self._last if k == steps else self._step
+                commanded, applied, *after = (np.asarray(v).ravel() for v in step(t, s, e_held))
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc
@@ -190,6 +192,7 @@ class SampledSimulator(Simulator):
                 rows.append((t, s, np.concatenate([applied, e_held]), integral.copy()))
             if k == steps:
                 break
+            xf, qf = after
             if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(qf))):
                 status, message = "diverged", f"non-finite state after t = {t:.4g} s"
                 break
