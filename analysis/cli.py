@@ -28,7 +28,7 @@ from analysis.certify import (
     GainPoint,
 )
 from analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
-from analysis.margins import MarginError, margins, planned_runs, run_tasks, runs_done
+from analysis.margins import MarginError, linear_margin_text, margins, planned_runs, run_tasks, runs_done
 from analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
 from analysis.pose import initial_view
 from analysis.results import (
@@ -586,9 +586,8 @@ def show_margins(result: dict) -> None:
         value = "none in range" if m["value"] is None and m["holds_at"] is not None else fmt(m["value"])
         table.add_row(name, f"{value} {m['unit']}", fmt(m["holds_at"]), fmt(m["breaks_at"]), m.get("reason") or "")
     out.print(table)
-    linear = result["linear_delay_margin"]
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
-    out.print(f"linearised loop's delay margin: {fmt(linear)} s ({result['linear_delay_margin_method']})",
+    out.print(f"linearised loop's delay margin: {linear_margin_text(result)} ({result['linear_delay_margin_method']})",
               markup=False, soft_wrap=True)  # fmt: skip
 
 

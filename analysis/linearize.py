@@ -411,21 +411,34 @@ def delay_loop(loop: ClosedLoop, q0: np.ndarray) -> DelayLoop:
     return DelayLoop(a, b, c, q_eq)
 
 
-def delay_margin(system: DelayLoop, upper: float = 1.0, tol: float = 1e-5) -> float | None:
+@dataclass(frozen=True)
+class DelayMargin:
+    """The linearised loop's delay margin and what the search found.
+
+    ``status`` is ``"found"`` (``value``: the smallest destabilising delay, s),
+    ``"stable_over_range"`` (stable for every delay up to ``upper``: no margin inside the
+    searched range) or ``"unstable_at_zero_delay"`` (no margin: unstable without delay)."""
+
+    value: float | None
+    status: str
+    upper: float
+
+
+def delay_margin(system: DelayLoop, upper: float = 1.0, tol: float = 1e-5) -> DelayMargin:
     """The smallest delay ``L`` of the ``e_e`` measurement that destabilises the linearised
     loop (eigenvalues of the Pade-approximated loop), by a geometric scan from 0.1 ms then
-    bisection to ``tol`` s; None when the loop without delay is not stable or stays stable up
-    to ``upper``."""
+    bisection to ``tol`` s; the status says when there is none (unstable without delay, or
+    stable up to ``upper``)."""
     if not system.stable(0.0):
-        return None
+        return DelayMargin(None, "unstable_at_zero_delay", upper)
     grid = np.geomspace(1e-4, upper, 60)
     unstable = [d for d in grid if not system.stable(d)]
     if not unstable:
-        return None
+        return DelayMargin(None, "stable_over_range", upper)
     hi = unstable[0]
     i = int(np.searchsorted(grid, hi))
     lo = 0.0 if i == 0 else grid[i - 1]
     while hi - lo > tol:
         mid = (lo + hi) / 2
         lo, hi = (mid, hi) if system.stable(mid) else (lo, mid)
-    return hi
+    return DelayMargin(float(hi), "found", upper)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import tomllib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,8 +14,9 @@ import tomli_w
 from typer.testing import CliRunner
 
 from analysis.cli import app
-from analysis.linearize import delay_loop, delay_margin
-from analysis.margins import PARAMETERS, continuous_bound, search, trial
+from analysis.linearize import DelayLoop, delay_loop, delay_margin
+from analysis.margins import PARAMETERS, search, tracking_bound, tracking_error, trial
+from analysis.sampled import as_implemented
 from analysis.scenario import DEFAULT_SCENARIO, build, load
 
 
@@ -32,12 +34,31 @@ def test_latency_margin_holds_below_and_breaks_above(short_default):
     """The measured latency margin brackets the breaking point: the loop holds at 0.8x the
     margin and breaks at 1.25x (latencies rounded to whole control periods, as the search's)."""
     path = str(short_default)
-    bound = continuous_bound(path)
+    bound = tracking_bound(path)
     margin = search(path, "latency", bound)
     value = margin["value"]
     assert value is not None and margin["breaks_at"] <= 1.25 * value
     assert trial(path, "latency", 0.8 * value, bound)["holds"]
     assert not trial(path, "latency", 1.25 * value, bound)["holds"]
+
+
+def test_without_a_certified_envelope_the_criterion_is_twice_the_continuous_loops(short_default, tmp_path):
+    """When the design has no certified envelope (here a torque bound of 100 N m: no
+    ``theta_bar`` is self-consistent), the tracking bound falls back to twice the continuous
+    loop's error, position and angle each, and the criterion says so; with the envelope the
+    criterion is its certified ultimate bound."""
+    assert tracking_bound(str(short_default)).source == "envelope"
+    data = tomllib.loads(short_default.read_text())
+    data["envelope"] = {"torque": 100.0}
+    path = tmp_path / "unbounded.toml"
+    path.write_text(tomli_w.dumps(data))
+    bound = tracking_bound(str(path))
+    assert bound.source == "continuous" and "2x the continuous loop's" in bound.text
+    spec, base = load(path)
+    loop, s0, settings = build(spec, base)
+    traj = as_implemented(loop, replace(settings, implementation=None, plant=None)).run(s0)
+    position, angle = tracking_error(traj)
+    assert (bound.position, bound.angle_deg) == (2 * position, 2 * angle)
 
 
 def delayed_linear_run(system, delay: float, horizon: float, steps_per_delay: int = 100) -> np.ndarray:
@@ -74,13 +95,37 @@ def test_linear_delay_margin_matches_a_simulation_of_the_delayed_loop():
     spec, base = load(DEFAULT_SCENARIO)
     loop, s0, _ = build(spec, base)
     system = delay_loop(loop, s0[: loop.robot.n])
-    margin = delay_margin(system)
-    assert margin is not None and 0 < margin < 1
+    found = delay_margin(system)
+    assert found.status == "found" and 0 < found.value < 1
+    margin = found.value
     for factor, grows in ((0.95, False), (1.05, True)):
         norms = delayed_linear_run(system, factor * margin, 20.0)
         tenth = len(norms) // 10
         ratio = norms[-tenth:].max() / norms[tenth : 2 * tenth].max()
         assert (ratio > 1) == grows, (factor, ratio)
+
+
+@pytest.mark.parametrize(
+    ("a", "bc", "status", "value"),
+    [
+        (0.0, -2.0, "found", np.pi / 4),
+        (-1.0, 0.0, "stable_over_range", None),
+        (1.0, 0.0, "unstable_at_zero_delay", None),
+    ],
+)
+def test_delay_margin_says_why_there_is_none(a, bc, status, value):
+    """The linearised delay margin is unambiguous: on scalar loops ``dz/dt = a z + bc z(t - L)``
+    whose margins are known in closed form, ``-2 z(t - L)`` has ``L = pi/4`` (crossover at
+    ``omega = 2``, where the delay's phase ``-omega L`` reaches ``-pi/2``; Pade order 8 matches
+    that phase to round-off at ``omega L = pi/2``, so the bisection's 1e-5 s sets the
+    tolerance), ``-z`` without delayed feedback is stable for every delay searched (to 1 s),
+    and ``+z`` is unstable with none."""
+    margin = delay_margin(DelayLoop(np.array([[a]]), np.array([[bc]]), np.array([[1.0]]), np.zeros(0)))
+    assert margin.status == status
+    if value is None:
+        assert margin.value is None
+    else:
+        assert margin.value == pytest.approx(value, abs=2e-5)
 
 
 def test_margins_command_writes_the_contract(tmp_path):
@@ -98,5 +143,7 @@ def test_margins_command_writes_the_contract(tmp_path):
     for m in record["margins"].values():
         assert {"value", "unit", "holds_at", "breaks_at"} <= set(m)
         assert m["value"] is not None or m["holds_at"] is not None or m["reason"]
-    assert "holds" in record["criterion"] and record["linear_delay_margin"] > 0
+    assert "holds" in record["criterion"] and "certified ultimate bound" in record["criterion"]
+    assert record["tracking_bound"]["source"] == "envelope" and record["linear_delay_margin"] > 0
+    assert record["linear_delay_margin_status"] == "found"
     assert "provenance" in record and (tmp_path / "m" / "margins.json").exists()
