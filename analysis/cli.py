@@ -34,10 +34,12 @@ from analysis.pose import initial_view
 from analysis.results import (
     certificate_result,
     design_limits,
+    design_runner,
     envelope_record,
     grid_envelope_for,
     grid_result,
     implementation_record,
+    limit_search_record,
     point_record,
     speed_theta_bar,
     verification_result,
@@ -45,7 +47,7 @@ from analysis.results import (
 from analysis.sampled import as_implemented, limit_record, robot_limits
 from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
 from analysis.simulate import summary
-from analysis.synthesize import Bounds, rounded, scenario_text, synthesize, synthesize_speed
+from analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
 from models.loop import Weights
 
 app = typer.Typer(
@@ -475,7 +477,7 @@ def synthesize_command(
     (fact 6), reach [synthesize] gamma with the smallest gains, or (objective = "target_speed")
     maximise the envelope's certified target speed (facts 7-8); write them as a scenario."""
     start = time.perf_counter()
-    spec, loop, _, _, _ = load_scenario(scenario)
+    spec, loop, s0, settings, _ = load_scenario(scenario)
     n = loop.robot.n
     cfg = spec.synthesize
     if spec.loop != "paper" or n < 6:
@@ -485,17 +487,20 @@ def synthesize_command(
     prepare_out_dir(target.parent)
     bounds = Bounds(tuple(cfg.k_xi), tuple(cfg.k_c), tuple(cfg.k_e))
     weights = Weights(**spec.weights.model_dump())
-    theta_max = math.radians(spec.certify.theta_max_deg)
     speed = cfg.objective == "target_speed"
-    with err.status("solving the gain-synthesis SDP" + ("s (golden section over s)" if speed else "")):
-        if speed:
-            theta = speed_theta_bar(spec, loop, gain_point(spec, n))
-            result = synthesize_speed(weights, spec.reference.se3(), n, bounds, loop.robot.mass_bounds, theta,
-                                      theta_max=theta_max)  # fmt: skip
-        else:
-            result = synthesize(weights, spec.reference.se3(), n, bounds, gamma_target=cfg.gamma,
-                                search_weights=cfg.search_weights, theta_max=theta_max)  # fmt: skip
-            result = rounded(result, spec.reference.se3(), bounds, gamma_target=cfg.gamma, theta_max=theta_max)
+    theta = speed_theta_bar(spec, loop, gain_point(spec, n)) if speed else None
+    design = designer(weights, spec.reference.se3(), n, theta_max=math.radians(spec.certify.theta_max_deg),
+                      gamma_target=cfg.gamma, search_weights=cfg.search_weights,
+                      speed=(loop.robot.mass_bounds, theta) if speed else None)  # fmt: skip
+    search = None
+    if cfg.respect_limits:
+        with err.status("searching for the best design within the arm's limits") as status:
+            show = lambda text: status.update(f"limits search: {text}")  # noqa: E731
+            search = search_within_limits(design, bounds, design_runner(loop, s0, settings), show)
+        result = search.result
+    else:
+        with err.status("solving the gain-synthesis SDP" + ("s (golden section over s)" if speed else "")):
+            result = design(bounds)
     objective = "minimise gamma" if cfg.gamma is None else f"smallest gains with gamma <= {cfg.gamma:g}"
     record = {
         "scenario": spec.name,
@@ -512,6 +517,8 @@ def synthesize_command(
     if speed:
         record["synthesis_theta_bar_deg"] = math.degrees(theta)
         record["max_target_speed"] = None
+    if search is not None:
+        record["limit_search"] = limit_search_record(search, bounds)
     if result.point is not None:
         urdf = str(loop.robot.urdf) if spec.robot.urdf is not None else None
         text = scenario_text(Path(scenario).read_text(), result.point, name=f"{spec.name}-synthesized",
@@ -526,8 +533,11 @@ def synthesize_command(
             record["max_target_speed"] = env["max_target_speed"]
             if env["max_target_speed"] is None:
                 record["status"] = f"uncertified: no target speed certified for the written design ({env['reason']})"
-        with err.status("simulating the design against the arm's limits"):
-            record["limits"] = design_limits(target)
+        if search is not None:  # the chosen design's run in the search
+            record["limits"] = search.chosen.run
+        else:
+            with err.status("simulating the design against the arm's limits"):
+                record["limits"] = design_limits(target)
         record["seconds"] = time.perf_counter() - start
     emit(record, None, json_target, show_synthesis)
     if result.point is None or (speed and record["max_target_speed"] is None):
@@ -633,10 +643,12 @@ def show_grid(result: dict) -> None:
 
 
 def show_synthesis(record: dict) -> None:
-    """Human output of ``synthesize``: the gains, the certified gamma, the file written."""
+    """Human output of ``synthesize``: the gains, the certified gamma, the file written, the run
+    against the arm's limits (and the limits search: what was searched, what it found)."""
     p = record["point"]
     if p is None:
-        out.print(f"NOT SYNTHESIZED: {record['status']}", markup=False)
+        out.print(f"NOT SYNTHESIZED: {record['status']}", markup=False, soft_wrap=True)
+        _show_limit_search(record)
         return
     g = p["gains"]
     out.print(
@@ -654,6 +666,25 @@ def show_synthesis(record: dict) -> None:
     out.print(f"run of the design ({limits['status']}): peak |tau| / effort limit "
               f"{_worst(limits['torque_commanded_ratio'])}, peak |qd| / velocity limit "
               f"{_worst(limits['speed_ratio'])}", markup=False, soft_wrap=True)  # fmt: skip
+    _show_limit_search(record)
+
+
+def _show_limit_search(record: dict) -> None:
+    """The limits search of ``synthesize`` in words (nothing without ``respect_limits``)."""
+    search = record.get("limit_search")
+    if search is None:
+        return
+    fmt = lambda v: "-" if v is None else f"{v:.3g}"  # noqa: E731
+    top = search["trials"][0]
+    out.print(
+        f"limits search ({search['runs']} runs, {search['syntheses']} syntheses): {search['family']}, alpha in "
+        f"[{search['bracket'][0]:.4g}, 1]; criterion: {search['criterion']}.\n{search['statement']}.\n"
+        f"unconstrained optimum (alpha = 1): certified gamma {fmt(top['gamma'])}, peak |tau| / effort limit "
+        f"{fmt(top['torque_commanded_ratio'])}, peak |qd| / velocity limit {fmt(top['speed_ratio'])} "
+        f"({top['status']})",
+        markup=False,
+        soft_wrap=True,
+    )
 
 
 def show_claims(result: dict, claims: list) -> None:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict
+from collections.abc import Callable
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,17 +33,71 @@ from analysis.linearize import linearize, worst_case_disturbance
 from analysis.sampled import as_implemented, limit_record, robot_limits
 from analysis.scenario import Scenario, build, gain_point, load
 from analysis.simulate import Settings
+from analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, scaled
 from analysis.verify import Claim, verify
-from models.loop import ClosedLoop, Weights
+from models.loop import ClosedLoop, Gains, Weights
+
+
+def design_runner(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> Callable[[GainPoint], dict]:
+    """Runs of designs (gains and weights) of one scenario as implemented (its controller,
+    plant and image; each design runs once, so without compiling): for a design, the run's
+    status and, per joint, the peak torques and speed against the URDF's limits."""
+    settings = replace(settings, jit=False)
+    limits = robot_limits(loop, settings)
+
+    def run(point: GainPoint) -> dict:
+        designed = replace(loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
+        traj = as_implemented(designed, settings).run(s0)
+        return {"status": traj.status, "message": traj.message, **limit_record(traj, limits)}
+
+    return run
 
 
 def design_limits(path: Path) -> dict:
-    """The design of the scenario file ``path`` run as implemented (its controller, plant
-    and image): status and, per joint, the peak torque and speed against the URDF's limits."""
+    """The design of the scenario file ``path`` run as implemented (:func:`design_runner`)."""
     spec, base = load(path)
     loop, s0, settings = build(spec, base)
-    traj = as_implemented(loop, settings).run(s0)
-    return {"status": traj.status, "message": traj.message, **limit_record(traj, robot_limits(loop, settings))}
+    return design_runner(loop, s0, settings)(gain_point(spec, loop.robot.n))
+
+
+def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
+    """The limits search of ``synthesize`` (JSON-ready): what was searched (family, bracket,
+    criterion, runs), the ``alpha`` chosen and its gain box, the run bounding it from above, the
+    unconstrained optimum's certified gamma, and every run with its certified gamma and worst
+    torque and speed ratios."""
+    top = search.trials[0]
+
+    def trial(t: Trial) -> dict:
+        run = t.run or {}
+        worst = lambda key: None if key not in run else max(run[key])  # noqa: E731
+        gamma = None if t.synthesis.certificate is None else t.synthesis.certificate.gamma
+        return {"alpha": t.alpha, "gamma": gamma, "status": run.get("status", t.synthesis.status),
+                "torque_commanded_ratio": worst("torque_commanded_ratio"), "speed_ratio": worst("speed_ratio"),
+                "within": t.within}  # fmt: skip
+
+    chosen, exceeds = search.chosen, search.exceeds
+    if chosen is None:
+        found = "no design of the family runs within the limits"
+    elif exceeds is None:
+        found = "the unconstrained optimum runs within the limits: nothing to search"
+    else:
+        found = (f"alpha = {chosen.alpha:.4g} is the largest found within the limits (alpha = {exceeds.alpha:.4g} "
+                 "exceeds them): the best design found by bisection in this family, not a global optimum over the "
+                 "[synthesize] bounds")  # fmt: skip
+    return {
+        "family": FAMILY,
+        "criterion": LIMITS_CRITERION,
+        "bracket": [search.lowest, 1.0],
+        "resolution": None if chosen is None or exceeds is None else exceeds.alpha - chosen.alpha,
+        "alpha": None if chosen is None else chosen.alpha,
+        "exceeds_at": None if exceeds is None else exceeds.alpha,
+        "bounds": None if chosen is None else asdict(scaled(bounds, chosen.alpha)),
+        "gamma_unconstrained": None if top.synthesis.certificate is None else top.synthesis.certificate.gamma,
+        "runs": search.runs,
+        "syntheses": search.syntheses,
+        "statement": found,
+        "trials": [trial(t) for t in search.trials],
+    }
 
 
 def implementation_record(settings: Settings) -> dict:

@@ -317,8 +317,9 @@ Interval = Annotated[list[Positive], Field(min_length=2, max_length=2)]
 
 class SynthesizeSection(_Strict):
     """Gain bounds ``[lower, upper]`` for ``synthesize``, the objective (the certified gamma, or
-    the envelope's certified target speed), an optional gamma target, and whether to search
-    the weights on a log grid around the scenario's."""
+    the envelope's certified target speed), an optional gamma target, whether to search the
+    weights on a log grid around the scenario's, and whether the design must run within the
+    arm's effort and velocity limits (``respect_limits``: a search over shrunken gain boxes)."""
 
     k_xi: Interval = [1.0, 100.0]
     k_c: Interval = [0.1, 20.0]
@@ -326,6 +327,7 @@ class SynthesizeSection(_Strict):
     objective: Literal["gamma", "target_speed"] = "gamma"
     gamma: Positive | None = None
     search_weights: bool = False
+    respect_limits: bool = False
 
     @model_validator(mode="after")
     def _ordered(self) -> SynthesizeSection:
@@ -337,6 +339,11 @@ class SynthesizeSection(_Strict):
             raise ValueError('gamma: a gamma target applies to objective = "gamma" only')
         if self.objective == "target_speed" and self.search_weights:
             raise ValueError('search_weights: not available with objective = "target_speed"')
+        if self.respect_limits and self.gamma is not None:
+            raise ValueError(
+                "respect_limits: not available with a gamma target (synthesize.gamma): the smallest gains "
+                "reaching it are not made smaller by shrinking the gain box"
+            )
         return self
 
 

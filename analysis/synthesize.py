@@ -19,12 +19,18 @@ does not depend on the gains and ``Q(s) = N^T K N - s W`` is linear in them, so
 ``maximize kappa`` subject to ``Q(s) - kappa D >= 0`` (and the ``xi`` block) is one SDP; the
 largest certified ``wbar^2`` is ``min(c_max, c_vis) 4 s kappa`` with ``c_max`` and ``c_vis``
 independent of the gains, so ``s kappa*(s)`` is maximised over ``s`` by golden section.
+
+Neither certificate says anything about the arm's limits: large gains ask for large torques.
+:func:`search_within_limits` looks, in a one-parameter family of shrunken gain boxes, for the
+best design whose run as implemented stays within the URDF's effort and velocity limits
+(measured by simulation; the certificate of the design found is the ordinary one).
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cvxpy as cp
@@ -39,6 +45,23 @@ from models.loop import Weights
 
 TARGET_MARGIN = 1e-4
 """Relative margin below a gamma target that the synthesis aims at."""
+
+SEARCH_STEPS = 6
+"""Bisection steps of the limits search after its two ends: a bracket of 1/64 of the family."""
+FEASIBLE_STEPS = 10
+"""Bisection steps (SDPs only, no runs) locating the family's smallest alpha with a certified
+design: to 1/1024."""
+FAMILY = (
+    "the synthesis over the gain boxes [lower, upper(alpha)], upper(alpha) = lower (upper / lower)^alpha for "
+    "every gain (alpha = 1: the [synthesize] bounds)"
+)
+LIMITS_CRITERION = (
+    "the run as implemented (the scenario's [implementation] and [plant], else the continuous loop) "
+    "completes with every feature in the image, the law's commanded |tau| stays within the effort "
+    "limits (times torque_scale; commanded also with saturate on: a design whose law saturates does "
+    "not run the loop its certificate is about) and |qd| within the velocity limits on every joint, "
+    "along the run"
+)
 
 
 @dataclass(frozen=True)
@@ -190,6 +213,30 @@ def synthesize_speed(
     return Synthesis(point, cert, "ok")
 
 
+def designer(
+    weights: Weights,
+    reference: SE3,
+    n: int,
+    *,
+    theta_max: float,
+    gamma_target: float | None = None,
+    search_weights: bool = False,
+    speed: tuple[MassBounds, float] | None = None,
+) -> Callable[[Bounds], Synthesis]:
+    """The synthesis as a function of the gain box: :func:`synthesize` then :func:`rounded`, or
+    with ``speed = (mass, theta_bar)`` :func:`synthesize_speed`; certified over
+    ``|theta_ec| <= theta_max``."""
+
+    def design(bounds: Bounds) -> Synthesis:
+        if speed is not None:
+            return synthesize_speed(weights, reference, n, bounds, *speed, theta_max=theta_max)
+        result = synthesize(weights, reference, n, bounds, gamma_target=gamma_target, search_weights=search_weights,
+                            theta_max=theta_max)  # fmt: skip
+        return rounded(result, reference, bounds, gamma_target=gamma_target, theta_max=theta_max)
+
+    return design
+
+
 def _round(values: np.ndarray, digits: int) -> np.ndarray:
     """``values`` to ``digits`` significant figures."""
     return np.array([float(f"{v:.{digits}g}") for v in values])
@@ -235,3 +282,142 @@ def scenario_text(original: str, point: GainPoint, *, name: str, weights: bool, 
     if urdf is not None:
         doc["robot"]["urdf"] = urdf
     return tomlkit.dumps(doc)
+
+
+def scaled(bounds: Bounds, alpha: float) -> Bounds:
+    """The gain box at ``alpha`` in [0, 1]: each upper bound moved toward its lower bound
+    geometrically, ``lower (upper / lower)^alpha``. Geometric rather than linear because the
+    bounds span decades and the torques grow roughly in proportion to the gains: a step in
+    ``alpha`` changes the upper bounds by the same factor wherever it is taken.
+
+    A smaller box contains no better design: the certified optimum is monotone in ``alpha`` (set
+    inclusion), for either objective. Tried and not kept: the smallest gains (Euclidean norm)
+    certifying ``gamma* / sqrt(alpha)``. It asks less torque at a given gamma, but with ``K_e``
+    small beside ``K_c`` the features leave the image: on the idealised UR5 (default bounds,
+    0.2 s) its best design within the limits certified gamma 0.87, the boxes' 0.68."""
+
+    def shrink(b: tuple[float, float]) -> tuple[float, float]:
+        lo, hi = b
+        return lo, min(hi, lo * (hi / lo) ** alpha)
+
+    return Bounds(shrink(bounds.k_xi), shrink(bounds.k_c), shrink(bounds.k_e))
+
+
+def within_limits(run: dict) -> bool:
+    """:data:`LIMITS_CRITERION` on a run's limit record (:func:`analysis.sampled.limit_record`
+    with the run's ``status``)."""
+    return run["status"] == "ok" and max(run["torque_commanded_ratio"]) <= 1.0 and max(run["speed_ratio"]) <= 1.0
+
+
+def excess(run: dict) -> str:
+    """How a run breaks :data:`LIMITS_CRITERION` (the first way found), in words."""
+    if run["status"] != "ok":
+        return f"does not complete ({run['status']}: {run['message']})"
+    for key, what in (("torque_commanded_ratio", "torque"), ("speed_ratio", "speed")):
+        ratios = run[key]
+        j = int(np.argmax(ratios))
+        if ratios[j] > 1.0:
+            return f"exceeds a limit: joint {j + 1} peak {what} {ratios[j]:.3g}x its limit"
+    return "is within the limits"
+
+
+@dataclass
+class Trial:
+    """One design of the limits family: its synthesis and the limit record of its run (None: no
+    certified design to run)."""
+
+    alpha: float
+    synthesis: Synthesis
+    run: dict | None
+
+    @property
+    def within(self) -> bool:
+        return self.run is not None and within_limits(self.run)
+
+
+@dataclass
+class LimitSearch:
+    """The limits search over the family :data:`FAMILY`: the designs run (in order), the
+    bracket ``[lowest, 1]`` of ``alpha`` searched (``lowest``: the smallest alpha with a
+    certified design), the design chosen (the largest alpha found within the limits; None: none
+    in the family), the run that bounds it from above (the smallest alpha found exceeding the
+    limits; None when the unconstrained optimum is within them) and how many syntheses were
+    solved."""
+
+    trials: list[Trial]
+    lowest: float
+    chosen: Trial | None
+    exceeds: Trial | None
+    syntheses: int
+
+    @property
+    def runs(self) -> int:
+        return sum(t.run is not None for t in self.trials)
+
+    @property
+    def result(self) -> Synthesis:
+        """The chosen design's synthesis; else why there is none (the unconstrained synthesis'
+        status, or the family's smallest certified design's run exceeding the limits)."""
+        if self.chosen is not None:
+            return self.chosen.synthesis
+        if self.exceeds is None:
+            return self.trials[0].synthesis
+        return Synthesis(None, None, f"no design within the limits: the family's smallest certified design "
+                                     f"(alpha = {self.exceeds.alpha:.4g}) {excess(self.exceeds.run)}")  # fmt: skip
+
+
+def search_within_limits(
+    design: Callable[[Bounds], Synthesis],
+    bounds: Bounds,
+    run: Callable[[GainPoint], dict],
+    progress: Callable[[str], None] | None = None,
+) -> LimitSearch:
+    """The largest ``alpha`` whose design (``design`` of the box :func:`scaled` from ``bounds``)
+    runs within the limits (``run``: the limit record of a design's run as implemented, judged
+    by :func:`within_limits`).
+
+    The certified objective is monotone in ``alpha``, so the largest ``alpha`` within the limits
+    is the family's best design. First the unconstrained optimum (``alpha = 1``; if it is within
+    the limits the search ends there); then the smallest ``alpha`` with a certified design
+    by bisection on the SDP alone (:data:`FEASIBLE_STEPS`), which is run: if it exceeds the limits
+    no design of the family is within them; otherwise :data:`SEARCH_STEPS` bisection runs between
+    the two ends. The peak torques and speeds are measured, not proven monotone in ``alpha``: the
+    result is the best found by bisection in this family, not a global optimum over the box."""
+    designs: dict[float, Synthesis] = {}
+    trials: list[Trial] = []
+    say = progress or (lambda _: None)
+
+    def synthesised(alpha: float) -> Synthesis:
+        if alpha not in designs:
+            say(f"synthesising at alpha = {alpha:.4g}")
+            designs[alpha] = design(scaled(bounds, alpha))
+        return designs[alpha]
+
+    def tried(alpha: float) -> Trial:
+        if (again := next((t for t in trials if t.alpha == alpha), None)) is not None:
+            return again
+        result = synthesised(alpha)
+        if result.point is not None:
+            say(f"run {sum(t.run is not None for t in trials) + 1}: the design at alpha = {alpha:.4g}")
+        trials.append(Trial(alpha, result, None if result.point is None else run(result.point)))
+        return trials[-1]
+
+    def done(lowest: float, chosen: Trial | None, exceeds: Trial | None) -> LimitSearch:
+        return LimitSearch(trials, lowest, chosen, exceeds, len(designs))
+
+    top = tried(1.0)
+    if top.run is None or top.within:
+        return done(1.0, top if top.within else None, None)
+    lo, hi = 0.0, 1.0
+    if synthesised(lo).point is None:
+        for _ in range(FEASIBLE_STEPS):
+            mid = (lo + hi) / 2
+            lo, hi = (lo, mid) if synthesised(mid).point is not None else (mid, hi)
+        lo = hi
+    good, bad = tried(lo), top
+    if not good.within:
+        return done(lo, None, good)
+    for _ in range(SEARCH_STEPS):
+        mid = tried((good.alpha + bad.alpha) / 2)
+        good, bad = (mid, bad) if mid.within else (good, mid)
+    return done(lo, good, bad)

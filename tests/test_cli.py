@@ -125,6 +125,10 @@ BAD_SCENARIOS.update({
     "grid range of zero points": (setter("grid", {"k_c": {"start": 1.0, "stop": 2.0, "num": 0}}), "grid.k_c"),
     "reversed synthesis bounds": (setter("synthesize.k_c", [5.0, 1.0]), "synthesize"),
     "unknown synthesis objective": (setter("synthesize.objective", "speed"), "synthesize.objective"),
+    "string respect_limits": (setter("synthesize.respect_limits", "yes"), "synthesize.respect_limits"),
+    "respect_limits with a gamma target": (
+        setter("synthesize", {"respect_limits": True, "gamma": 0.5}), "respect_limits: not available with a gamma"
+    ),
     "gamma target for the target speed": (
         setter("synthesize", {"objective": "target_speed", "gamma": 0.5}), "a gamma target applies to objective"
     ),

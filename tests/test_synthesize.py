@@ -5,26 +5,45 @@ smallest gains reaching a gamma target (an interior optimum) beat a fine grid.""
 from __future__ import annotations
 
 import itertools
+import json
+import math
 from dataclasses import astuple
 from pathlib import Path
 
 import casadi as cs
 import numpy as np
 import pytest
+import tomli_w
+from typer.testing import CliRunner
 
 from analysis.certify import GainPoint, certify, exact_gamma
+from analysis.cli import app
 from analysis.envelope import DisturbanceBounds, design_of, envelope
 from analysis.results import speed_theta_bar
 from analysis.scenario import build, gain_point, load
-from analysis.synthesize import TARGET_MARGIN, Bounds, synthesize, synthesize_speed
+from analysis.synthesize import (
+    FEASIBLE_STEPS,
+    SEARCH_STEPS,
+    TARGET_MARGIN,
+    Bounds,
+    Synthesis,
+    rounded,
+    scaled,
+    scenario_text,
+    search_within_limits,
+    synthesize,
+    synthesize_speed,
+)
 from models.lie import SE3
 from models.loop import Weights
 from tests import reference as ref
+from tests.conftest import scenario_dict
 
 REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
 WEIGHTS = Weights(4.0, 1.0, 4.0, 1.0)
 EXAMPLES = Path(__file__).parent.parent / "examples"
 BOUNDS = Bounds((1.0, 30.0), (0.5, 5.0), (0.5, 8.0))
+runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
@@ -138,3 +157,135 @@ def test_target_speed_synthesis_beats_every_point_of_a_grid():
     for k_xi, k_c, k_e in itertools.product(*(np.linspace(*b, 4) for b in astuple(SPEED_BOUNDS))):
         grid_point = GainPoint(np.full(6, k_xi), np.full(6, k_c), np.full(6, k_e), WEIGHTS)
         assert speed(grid_point) <= best, (k_xi, k_c, k_e)
+
+
+# --- a design within the arm's limits ([synthesize] respect_limits) ----------------------------
+
+LIMITS_BOUNDS = Bounds((1.0, 100.0), (0.1, 20.0), (0.1, 50.0))  # the [synthesize] defaults
+
+
+def _threshold_search(feasible_above: float, limit: float):
+    """The search on a synthetic family whose "design" has every gain at its box's upper bound,
+    certified when ``k_xi``'s upper bound reaches ``feasible_above``, and whose "run" peaks at
+    ``k_xi / limit`` times the effort limit: within the limits exactly when ``k_xi <= limit``."""
+
+    def design(b: Bounds) -> Synthesis:
+        if b.k_xi[1] < feasible_above:
+            return Synthesis(None, None, "infeasible")
+        point = GainPoint(np.full(6, b.k_xi[1]), np.full(6, b.k_c[1]), np.full(6, b.k_e[1]), WEIGHTS)
+        return Synthesis(point, None, "ok")
+
+    def run(point: GainPoint) -> dict:
+        return {"status": "ok", "message": "", "torque_commanded_ratio": [point.k_xi[0] / limit], "speed_ratio": [0.5]}
+
+    return search_within_limits(design, LIMITS_BOUNDS, run)
+
+
+def test_limits_search_brackets_the_largest_alpha_within_the_limits():
+    """On a family whose limit is crossed once (at ``k_xi = 20``, ``alpha = log 20 / log 100``)
+    and whose designs certify from ``k_xi = 2`` on, the search returns the smallest certified
+    alpha to 1/1024 (:data:`FEASIBLE_STEPS`), a chosen design within the limits and the run just
+    above it exceeding them, the two 1/64 of the bracket apart (:data:`SEARCH_STEPS`), with the
+    crossing between them; 2 + 6 runs."""
+    search = _threshold_search(2.0, 20.0)
+    crossing, feasible = math.log(20) / math.log(100), math.log(2) / math.log(100)
+    assert feasible <= search.lowest <= feasible + 2**-FEASIBLE_STEPS
+    assert search.chosen.within and not search.exceeds.within
+    assert search.chosen.alpha <= crossing < search.exceeds.alpha
+    assert search.exceeds.alpha - search.chosen.alpha == pytest.approx((1 - search.lowest) / 2**SEARCH_STEPS)
+    assert search.runs == 2 + SEARCH_STEPS
+
+
+def test_limits_search_reports_no_design_when_the_smallest_exceeds():
+    """When even the family's smallest certified design exceeds the limits there is no design
+    (the search stops after that run) and the status says which limit and by how much."""
+    search = _threshold_search(2.0, 1.5)
+    assert search.chosen is None and search.result.point is None and search.runs == 2
+    assert "no design within the limits" in search.result.status and "torque" in search.result.status
+
+
+def _limits_scenario(tmp_path: Path, name: str, edit=None) -> Path:
+    """The idealised UR5 (the paper's continuous loop, the URDF's limits) over 0.2 s: the law's
+    torque peaks at the start (``xi(0) = -qd_d(0)``), so a short run shows it."""
+
+    def short(data: dict) -> None:
+        data["simulation"]["duration"] = 0.2
+        if edit is not None:
+            edit(data)
+
+    path = tmp_path / name
+    path.write_text(tomli_w.dumps(scenario_dict(short)))
+    return path
+
+
+@pytest.fixture(scope="module")
+def limited(tmp_path_factory):
+    """``synthesize`` of the same scenario with the default bounds, unconstrained and with
+    ``respect_limits``: the two JSON records and the file the second wrote."""
+    tmp = tmp_path_factory.mktemp("limits")
+    free = _limits_scenario(tmp, "free.toml")
+    bound = _limits_scenario(tmp, "bound.toml", lambda d: d.update(synthesize={"respect_limits": True}))
+    records = []
+    for scenario in (free, bound):
+        result = runner.invoke(app, ["synthesize", str(scenario), "--out", str(tmp / f"{scenario.stem}-syn.toml"),
+                                     "--json", "-"])  # fmt: skip
+        assert result.exit_code == 0, result.output
+        records.append(json.loads(result.stdout))
+    return records[0], records[1], tmp / "bound-syn.toml"
+
+
+def _worst(limits: dict) -> float:
+    return max(max(limits["torque_commanded_ratio"]), max(limits["speed_ratio"]))
+
+
+def test_design_respecting_limits_runs_within_them_where_the_optimum_does_not(limited, tmp_path):
+    """The unconstrained optimum exceeds the UR5's limits (its own run); the written design,
+    simulated afresh from its file by ``dvfc simulate``, completes within every joint's effort
+    and velocity limits."""
+    free, _, written = limited
+    assert _worst(free["limits"]) > 1
+    result = runner.invoke(app, ["simulate", str(written), "--out", str(tmp_path / "run"), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    assert _worst(json.loads(result.stdout)["limits"]) <= 1
+
+
+def test_design_respecting_limits_certifies_no_better_gamma_than_the_optimum(limited):
+    """The constrained design's gamma is at least the unconstrained one's (its box lies inside the
+    bounds; both are rounded to within 0.1% of their box's optimum, so allowed 1e-3), and it is
+    the gamma ``certify`` gives the written file."""
+    free, bound, written = limited
+    assert bound["point"]["gamma"] >= free["point"]["gamma"] * (1 - 1e-3)
+    assert bound["limit_search"]["gamma_unconstrained"] == free["point"]["gamma"]
+    again = runner.invoke(app, ["certify", str(written), "--no-lower-bounds", "--json", "-"])
+    assert again.exit_code == 0 and json.loads(again.stdout)["points"][0]["gamma"] == bound["point"]["gamma"]
+
+
+def test_the_next_bracket_point_above_the_chosen_design_exceeds_a_limit(limited, tmp_path):
+    """Maximality to the bisection's resolution: the design of the box one step (1/64 of the
+    bracket) above the chosen alpha, synthesised and written again here and simulated by
+    ``dvfc simulate``, breaks the limits (exceeds one, or does not complete)."""
+    _, bound, written = limited
+    search = bound["limit_search"]
+    step = (1 - search["bracket"][0]) / 2**SEARCH_STEPS
+    assert search["exceeds_at"] == pytest.approx(search["alpha"] + step)
+    spec, _ = load(written)
+    box = scaled(LIMITS_BOUNDS, search["exceeds_at"])
+    above = rounded(synthesize(WEIGHTS, spec.reference.se3(), 6, box), spec.reference.se3(), box)
+    scenario = tmp_path / "above.toml"
+    scenario.write_text(scenario_text(written.read_text(), above.point, name="above", weights=False, urdf=None))
+    result = runner.invoke(app, ["simulate", str(scenario), "--out", str(tmp_path / "run"), "--json", "-"])
+    summary = json.loads(result.stdout)
+    assert result.exit_code == 1 or _worst(summary["limits"]) > 1
+
+
+def test_no_design_within_the_limits_is_exit_1_and_writes_nothing(tmp_path):
+    """Effort limits at 1% of the URDF's (``[implementation] torque_scale``): gravity alone
+    exceeds them, no design of the family is within them; exit 1, no file, the status says so."""
+    implementation = {"control_rate": 500.0, "torque_scale": 0.01}
+    scenario = _limits_scenario(tmp_path, "weak.toml", lambda d: d.update(
+        synthesize={"respect_limits": True}, implementation=implementation))  # fmt: skip
+    target = tmp_path / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(scenario), "--out", str(target), "--json", "-"])
+    assert result.exit_code == 1 and not target.exists()
+    record = json.loads(result.stdout)
+    assert record["point"] is None and record["status"].startswith("no design within the limits")
