@@ -11,6 +11,7 @@ import tempfile
 from pathlib import Path
 
 import casadi as cs
+import numpy as np
 
 CC_FLAGS = ("-O1", "-shared", "-fPIC")
 JACOBIAN_PRAGMA = '#pragma GCC optimize ("O0")\n'
@@ -64,3 +65,29 @@ def compiled(function: cs.Function, *, jacobian: bool = True) -> cs.Function:
             subprocess.run([compiler, *CC_FLAGS, str(source), "-o", str(partial)], check=True, capture_output=True)
             partial.replace(library)
     return cs.external(name, str(library))
+
+
+class Buffered:
+    """``function`` (dense inputs and outputs) called through CasADi's buffer interface: the
+    arguments are copied into NumPy arrays it owns and the results read from others, with
+    no conversion to CasADi's matrices (a few microseconds per call instead of about 100 for
+    a function with several arguments)."""
+
+    def __init__(self, function: cs.Function) -> None:
+        self.buffer, self.trigger = function.buffer()
+        # CasADi stores column-major: a (rows, cols) argument is a C-ordered (cols, rows) array.
+        self.inputs = [np.zeros((function.size2_in(i), function.size1_in(i))) for i in range(function.n_in())]
+        self.outputs = [np.zeros((function.size2_out(i), function.size1_out(i))) for i in range(function.n_out())]
+        assert all(function.nnz_in(i) == a.size for i, a in enumerate(self.inputs)), "inputs must be dense"
+        assert all(function.nnz_out(i) == a.size for i, a in enumerate(self.outputs)), "outputs must be dense"
+        for i, array in enumerate(self.inputs):
+            self.buffer.set_arg(i, memoryview(array))
+        for i, array in enumerate(self.outputs):
+            self.buffer.set_res(i, memoryview(array))
+
+    def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:
+        """The outputs (new arrays, CasADi's shapes) at ``args`` (CasADi's shapes; vectors flat)."""
+        for array, value in zip(self.inputs, args, strict=True):
+            array[...] = np.reshape(value, array.shape[::-1]).T
+        self.trigger()
+        return [array.T.copy() for array in self.outputs]

@@ -2,9 +2,13 @@
 latency, pixel noise and quantisation, actuator saturation, joint-speed limits.
 
 Between two control samples ``t_k = k h`` the torque is held (zero-order hold) and the
-plant, the observer and the quadratures are integrated by CVODES over exactly ``[t_k,
-t_k + h]``: the sample-and-hold is not approximated by a fast continuous loop. At each
-sample the controller
+plant, the observer and the quadratures are integrated over exactly ``[t_k, t_k + h]``:
+the sample-and-hold is not approximated by a fast continuous loop. Over one period the
+held-torque dynamics are smooth and not stiff (no feedback acts inside it), so the
+default integrator is the classical Runge-Kutta method (RK4, error ``O(h^4)``, four
+right-hand sides per period); CVODES restarted at every sample, error-controlled at the
+run's tolerances, is the reference (``integrator = "cvodes"``). At each sample the
+controller
 
 1. takes the image captured ``latency`` earlier, if one arrives now: the actual features
    ``f`` (11) plus Gaussian pixel noise, rounded to the pixel grid, turned into ``e_e`` by
@@ -17,20 +21,24 @@ The observer (12) runs between images on the joint velocities (``V_wc = J_b qd``
 integrated exactly, with ``u_e`` built from the latest ``e_e``. Images are captured at the
 first control sample at or after each camera tick ``j / camera_rate``; before the first
 image arrives the observer runs on the joints alone (``e_e = 0``).
+
+The samples between two image arrivals share one held ``e_e``, so they are integrated in
+one call (the period's map accumulated over them, :meth:`casadi.Function.mapaccum`); a
+capture whose feature has left the image is found when its image would arrive, and the
+run is cut back to the capture.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections import deque
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import casadi as cs
 import numpy as np
 
-from analysis.compile import compiled
+from analysis.compile import Buffered, compiled
 from analysis.output import interrupted
 from analysis.simulate import Settings, Simulator, Trajectory
 from models.loop import QUADRATURES, ClosedLoop
@@ -79,8 +87,21 @@ def limit_record(traj: Trajectory, limits: JointLimits) -> dict:
     }
 
 
+@dataclass(frozen=True)
+class _Stop:
+    """Why and where a sampled run ends: the law's steps kept are ``k < tau_end``, the samples
+    whose speed counts ``k < qd_end``; ``rank`` orders stops found at the same step."""
+
+    step: int
+    rank: int
+    status: str
+    message: str
+    tau_end: int
+    qd_end: int
+
+
 class SampledSimulator(Simulator):
-    """CVODES from sample to sample with the torque held, for a loop built with
+    """The loop from sample to sample with the torque held, for a loop built with
     ``sampled=True`` and the settings' implementation, image and the arm's URDF limits
     (see the module's description)."""
 
@@ -93,9 +114,57 @@ class SampledSimulator(Simulator):
         self.limits = limits = implementation.limits(loop.robot.limits)
         self.stride = round(settings.dt * implementation.control_rate)
         n = loop.robot.n
+        t, s, e = cs.MX.sym("t"), cs.MX.sym("s", loop.n_state), cs.MX.sym("e", loop.task_dim)
+        law = cs.Function("dvfc_law", [loop.t, loop.state, loop.hold], [loop.tau])
+        if settings.jit and implementation.integrator == "cvodes":  # the RK4 period is compiled whole
+            law = compiled(law, jacobian=False)
+        commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e))
+        effort = cs.DM(np.where(np.isfinite(limits.effort), limits.effort, 1e300))
+        applied = cs.fmin(cs.fmax(commanded, -effort), effort) if implementation.saturate else commanded
+        if implementation.integrator == "rk4":
+            after, quad = self._rk4(t, s, cs.vertcat(applied, e))
+        else:
+            result = self._cvodes()(x0=s, p=cs.vertcat(t, applied, e))
+            after, quad = result["xf"], result["qf"]
+        for q in loop.quaternions:
+            after[q] = after[q] / cs.norm_2(after[q])
+        period = cs.Function("dvfc_period", [s, t, e], [after, commanded, applied, quad])
+        last = cs.Function("dvfc_last", [t, s, e], [commanded, applied])  # at t = T: the law, no integration
+        if settings.jit and implementation.integrator == "rk4":
+            period, last = compiled(period, jacobian=False), compiled(last, jacobian=False)
+        self._period, self._last = period, Buffered(last)
+        self._chunks: dict[int, Buffered] = {}
+        f = cs.SX.sym("f", loop.features.numel())
+        camera = [loop.features, loop.e_e, loop.image_estimate(f), loop.camera.depths(loop.relative_pose)]
+        self._camera = cs.Function("dvfc_camera", [loop.t, loop.state, f], camera)
+        if settings.jit:
+            self._camera = compiled(self._camera, jacobian=False)
+        self._camera = Buffered(self._camera)
+        self._window = loop.camera.image_window() if settings.view and loop.camera.has_image else None
+
+    def _rk4(self, t: cs.MX, s: cs.MX, hold: cs.MX) -> tuple[cs.MX, cs.MX]:
+        """The state after one control period from ``(t, s)`` with ``hold`` held, and the
+        quadratures' increments: :attr:`Implementation.substeps` classical RK4 steps."""
+        loop = self.loop
+        rate = cs.Function("dvfc_rate", [loop.t, loop.state, loop.hold], [loop.state_rate, loop.quadratures])
+        step = self.implementation.period / self.implementation.substeps
+        quad = cs.MX.zeros(len(QUADRATURES))
+        for i in range(self.implementation.substeps):
+            t0 = t + i * step
+            k1, q1 = rate(t0, s, hold)
+            k2, q2 = rate(t0 + step / 2, s + step / 2 * k1, hold)
+            k3, q3 = rate(t0 + step / 2, s + step / 2 * k2, hold)
+            k4, q4 = rate(t0 + step, s + step * k3, hold)
+            s = s + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            quad = quad + step / 6 * (q1 + 2 * q2 + 2 * q3 + q4)
+        return s, quad
+
+    def _cvodes(self) -> cs.Function:
+        """CVODES over one control period (the reference integrator)."""
+        st = self.settings
         options = {
-            "abstol": settings.atol,
-            "reltol": settings.rtol,
+            "abstol": st.atol,
+            "reltol": st.rtol,
             "quad_err_con": True,
             "max_num_steps": 100000,
             "min_step_size": 1e-12,
@@ -105,28 +174,21 @@ class SampledSimulator(Simulator):
             "linear_multistep_method": "adams",
             "nonlinear_solver_iteration": "functional",
         }
-        integrator = cs.integrator("sampled", "cvodes", self._dae, 0.0, [implementation.period], options)
-        t, s, e = cs.MX.sym("t"), cs.MX.sym("s", loop.n_state), cs.MX.sym("e", loop.task_dim)
-        law = cs.Function("dvfc_law", [loop.t, loop.state, loop.hold], [loop.tau])
-        if settings.jit:
-            law = compiled(law, jacobian=False)
-        commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e))
-        effort = cs.DM(np.where(np.isfinite(limits.effort), limits.effort, 1e300))
-        applied = cs.fmin(cs.fmax(commanded, -effort), effort) if implementation.saturate else commanded
-        result = integrator(x0=s, p=cs.vertcat(t, applied, e))
-        self._step = cs.Function("step", [t, s, e], [commanded, applied, result["xf"], result["qf"]])
-        self._last = cs.Function("last", [t, s, e], [commanded, applied])  # at t = T: the law, no integration
-        f = cs.SX.sym("f", loop.features.numel())
-        camera = [loop.features, loop.e_e, loop.image_estimate(f), loop.camera.depths(loop.relative_pose)]
-        self._camera = cs.Function("camera", [loop.t, loop.state, f], camera)
+        return cs.integrator("sampled", "cvodes", self.dae, 0.0, [self.implementation.period], options)
+
+    def _chunk(self, count: int) -> Buffered:
+        """``count`` control periods in one call (the period's map accumulated over them)."""
+        if count not in self._chunks:
+            self._chunks[count] = Buffered(self._period.mapaccum("dvfc_chunk", count, [0], [0]))
+        return self._chunks[count]
 
     def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, str | None]:
         """The ``e_e`` of an image captured at ``(t, s)``, or the reason there is none."""
         imp = self.implementation
-        f, e_ideal, _, depth = (np.asarray(v).ravel() for v in self._camera(t, s, np.zeros(self.loop.features.numel())))
+        f, e_ideal, _, depth = (v.ravel() for v in self._camera(t, s, np.zeros(self.loop.features.numel())))
         if np.any(depth <= 0):
             return e_ideal, f"a feature point is behind the camera at t = {t:.4g} s"
-        if (outside := np.flatnonzero(self.outside_image(f[None, :])[0])).size:
+        if self._window is not None and (outside := self.loop.camera.outside_image(f)).size:
             return e_ideal, f"feature {int(outside[0])} left the image at t = {t:.4g} s"
         if self.loop.mode == "ideal":
             return e_ideal, None
@@ -135,97 +197,132 @@ class SampledSimulator(Simulator):
             camera = self.loop.camera
             offset = np.tile(camera.centre if camera.has_image else np.zeros(2), f.size // 2)
             measured = np.round((measured + offset) / imp.quantization) * imp.quantization - offset
-        return np.asarray(self._camera(t, s, measured)[2]).ravel(), None
+        return self._camera(t, s, measured)[2].ravel(), None
 
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
         """Run the sampled loop from ``s0`` over the settings' horizon."""
         st, imp, loop = self.settings, self.implementation, self.loop
-        n = loop.robot.n
+        n, h = loop.robot.n, imp.period
         steps = round(st.duration * imp.control_rate)
-        captures = set(imp.capture_steps(steps).tolist())
+        captures = imp.capture_steps(steps)
         rng = np.random.default_rng(imp.seed)
-        arrivals: deque[tuple[int, np.ndarray]] = deque()
-        e_held = np.zeros(loop.task_dim)
         s = np.asarray(s0, dtype=float).copy()
+        e_held = np.zeros(loop.task_dim)
         integral = np.zeros(len(QUADRATURES))
-        rows: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []  # (t, s, hold, integrals)
-        peaks = {key: np.zeros(n) for key in ("tau", "tau_applied", "qd")}
-        status, message = "ok", ""
+        kept = {0: s}  # states at capture steps whose image is not measured yet
+        measured = 0  # captures measured so far
+        rows: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # (k, s, hold, integrals)
+        history: dict[str, list[np.ndarray]] = {"tau": [], "tau_applied": [], "qd": []}  # per step
+        stops: list[_Stop] = []
         start = time.perf_counter()
-        chunks: list[dict[str, np.ndarray]] = []
+        signal_chunks: list[dict[str, np.ndarray]] = []
         evaluated = 0
-        n_steps = 0
-        k = 0
-        while True:
-            t = k * imp.period
-            if k in captures:
-                e_new, lost = self._measure(t, s, rng)
+
+        def measure_through(last: int) -> np.ndarray | None:
+            """Measure the captures up to step ``last`` in order; the latest ``e_e``, or None
+            (and a stop) when a feature is lost."""
+            nonlocal measured
+            e_new = None
+            while measured < len(captures) and captures[measured] <= last:
+                c = int(captures[measured])
+                e_new, lost = self._measure(c * h, kept.pop(c), rng)
+                measured += 1
                 if lost is not None:
                     status = "behind_camera" if "behind" in lost else "out_of_view"
-                    message = lost
-                    break
-                arrivals.append((k + imp.latency_steps, e_new))
-            while arrivals and arrivals[0][0] <= k:
-                e_held = arrivals.popleft()[1]
-            speed = np.abs(s[n : 2 * n])
-            peaks["qd"] = np.maximum(peaks["qd"], speed)
-            if imp.velocity_limits == "stop" and np.any(speed > self.limits.velocity):
-                j = int(np.flatnonzero(speed > self.limits.velocity)[0])
-                status = "velocity_limit"
-                message = (
-                    f"stopped at t = {t:.4g} s: joint {j + 1} speed {speed[j]:.4g} rad/s exceeds its limit "
-                    f"{self.limits.velocity[j]:.4g} rad/s"
-                )
+                    stops.append(_Stop(c, 0, status, lost, c, c))
+                    return None
+            return e_new
+
+        k = 0
+        while not stops:
+            if (e_new := measure_through(k - imp.latency_steps)) is not None:
+                e_held = e_new
+            if stops:
                 break
+            if k == steps:
+                break
+            upcoming = int(captures[measured]) + imp.latency_steps if measured < len(captures) else steps
+            end = max(k + 1, min(upcoming, steps))
+            count = end - k
+            t = (k + np.arange(count)) * h
             try:
-                step = self._last if k == steps else self._step
-                commanded, applied, *after = (np.asarray(v).ravel() for v in step(t, s, e_held))
+                after, commanded, applied, quad = self._chunk(count)(s, t, np.repeat(e_held[:, None], count, axis=1))
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc
-                status, message = "integrator_failure", f"CVODES failed between t = {t:.4g} s and the next sample"
+                message = f"CVODES failed between t = {k * h:.4g} s and t = {end * h:.4g} s"
+                stops.append(_Stop(k, 4, "integrator_failure", message, k, k))
                 break
-            n_steps += 1
-            peaks["tau"] = np.maximum(peaks["tau"], np.abs(commanded))
-            peaks["tau_applied"] = np.maximum(peaks["tau_applied"], np.abs(applied))
-            if k % self.stride == 0:
-                rows.append((t, s, np.concatenate([applied, e_held]), integral.copy()))
-            if k == steps:
+            states = np.hstack([s[:, None], after[:, :-1]])  # samples k .. end - 1
+            history["tau"].append(np.abs(commanded.T))
+            history["tau_applied"].append(np.abs(applied.T))
+            speed = np.abs(states[n : 2 * n].T)
+            history["qd"].append(speed)
+            running = integral[:, None] + np.hstack([np.zeros((len(integral), 1)), np.cumsum(quad, axis=1)])
+            for j in range(-k % self.stride, count, self.stride):
+                rows.append((k + j, states[:, j], np.concatenate([applied[:, j], e_held]), running[:, j]))
+            for c in captures[np.searchsorted(captures, k, "right") : np.searchsorted(captures, end, "right")]:
+                kept[int(c)] = after[:, c - k - 1]
+            if imp.velocity_limits == "stop" and np.any(over := speed > self.limits.velocity):
+                j, joint = (int(i[0]) for i in np.nonzero(over))
+                message = (
+                    f"stopped at t = {(k + j) * h:.4g} s: joint {joint + 1} speed {speed[j, joint]:.4g} rad/s "
+                    f"exceeds its limit {self.limits.velocity[joint]:.4g} rad/s"
+                )
+                stops.append(_Stop(k + j, 1, "velocity_limit", message, k + j, k + j + 1))
+            if not (np.isfinite(after).all() and np.isfinite(quad).all()):
+                j = int(np.flatnonzero(~np.all(np.isfinite(np.vstack([after, quad])), axis=0))[0])
+                stops.append(_Stop(k + j, 3, "diverged", f"non-finite state after t = {(k + j) * h:.4g} s",
+                                   k + j + 1, k + j + 1))  # fmt: skip
+            if stops:
                 break
-            xf, qf = after
-            if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(qf))):
-                status, message = "diverged", f"non-finite state after t = {t:.4g} s"
-                break
-            for q in loop.quaternions:
-                xf[q] /= np.linalg.norm(xf[q])
-            s, integral = xf, integral + qf
-            k += 1
+            s, integral, k = after[:, -1].copy(), running[:, -1], end
             if len(rows) - evaluated >= st.chunk:
-                singular, evaluated = self._evaluate(rows, evaluated, chunks)
+                singular, evaluated = self._evaluate(rows, evaluated, signal_chunks)
                 if singular is not None:
-                    rows = rows[:evaluated]
-                    status, message = "singular", singular
+                    r = rows[evaluated - 1][0]
+                    stops.append(_Stop(r, 2, "singular", singular, r + 1, r + 1))
                     break
                 if progress is not None:
-                    progress(t)
+                    progress(k * h)
                 if time.perf_counter() - start > st.time_budget:
-                    status = "time_budget"
-                    message = f"stopped at t = {t:.4g} s: time budget {st.time_budget:g} s exceeded"
-                    break
+                    message = f"stopped at t = {k * h:.4g} s: time budget {st.time_budget:g} s exceeded"
+                    stops.append(_Stop(k, 4, "time_budget", message, k, k))
+        if not stops:  # the sample at t = T: its speed, the law, no integration
+            history["qd"].append(np.abs(s[n : 2 * n])[None, :])
+            commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held))
+            history["tau"].append(np.abs(commanded[None, :]))
+            history["tau_applied"].append(np.abs(applied[None, :]))
+            if steps % self.stride == 0:
+                rows.append((steps, s, np.concatenate([applied, e_held]), integral))
+            stop = _Stop(steps, 5, "ok", "", steps + 1, steps + 1)
+        else:
+            stop = min(stops, key=lambda x: (x.step, x.rank))
+            measure_through(stop.step)  # a feature lost at a capture before the stop ends the run there
+            stop = min(stops, key=lambda x: (x.step, x.rank))
+        rows = [r for r in rows if r[0] < max(stop.tau_end, 1)]  # the start is always a row
         if evaluated < len(rows):
-            self._evaluate(rows, evaluated, chunks)
-        times = np.array([r[0] for r in rows])
-        signals = {name: np.concatenate([c[name] for c in chunks]) for name in chunks[0]}
+            singular, kept_rows = self._evaluate(rows, evaluated, signal_chunks)
+            if singular is not None:
+                r = rows[kept_rows - 1][0]
+                stop = _Stop(r, 2, "singular", singular, r + 1, r + 1)
+                rows = rows[:kept_rows]
+        signals = {name: np.concatenate([c[name] for c in signal_chunks])[: len(rows)] for name in signal_chunks[0]}
         signals["state"] = np.array([r[1] for r in rows])
         integrals = np.array([r[3] for r in rows])
+        ends = {"tau": stop.tau_end, "tau_applied": stop.tau_end, "qd": stop.qd_end}
+        peaks = {
+            key: np.vstack(history[key])[: ends[key]].max(axis=0, initial=0.0) if history[key] else np.zeros(n)
+            for key in history
+        }
         return Trajectory(
-            t=times,
+            t=np.array([r[0] for r in rows]) * h,
             signals=signals,
             integrals={name: integrals[:, i] for i, name in enumerate(QUADRATURES)},
-            status=status,
-            message=message,
+            status=stop.status,
+            message=stop.message,
             wall_time=time.perf_counter() - start,
-            stats={"steps": n_steps, "samples": k},
+            stats={"steps": stop.tau_end, "samples": stop.qd_end - 1},
             peaks=peaks,
         )
 
@@ -233,7 +330,7 @@ class SampledSimulator(Simulator):
         """Signals of the output rows not yet evaluated, appended to ``chunks``; returns the
         singularity message (if any) and how many rows are evaluated (kept)."""
         new = rows[evaluated:]
-        t = np.array([r[0] for r in new])
+        t = np.array([r[0] for r in new]) * self.implementation.period
         states = np.array([r[1] for r in new]).T
         holds = np.array([r[2] for r in new]).T
         chunk = self._signals(t, states, holds)

@@ -243,6 +243,8 @@ class ImplementationSection(_Strict):
     torque_scale: Positive = 1.0
     velocity_limits: Literal["report", "stop"] = "report"
     seed: int = 0
+    integrator: Literal["rk4", "cvodes"] = "rk4"
+    substeps: Annotated[int, Field(ge=1, le=1000)] = 1
 
     @model_validator(mode="after")
     def _samples(self) -> ImplementationSection:
@@ -267,6 +269,8 @@ class ImplementationSection(_Strict):
             self.torque_scale,
             self.velocity_limits,
             self.seed,
+            self.integrator,
+            self.substeps,
         )
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import casadi as cs
 import numpy as np
@@ -136,10 +137,6 @@ class Simulator:
     def __init__(self, loop: ClosedLoop, settings: Settings) -> None:
         self.loop = loop
         self.settings = settings
-        dae = dynamics_function(loop)
-        if settings.jit:
-            dae = compiled(dae)
-        self._dae = dae
         self._integrators: dict[int, cs.Function] = {}
         self.signal_names = list(loop.signals)
         self._mapped: dict[int, tuple] = {}
@@ -148,6 +145,13 @@ class Simulator:
         (arm, arm_jac), (image, image_jac) = loop.conditioning.items()
         self._monitored = (arm, image)
         self._shapes = (arm_jac.shape, image_jac.shape)
+
+    @cached_property
+    def dae(self) -> cs.Function:
+        """The DAE of :func:`dynamics_function`, compiled with its Jacobian under ``jit``
+        (built at first use: the fixed-step sampled loop never needs it)."""
+        dae = dynamics_function(self.loop)
+        return compiled(dae) if self.settings.jit else dae
 
     def integrator(self, count: int) -> cs.Function:
         """CVODES over ``count`` output steps (built once per size)."""
@@ -162,7 +166,7 @@ class Simulator:
                 "min_step_size": 1e-12,  # a collapsing step ends the run at once instead of grinding
                 "disable_internal_warnings": True,  # SUNDIALS' own lines: the run's status says it instead
             }
-            self._integrators[count] = cs.integrator("closed_loop", "cvodes", self._dae, 0.0, grid, options)
+            self._integrators[count] = cs.integrator("closed_loop", "cvodes", self.dae, 0.0, grid, options)
         return self._integrators[count]
 
     def evaluate_signals(
