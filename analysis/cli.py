@@ -40,6 +40,7 @@ from analysis.results import (
     grid_result,
     implementation_record,
     limit_search_record,
+    logged_runs,
     point_record,
     speed_theta_bar,
     verification_result,
@@ -472,6 +473,9 @@ def synthesize_command(
         Path | None, typer.Option("--out", help="Scenario file to write (default: out/<name>-synthesized.toml).")
     ] = None,
     json_target: JsonOpt = None,
+    resume: Annotated[
+        bool, typer.Option(help="Reuse the runs of an interrupted limits search ([synthesize] respect_limits).")
+    ] = False,
 ) -> None:
     """Choose diagonal gains within the [synthesize] bounds that minimise the certified gamma
     (fact 6), reach [synthesize] gamma with the smallest gains, or (objective = "target_speed")
@@ -492,11 +496,23 @@ def synthesize_command(
     design = designer(weights, spec.reference.se3(), n, theta_max=math.radians(spec.certify.theta_max_deg),
                       gamma_target=cfg.gamma, search_weights=cfg.search_weights,
                       speed=(loop.robot.mass_bounds, theta) if speed else None)  # fmt: skip
+    log = target.with_name(target.name + ".runs.jsonl")  # the limits search's runs, for --resume
+    if resume and not (cfg.respect_limits and log.exists()):
+        raise fail(f"--resume: no limits search to resume ({log} not found; needs [synthesize] respect_limits)")
     search = None
     if cfg.respect_limits:
-        with err.status("searching for the best design within the arm's limits") as status:
-            show = lambda text: status.update(f"limits search: {text}")  # noqa: E731
-            search = search_within_limits(design, bounds, design_runner(loop, s0, settings), show)
+        with (
+            resumable(f"dvfc synthesize {scenario} --out {target} --resume"),
+            err.status("searching for the best design within the arm's limits") as status,
+        ):
+            def show(text: str) -> None:
+                status.update(f"limits search: {text}")
+                if not err.is_terminal:
+                    err.print(f"limits search: {text}", markup=False, soft_wrap=True)
+
+            run = logged_runs(design_runner(loop, s0, settings), log, resume=resume)
+            search = search_within_limits(design, bounds, run, show)
+        log.unlink(missing_ok=True)  # the search is done: its runs are in the result
         result = search.result
     else:
         with err.status("solving the gain-synthesis SDP" + ("s (golden section over s)" if speed else "")):

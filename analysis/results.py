@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable
@@ -51,6 +52,33 @@ def design_runner(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> Calla
         return {"status": traj.status, "message": traj.message, **limit_record(traj, limits)}
 
     return run
+
+
+def logged_runs(run: Callable[[GainPoint], dict], log: Path, *, resume: bool) -> Callable[[GainPoint], dict]:
+    """``run`` with every run appended to ``log`` (JSON lines: the design's gains and weights,
+    and the run's record) as it finishes; with ``resume`` the runs already in ``log`` are reused
+    for the same design (a line cut short by an interruption is ignored), otherwise ``log``
+    starts empty."""
+    done: dict[str, dict] = {}
+    if resume and log.exists():
+        for line in log.read_text().splitlines():
+            try:
+                entry = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            done[entry["design"]] = entry["run"]
+    else:
+        log.unlink(missing_ok=True)
+
+    def logged(point: GainPoint) -> dict:
+        design = json.dumps([point.k_xi.tolist(), point.k_c.tolist(), point.k_e.tolist(), asdict(point.weights)])
+        if design not in done:
+            done[design] = run(point)
+            with open(log, "a") as handle:
+                handle.write(json.dumps({"design": design, "run": done[design]}) + "\n")
+        return done[design]
+
+    return logged
 
 
 def design_limits(path: Path) -> dict:

@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 from analysis.certify import GainPoint, certify, exact_gamma
 from analysis.cli import app
 from analysis.envelope import DisturbanceBounds, design_of, envelope
-from analysis.results import speed_theta_bar
+from analysis.results import logged_runs, speed_theta_bar
 from analysis.scenario import build, gain_point, load
 from analysis.synthesize import (
     FEASIBLE_STEPS,
@@ -202,6 +202,29 @@ def test_limits_search_reports_no_design_when_the_smallest_exceeds():
     search = _threshold_search(2.0, 1.5)
     assert search.chosen is None and search.result.point is None and search.runs == 2
     assert "no design within the limits" in search.result.status and "torque" in search.result.status
+
+
+def test_interrupted_limits_search_resumes_without_running_a_design_again(tmp_path):
+    """The runs logged before an interruption (the last line cut short by it) are reused on
+    ``resume`` for the same designs, each design run once in all; without ``resume`` the log
+    starts empty."""
+    calls: list[float] = []
+
+    def run(point: GainPoint) -> dict:
+        calls.append(float(point.k_xi[0]))
+        return {"status": "ok", "message": "", "torque_commanded_ratio": [point.k_xi[0] / 20.0], "speed_ratio": [0.5]}
+
+    log = tmp_path / "runs.jsonl"
+    points = [GainPoint(np.full(6, k), np.ones(6), np.ones(6), WEIGHTS) for k in (10.0, 30.0, 15.0)]
+    first = logged_runs(run, log, resume=False)
+    before = [first(p) for p in points[:2]]
+    with open(log, "a") as handle:
+        handle.write('{"design": "[[15.0')  # interrupted while writing
+    again = logged_runs(run, log, resume=True)
+    assert [again(p) for p in points][:2] == before
+    assert calls == [10.0, 30.0, 15.0]  # only the design whose line was cut short ran again
+    logged_runs(run, log, resume=False)(points[0])
+    assert calls[-1] == 10.0 and len(log.read_text().splitlines()) == 1
 
 
 def _limits_scenario(tmp_path: Path, name: str, edit=None) -> Path:
