@@ -134,9 +134,8 @@ class SampledSimulator(Simulator):
             period, last = compiled(period, jacobian=False), compiled(last, jacobian=False)
         self._period, self._last = period, Buffered(last)
         self._chunks: dict[int, Buffered] = {}
-        f = cs.SX.sym("f", loop.features.numel())
-        camera = [loop.features, loop.e_e, loop.image_estimate(f), loop.camera.depths(loop.relative_pose)]
-        self._camera = cs.Function("dvfc_camera", [loop.t, loop.state, f], camera)
+        noise = cs.SX.sym("noise", loop.features.numel())
+        self._camera = cs.Function("dvfc_camera", [loop.t, loop.state, noise], self._image(noise))
         if settings.jit:
             self._camera = compiled(self._camera, jacobian=False)
         self._camera = Buffered(self._camera)
@@ -177,42 +176,53 @@ class SampledSimulator(Simulator):
         return cs.integrator("sampled", "cvodes", self.dae, 0.0, [self.implementation.period], options)
 
     def _chunk(self, count: int) -> Buffered:
-        """``count`` control periods in one call (the period's map accumulated over them)."""
+        """``count`` control periods from ``(s, t)`` with ``e_e`` held, in one call (the period's
+        map accumulated over them): the states after each, the torques and quadratures of each."""
         if count not in self._chunks:
-            self._chunks[count] = Buffered(self._period.mapaccum("dvfc_chunk", count, [0], [0]))
+            s, t, e = cs.MX.sym("s", self.loop.n_state), cs.MX.sym("t"), cs.MX.sym("e", self.loop.task_dim)
+            times = t + self.implementation.period * cs.DM(range(count)).T
+            accumulated = self._period.mapaccum("dvfc_periods", count, [0], [0])
+            chunk = cs.Function("dvfc_chunk", [s, t, e], accumulated(s, times, cs.repmat(e, 1, count)))
+            self._chunks[count] = Buffered(chunk)
         return self._chunks[count]
+
+    def _image(self, noise: cs.SX) -> list[cs.SX]:
+        """What one image gives: the true features ``f`` (11), the exact ``e_e`` (15), the
+        ``e_e`` of (21) from ``f`` plus ``noise`` rounded (half up) to the pixel grid, and
+        the depths of the points."""
+        loop, imp = self.loop, self.implementation
+        measured = loop.features + noise
+        if imp.quantization > 0:
+            camera = loop.camera
+            offset = cs.DM(np.tile(camera.centre if camera.has_image else np.zeros(2), camera.m))
+            measured = cs.floor((measured + offset) / imp.quantization + 0.5) * imp.quantization - offset
+        return [loop.features, loop.e_e, loop.image_estimate(measured), loop.camera.depths(loop.relative_pose)]
 
     def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, str | None]:
         """The ``e_e`` of an image captured at ``(t, s)``, or the reason there is none."""
-        imp = self.implementation
-        f, e_ideal, _, depth = (v.ravel() for v in self._camera(t, s, np.zeros(self.loop.features.numel())))
+        size = self.loop.features.numel()
+        image = self.loop.mode == "image"
+        noise = self.implementation.pixel_noise * rng.standard_normal(size) if image else np.zeros(size)
+        f, e_ideal, e_image, depth = (v.ravel() for v in self._camera(t, s, noise))
         if np.any(depth <= 0):
             return e_ideal, f"a feature point is behind the camera at t = {t:.4g} s"
         if self._window is not None and (outside := self.loop.camera.outside_image(f)).size:
             return e_ideal, f"feature {int(outside[0])} left the image at t = {t:.4g} s"
-        if self.loop.mode == "ideal":
-            return e_ideal, None
-        measured = f + imp.pixel_noise * rng.standard_normal(f.size)
-        if imp.quantization > 0:
-            camera = self.loop.camera
-            offset = np.tile(camera.centre if camera.has_image else np.zeros(2), f.size // 2)
-            measured = np.round((measured + offset) / imp.quantization) * imp.quantization - offset
-        return self._camera(t, s, measured)[2].ravel(), None
+        return (e_image if image else e_ideal), None
 
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
         """Run the sampled loop from ``s0`` over the settings' horizon."""
         st, imp, loop = self.settings, self.implementation, self.loop
-        n, h = loop.robot.n, imp.period
+        n, h, lag = loop.robot.n, imp.period, imp.latency_steps
         steps = round(st.duration * imp.control_rate)
         captures = imp.capture_steps(steps)
         rng = np.random.default_rng(imp.seed)
-        s = np.asarray(s0, dtype=float).copy()
+        s = np.array(s0, dtype=float)
         e_held = np.zeros(loop.task_dim)
-        integral = np.zeros(len(QUADRATURES))
         kept = {0: s}  # states at capture steps whose image is not measured yet
         measured = 0  # captures measured so far
-        rows: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # (k, s, hold, integrals)
-        history: dict[str, list[np.ndarray]] = {"tau": [], "tau_applied": [], "qd": []}  # per step
+        rows: list[tuple[int, np.ndarray, np.ndarray]] = []  # (k, s_k, hold_k) on the output grid
+        history: dict[str, list[np.ndarray]] = {"tau": [], "tau_applied": [], "quad": [], "qd": []}  # per step
         stops: list[_Stop] = []
         start = time.perf_counter()
         signal_chunks: list[dict[str, np.ndarray]] = []
@@ -233,50 +243,50 @@ class SampledSimulator(Simulator):
                     return None
             return e_new
 
+        def check_speeds(first: int, speeds: np.ndarray) -> None:
+            """A stop at the first of the samples ``first, first + 1, ...`` (rows of ``speeds``)
+            whose speed exceeds its limit, when the implementation stops there."""
+            history["qd"].append(speeds)
+            if imp.velocity_limits == "stop" and np.any(over := speeds > self.limits.velocity):
+                j, joint = (int(i[0]) for i in np.nonzero(over))
+                message = (
+                    f"stopped at t = {(first + j) * h:.4g} s: joint {joint + 1} speed {speeds[j, joint]:.4g} rad/s "
+                    f"exceeds its limit {self.limits.velocity[joint]:.4g} rad/s"
+                )
+                stops.append(_Stop(first + j, 1, "velocity_limit", message, first + j, first + j + 1))
+
+        check_speeds(0, np.abs(s[None, n : 2 * n]))
         k = 0
         while not stops:
-            if (e_new := measure_through(k - imp.latency_steps)) is not None:
+            if (e_new := measure_through(k - lag)) is not None:
                 e_held = e_new
-            if stops:
+            if stops or k == steps:
                 break
-            if k == steps:
-                break
-            upcoming = int(captures[measured]) + imp.latency_steps if measured < len(captures) else steps
-            end = max(k + 1, min(upcoming, steps))
-            count = end - k
-            t = (k + np.arange(count)) * h
+            end = min(int(captures[measured]) + lag, steps) if measured < len(captures) else steps
             try:
-                after, commanded, applied, quad = self._chunk(count)(s, t, np.repeat(e_held[:, None], count, axis=1))
+                after, commanded, applied, quad = self._chunk(end - k)(s, k * h, e_held)
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc
                 message = f"CVODES failed between t = {k * h:.4g} s and t = {end * h:.4g} s"
-                stops.append(_Stop(k, 4, "integrator_failure", message, k, k))
+                stops.append(_Stop(k, 4, "integrator_failure", message, k, k + 1))
                 break
-            states = np.hstack([s[:, None], after[:, :-1]])  # samples k .. end - 1
             history["tau"].append(np.abs(commanded.T))
             history["tau_applied"].append(np.abs(applied.T))
-            speed = np.abs(states[n : 2 * n].T)
-            history["qd"].append(speed)
-            running = integral[:, None] + np.hstack([np.zeros((len(integral), 1)), np.cumsum(quad, axis=1)])
-            for j in range(-k % self.stride, count, self.stride):
-                rows.append((k + j, states[:, j], np.concatenate([applied[:, j], e_held]), running[:, j]))
-            for c in captures[np.searchsorted(captures, k, "right") : np.searchsorted(captures, end, "right")]:
+            history["quad"].append(quad.T)
+            for j in range(-k % self.stride, end - k, self.stride):
+                rows.append((k + j, s if j == 0 else after[:, j - 1], np.concatenate([applied[:, j], e_held])))
+            first, last = np.searchsorted(captures, [k + 1, end + 1])
+            for c in captures[first:last]:  # the captures in (k, end]
                 kept[int(c)] = after[:, c - k - 1]
-            if imp.velocity_limits == "stop" and np.any(over := speed > self.limits.velocity):
-                j, joint = (int(i[0]) for i in np.nonzero(over))
-                message = (
-                    f"stopped at t = {(k + j) * h:.4g} s: joint {joint + 1} speed {speed[j, joint]:.4g} rad/s "
-                    f"exceeds its limit {self.limits.velocity[joint]:.4g} rad/s"
-                )
-                stops.append(_Stop(k + j, 1, "velocity_limit", message, k + j, k + j + 1))
             if not (np.isfinite(after).all() and np.isfinite(quad).all()):
-                j = int(np.flatnonzero(~np.all(np.isfinite(np.vstack([after, quad])), axis=0))[0])
-                stops.append(_Stop(k + j, 3, "diverged", f"non-finite state after t = {(k + j) * h:.4g} s",
-                                   k + j + 1, k + j + 1))  # fmt: skip
+                j = int(np.flatnonzero(~np.isfinite(np.vstack([after, quad])).all(axis=0))[0])
+                message = f"non-finite state after t = {(k + j) * h:.4g} s"
+                stops.append(_Stop(k + j, 3, "diverged", message, k + j + 1, k + j + 1))
+            check_speeds(k + 1, np.abs(after[n : 2 * n].T))
             if stops:
                 break
-            s, integral, k = after[:, -1].copy(), running[:, -1], end
+            s, k = after[:, -1], end
             if len(rows) - evaluated >= st.chunk:
                 singular, evaluated = self._evaluate(rows, evaluated, signal_chunks)
                 if singular is not None:
@@ -287,18 +297,16 @@ class SampledSimulator(Simulator):
                     progress(k * h)
                 if time.perf_counter() - start > st.time_budget:
                     message = f"stopped at t = {k * h:.4g} s: time budget {st.time_budget:g} s exceeded"
-                    stops.append(_Stop(k, 4, "time_budget", message, k, k))
-        if not stops:  # the sample at t = T: its speed, the law, no integration
-            history["qd"].append(np.abs(s[n : 2 * n])[None, :])
+                    stops.append(_Stop(k, 4, "time_budget", message, k, k + 1))
+        if not stops:  # the law at t = T, no integration
             commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held))
             history["tau"].append(np.abs(commanded[None, :]))
             history["tau_applied"].append(np.abs(applied[None, :]))
             if steps % self.stride == 0:
-                rows.append((steps, s, np.concatenate([applied, e_held]), integral))
+                rows.append((steps, s, np.concatenate([applied, e_held])))
             stop = _Stop(steps, 5, "ok", "", steps + 1, steps + 1)
         else:
-            stop = min(stops, key=lambda x: (x.step, x.rank))
-            measure_through(stop.step)  # a feature lost at a capture before the stop ends the run there
+            measure_through(min(stops, key=lambda x: (x.step, x.rank)).step)  # a feature lost before ends it there
             stop = min(stops, key=lambda x: (x.step, x.rank))
         rows = [r for r in rows if r[0] < max(stop.tau_end, 1)]  # the start is always a row
         if evaluated < len(rows):
@@ -309,16 +317,16 @@ class SampledSimulator(Simulator):
                 rows = rows[:kept_rows]
         signals = {name: np.concatenate([c[name] for c in signal_chunks])[: len(rows)] for name in signal_chunks[0]}
         signals["state"] = np.array([r[1] for r in rows])
-        integrals = np.array([r[3] for r in rows])
+        steps_of_rows = np.array([r[0] for r in rows])
+        quad = np.vstack([np.zeros((1, len(QUADRATURES))), *history.pop("quad")]).cumsum(axis=0)[steps_of_rows]
         ends = {"tau": stop.tau_end, "tau_applied": stop.tau_end, "qd": stop.qd_end}
         peaks = {
-            key: np.vstack(history[key])[: ends[key]].max(axis=0, initial=0.0) if history[key] else np.zeros(n)
-            for key in history
+            key: np.vstack([np.zeros((0, n)), *v])[: ends[key]].max(axis=0, initial=0.0) for key, v in history.items()
         }
         return Trajectory(
-            t=np.array([r[0] for r in rows]) * h,
+            t=steps_of_rows * h,
             signals=signals,
-            integrals={name: integrals[:, i] for i, name in enumerate(QUADRATURES)},
+            integrals={name: quad[:, i] for i, name in enumerate(QUADRATURES)},
             status=stop.status,
             message=stop.message,
             wall_time=time.perf_counter() - start,
