@@ -193,3 +193,22 @@ def test_peaks_bound_every_output_sample(as_built):
     rows = {"tau_applied": np.abs(traj["tau_applied"]), "qd": np.abs(traj["state"][:, n : 2 * n])}
     for name, values in rows.items():
         assert np.all(traj.peaks[name] >= values.max(axis=0)), name
+
+
+def test_a_feature_lost_at_a_capture_ends_the_run_at_that_capture(as_built):
+    """The image a feature leaves is found only when it arrives (``latency`` = 10 periods
+    later), but the run ends at its capture, as a camera checking each image would: the
+    status is ``out_of_view`` at a capture sample, and no output row or torque sample lies
+    at or after it. The image is shrunk to 60 px around the features of ``t = 0``, so the
+    moving target leaves it within tenths of a second."""
+    loop, s0, settings = as_built
+    sim = as_implemented(loop, settings)
+    f0 = np.abs(sim._camera(0.0, s0, np.zeros(loop.features.numel()))[0].reshape(-1, 2)).max(axis=0)
+    small = replace(loop.camera, width=2 * (f0[0] + 30), height=2 * (f0[1] + 30), principal_point=None)
+    traj = as_implemented(replace(loop, camera=small), settings).run(s0)
+    imp = settings.implementation
+    lost = float(traj.message.split("t = ")[1].split(" s")[0])
+    captures = imp.capture_steps(round(settings.duration * imp.control_rate)) * imp.period
+    assert traj.status == "out_of_view"
+    assert np.isclose(captures, lost, rtol=0, atol=imp.period / 2).any()
+    assert traj.t[-1] < lost and traj.stats["steps"] == round(lost / imp.period)
