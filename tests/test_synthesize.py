@@ -312,3 +312,17 @@ def test_no_design_within_the_limits_is_exit_1_and_writes_nothing(tmp_path):
     assert result.exit_code == 1 and not target.exists()
     record = json.loads(result.stdout)
     assert record["point"] is None and record["status"].startswith("no design within the limits")
+
+
+def test_target_speed_design_respecting_limits_runs_within_them(tmp_path):
+    """The same search for ``objective = "target_speed"``: the speed-optimal gains exceed the
+    UR5's limits, the design written runs within them, and its certified target speed (the
+    written file's envelope) exists."""
+    synthesize_section = {"objective": "target_speed", "respect_limits": True, "k_xi": [1.0, 30.0],
+                          "k_c": [0.5, 5.0], "k_e": [0.5, 15.0]}  # fmt: skip
+    scenario = _limits_scenario(tmp_path, "speed.toml", lambda d: d.update(synthesize=synthesize_section))
+    result = runner.invoke(app, ["synthesize", str(scenario), "--out", str(tmp_path / "syn.toml"), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.stdout)
+    assert not record["limit_search"]["trials"][0]["within"] and _worst(record["limits"]) <= 1
+    assert record["max_target_speed"] is not None
