@@ -610,7 +610,8 @@ def show_margins(result: dict) -> None:
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result["margins"].items():
         value = "none in range" if m["value"] is None and m["holds_at"] is not None else fmt(m["value"])
-        table.add_row(name, f"{value} {m['unit']}", fmt(m["holds_at"]), fmt(m["breaks_at"]), m.get("reason") or "")
+        note = m.get("breaks_because") or m.get("reason") or ""
+        table.add_row(name, f"{value} {m['unit']}", fmt(m["holds_at"]), fmt(m["breaks_at"]), note)
     out.print(table)
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
     out.print(f"linearised loop's delay margin: {linear_margin_text(result)} ({result['linear_delay_margin_method']})",

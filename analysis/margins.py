@@ -82,14 +82,19 @@ def base_value(name: str, settings: Settings) -> float:
 
 
 def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) -> Settings:
-    """The settings with one parameter changed (latency rounded to whole control periods)."""
+    """The settings with one parameter changed (latency rounded to whole control periods).
+
+    A payload changes the plant's equations, so each mass is a new right-hand side: its runs
+    are made in CasADi's virtual machine (``jit = False``) rather than compiling C code for
+    every mass (see ``benchmarks/margins.py``)."""
     imp = settings.implementation
     if name == "payload_mass":
         plant = settings.plant
         r = loop.robot
         old = plant.payload if plant is not None and plant.payload is not None else Payload(0.0)
         scale = 1.0 if plant is None else plant.mass_scale
-        return replace(settings, plant=Robot(r.urdf, r.frame, r.mount, r.armature, replace(old, mass=value), scale))
+        payload = Robot(r.urdf, r.frame, r.mount, r.armature, replace(old, mass=value), scale)
+        return replace(settings, plant=payload, jit=False)
     if name == "latency":
         value = round(value * imp.control_rate) / imp.control_rate
     return replace(settings, implementation=replace(imp, **{name: value}))
@@ -129,7 +134,7 @@ def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: Trackin
         record = limit_record(traj, robot_limits(loop, settings))
         ratio = max(record["torque_commanded_ratio"])
         if ratio > 1:
-            return False, f"peak torque {ratio:.3g}x the effort limit"
+            return False, f"peak torque {ratio:.4g}x the effort limit"
     position, angle = tracking_error(traj)
     within = position <= bound.position and angle <= bound.angle_deg
     detail = (f"tracking error {position:.3g} m {'<=' if position <= bound.position else '>'} {bound.position:.3g} m, "
@@ -233,7 +238,8 @@ def search(path: str, name: str, bound: TrackingBound, log: str | None = None) -
             good = mid
         else:
             bad = mid
-    return {**margin, "value": good, "holds_at": good, "breaks_at": bad, "reason": None, "runs": len(done)}
+    return {**margin, "value": good, "holds_at": good, "breaks_at": bad, "reason": None,
+            "breaks_because": done[bad]["detail"], "runs": len(done)}  # fmt: skip
 
 
 def runs_done(directory: Path) -> int:

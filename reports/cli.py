@@ -55,7 +55,7 @@ def report(
             if not err.is_terminal:  # CI logs, nohup: one plain line a stage
                 err.print(f"report: {name} ({done + 1}/{len(STEPS) + 1})", markup=False)
 
-        data = assemble(spec, loop, s0, settings, provenance_, progress=step, cache=cache)
+        data = assemble(spec, loop, s0, settings, provenance_, progress=step, cache=cache, path=scenario)
         step("HTML and PDF")
         html, pdf = write(data, directory)
     out.print(f"report: {html}\n        {pdf}", markup=False)

@@ -1,15 +1,18 @@
 """The design-review report of a scenario: one self-contained HTML file and its PDF.
 
 :func:`assemble` runs the jobs a review signs off on (simulation of (36), the
-Theorem 2 certificate with its lower bounds, the verification of every claim, the gain
-map); :func:`render` turns them into HTML (figures inline as SVG, CSS inline, nothing
-fetched); :func:`write` saves ``report.html`` and ``report.pdf`` (WeasyPrint) atomically.
+Theorem 2 certificate with its lower bounds, the verification of every claim, the margins
+of the loop as implemented, the gain map); :func:`render` turns them into HTML (figures
+inline as SVG, CSS inline, nothing fetched); :func:`write` saves ``report.html`` and
+``report.pdf`` (WeasyPrint) atomically.
 """
 
 from __future__ import annotations
 
 import math
 import pickle
+import shutil
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +21,7 @@ import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
+from analysis.margins import MarginError, linear_margin_text, margins, run_tasks
 from analysis.output import atomic_write, interrupted
 from analysis.pose import xyz_rpy
 from analysis.results import (
@@ -33,7 +37,7 @@ from analysis.simulate import Settings, Simulator, Trajectory, identity_residual
 from models.loop import ClosedLoop
 from reports import figures
 
-STEPS = ("simulation", "certificate and lower bounds", "verification", "gain map", "figures")
+STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "gain map", "figures")
 """The stages of :func:`assemble`, in order (reported to ``progress``)."""
 
 
@@ -54,6 +58,9 @@ class ReportData:
     implemented: dict
     """The run as implemented (:func:`analysis.sampled.as_implemented`): how, its summary, and
     per joint its peak torque and speed against the URDF's limits."""
+    margins: dict | None
+    """The margins of the loop as implemented (:func:`analysis.margins.margins`), or
+    ``{"reason": ...}`` when there are none to measure; None without an ``[implementation]``."""
 
 
 CACHE = ".dvfc-report"
@@ -86,6 +93,32 @@ class StageCache:
             atomic_write(path, lambda h: h.write(payload))
         return value
 
+    def scratch(self, name: str) -> Path | None:
+        """A directory for the partial work of a stage (kept for a resumed report of the same
+        key, emptied otherwise); None when nothing is kept."""
+        if self.directory is None:
+            return None
+        path, stamp = self.directory / name, self.directory / f"{name}.key"
+        if not (self.resume and stamp.exists() and stamp.read_text() == self.key):
+            shutil.rmtree(path, ignore_errors=True)
+        path.mkdir(parents=True, exist_ok=True)
+        atomic_write(stamp, lambda h: h.write(self.key.encode()))
+        return path
+
+
+def measure_margins(path: Path, cache: StageCache) -> dict:
+    """The margins of the scenario at ``path`` (:func:`analysis.margins.margins`), measured in
+    this process; the runs are logged in the cache's scratch directory so that a resumed
+    report continues an interrupted search. ``{"reason": ...}`` when the scenario's own run
+    does not hold."""
+    scratch = cache.scratch("margins")
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            return margins(path, scratch or Path(tmp), map_tasks=lambda f, a: run_tasks(f, a, 1, None, lambda: None),
+                           resume=scratch is not None)  # fmt: skip
+        except MarginError as exc:
+            return {"reason": str(exc)}
+
 
 def assemble(
     spec: Scenario,
@@ -95,9 +128,12 @@ def assemble(
     provenance: dict,
     progress: Callable[[str], None] = lambda step: None,
     cache: StageCache | None = None,
+    path: Path | None = None,
 ) -> ReportData:
-    """Run every job of the review on the scenario; ``progress`` is told each step of
-    :data:`STEPS`; the simulation, the certificate and the verification go through ``cache``."""
+    """Run every job of the review on the scenario (read from ``path``, which the margins of
+    the loop as implemented need: without it, or without an ``[implementation]``, they are
+    not measured); ``progress`` is told each step of :data:`STEPS`; the simulation, the
+    certificate, the verification and the margins go through ``cache``."""
     stage = cache or StageCache(None, "", False)
     progress(STEPS[0])
     trajectory = stage("simulation", lambda: Simulator(loop, settings).run(s0))
@@ -107,6 +143,10 @@ def assemble(
     progress(STEPS[2])
     verification = stage("verification", lambda: verification_result(spec, loop, s0, settings, provenance)[0])
     progress(STEPS[3])
+    measured = None
+    if settings.implementation is not None and path is not None:
+        measured = stage("margins", lambda: measure_margins(path, stage))
+    progress(STEPS[4])
     point = gain_point(spec, loop.robot.n)
     axes = spec.grid.axes() if spec.grid is not None else None
     gamma_certified = certificate["points"][0]["gamma"]
@@ -120,7 +160,7 @@ def assemble(
             own = GridSpec.around(point, spec.reference.se3(), itself, None, context)
             design[quantity] = float(certify_batch(own, 0, 1)[quantity][0])
         design |= {name: axis_value(point, name) for name in (gmap.x_axis, gmap.y_axis) if name is not None}
-    progress(STEPS[4])
+    progress(STEPS[5])
     gamma = verification["gamma"]
     drawn = {
         "paths": figures.paths(trajectory),
@@ -142,7 +182,7 @@ def assemble(
     }
     return ReportData(
         spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance,
-        as_built,
+        as_built, measured,
     )  # fmt: skip
 
 
@@ -207,6 +247,8 @@ def render(data: ReportData) -> str:
         figures=data.figures,
         lemma2=supply_facts(data.trajectory),
         implemented=data.implemented,
+        margins=data.margins,
+        linear_margin=linear_margin_text(data.margins) if data.margins and "margins" in data.margins else None,
         mode=data.loop.mode,
         camera_size=(data.loop.camera.width, data.loop.camera.height),
         provenance=data.provenance,

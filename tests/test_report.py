@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from html import unescape
 from pathlib import Path
 
 import matplotlib.image as mpimg
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from analysis.margins import PARAMETERS
 from analysis.scenario import DEFAULT_SCENARIO
 from reports.cli import app
 from reports.document import CACHE
@@ -233,3 +235,26 @@ def test_as_implemented_section_states_the_limits(report):
     assert len(ratios) == 12 and max(ratios) < 1
     assert "Within the effort limits; within the velocity limits." in section
     assert re.search(r'<figure id="fig-implemented"><svg', section)
+
+
+def test_as_implemented_section_embeds_the_measured_margins(report):
+    """Section "As implemented" shows the margins measured for the report (its cached stage):
+    a row per parameter with the scenario's value, holds-at and breaks-at values and unit as
+    measured, the criterion they were judged by, and the linearised loop's delay margin, each
+    labelled as what it is (measured, or computed from eigenvalues)."""
+    html = report[0].read_text()
+    section = html[html.index("<h2>6. As implemented</h2>") : html.index("<h2>7.")]
+    stored = pickle.loads((report[0].parent / CACHE / "margins.pkl").read_bytes())["value"]
+    assert "dvfc margins" not in section and "Margins (measured)" in section and "not certificates" in section
+    assert unescape(stored["criterion"]) in unescape(section)
+    rows = section[section.index('<table id="margins">') :].split("</table>")[0].split("</tr>")[1:-1]
+    assert [re.search(r"<td>(\w+)</td>", row).group(1) for row in rows] == list(stored["margins"])
+    assert list(stored["margins"]) == list(PARAMETERS)
+    for row, m in zip(rows, stored["margins"].values(), strict=True):
+        cells = re.findall(r'<td class="num">([^<]+)</td>', row)
+        expected = [m["range"][0], m["holds_at"], m["breaks_at"], m["range"][1]]
+        assert cells == ["-" if v is None else f"{v:.4g}" for v in expected], row
+        assert f"<td>{m['unit']}</td>" in row
+    linear = section[section.index('<p id="linear-delay-margin">') :].split("</p>")[0]
+    assert stored["linear_delay_margin_status"] == "found"
+    assert f"{stored['linear_delay_margin']:.4g} s" in linear and "not measured" in linear

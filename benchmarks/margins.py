@@ -1,0 +1,76 @@
+"""Benchmark: ``margins()`` on the default scenario, against one continuous run.
+
+Times, in one process: one 10 s run of the continuous loop (compiled, the baseline), one
+run of the loop as implemented, one run with a payload made in CasADi's virtual machine
+and the same run compiled for its new plant (C code built into an empty cache: what every
+new payload mass costs when compiled), then the whole margin search of
+:func:`analysis.margins.margins` with ``--workers`` local processes (default 2). Prints the
+times and their ratios to the continuous run.
+
+    python benchmarks/margins.py [--workers N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from analysis.margins import margins, run_tasks, with_value
+from analysis.sampled import as_implemented
+from analysis.scenario import DEFAULT_SCENARIO, build, load
+
+
+def timed(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--workers", type=int, default=2)
+    workers = parser.parse_args().workers
+    spec, base = load(DEFAULT_SCENARIO)
+    loop, s0, settings = build(spec, base)
+    continuous = as_implemented(loop, replace(settings, implementation=None, plant=None))
+    continuous.run(s0)  # compiled (or loaded from the cache) before timing
+    t_continuous = timed(lambda: continuous.run(s0))
+    sampled = as_implemented(loop, settings)
+    sampled.run(s0)
+    t_sampled = timed(lambda: sampled.run(s0))
+    payload = with_value(loop, settings, "payload_mass", 1.0)
+    t_vm = timed(lambda: as_implemented(loop, payload).run(s0))
+    with tempfile.TemporaryDirectory() as cache:
+        previous = os.environ.get("DVFC_CACHE")
+        os.environ["DVFC_CACHE"] = cache
+        try:
+            t_jit = timed(lambda: as_implemented(loop, replace(payload, jit=True)).run(s0))
+        finally:
+            os.environ.pop("DVFC_CACHE") if previous is None else os.environ.update(DVFC_CACHE=previous)
+    with tempfile.TemporaryDirectory() as directory:
+        start = time.perf_counter()
+        result = margins(DEFAULT_SCENARIO, Path(directory),
+                         map_tasks=lambda f, a: run_tasks(f, a, workers, None, lambda: None))  # fmt: skip
+        t_margins = time.perf_counter() - start
+    runs = sum(m.get("runs", 0) for m in result["margins"].values())
+    print(f"default scenario, {settings.duration:g} s runs, {os.cpu_count()} cores, {workers} workers")
+    rows = (
+        ("continuous run, compiled (baseline)", t_continuous),
+        ("run as implemented, compiled", t_sampled),
+        ("payload run, virtual machine", t_vm),
+        ("payload run, compiled for its plant", t_jit),
+        (f"margins(), {runs} runs + 2", t_margins),
+    )
+    for label, seconds in rows:
+        print(f"  {label:40s} {seconds:8.2f} s   {seconds / t_continuous:8.1f}x the baseline")
+    for name, m in result["margins"].items():
+        print(f"  {name:14s} holds at {m['holds_at']!s:>22}  breaks at {m['breaks_at']!s:>22}  {m['unit']}")
+    print(f"  linear delay margin {result['linear_delay_margin']} s ({result['linear_delay_margin_status']})")
+
+
+if __name__ == "__main__":
+    main()
