@@ -228,7 +228,7 @@ def test_as_implemented_section_states_the_limits(report):
     html = report[0].read_text()
     section = html[html.index("<h2>6. As implemented</h2>") : html.index("<h2>7.")]
     assert "500 Hz" in section and "60 Hz" in section and "20 ms" in section and "not certificates" in section
-    rows = section[section.index('<table id="limits">') :].split("</tr>")[1:-1]
+    rows = section[section.index('<table id="limits">') :].split("</table>")[0].split("</tr>")[1:-1]
     assert len(rows) == 6
     cells = [re.findall(r'<td class="num">([0-9.e+-]+)</td>', row) for row in rows]
     ratios = [float(c[i]) for c in cells for i in (3, 6)]  # torque / effort, speed / velocity
