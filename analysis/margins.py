@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import wait as futures_wait
@@ -27,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.linearize import PADE_ORDER, delay_loop, delay_margin
+from analysis.output import interrupted
 from analysis.results import envelope_record
 from analysis.sampled import as_implemented, limit_record, robot_limits
 from analysis.scenario import Scenario, ScenarioError, build, gain_point, load
@@ -193,12 +195,14 @@ def tracking_bound(path: str) -> TrackingBound:
 
 
 def trial(path: str, name: str, value: float, bound: TrackingBound) -> dict:
-    """One run at ``name = value`` judged against ``bound``."""
+    """One run at ``name = value`` judged against ``bound``, with its wall time (s, setting
+    up the simulator included)."""
     _, loop, s0, settings = _scenario(path)
+    start = time.perf_counter()
     changed = with_value(loop, settings, name, value)
     traj = as_implemented(loop, changed).run(s0)
     holds, detail = judge(traj, loop, changed, bound)
-    return {"value": value, "holds": holds, "detail": detail}
+    return {"value": value, "holds": holds, "detail": detail, "seconds": time.perf_counter() - start}
 
 
 def search(path: str, name: str, bound: TrackingBound, log: str | None = None) -> dict:
@@ -216,6 +220,8 @@ def search(path: str, name: str, bound: TrackingBound, log: str | None = None) -
     def run(value: float) -> bool:
         if value not in done:
             done[value] = trial(path, name, value, bound)
+            if interrupted(None):  # Ctrl-C swallowed by native code: the run may be cut short, not logged
+                raise KeyboardInterrupt
             if log is not None:
                 with open(log, "a") as handle:
                     handle.write(json.dumps(done[value]) + "\n")

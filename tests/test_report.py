@@ -198,26 +198,35 @@ def test_grid_scenario_maps_its_first_two_axes(tmp_path):
 
 
 def test_interrupted_report_resumes(tmp_path):
-    """SIGINT after the simulation: exit 130 with one line naming --resume; the resumed report
-    reuses the finished stage (its file untouched) and completes."""
-    text = DEFAULT_SCENARIO.read_text().replace("duration = 10.0", "duration = 3.0")
+    """SIGINT while the margins are being measured (after the simulation, certificate and
+    verification stages): exit 130 with one line naming --resume; the resumed report redoes
+    nothing finished (the stages' files untouched, the margin runs logged before the
+    interruption reused, none repeated) and completes."""
+    text = DEFAULT_SCENARIO.read_text().replace("duration = 10.0", "duration = 1.0")
     scenario = tmp_path / "short.toml"
     scenario.write_text(text)
     out = tmp_path / "out"
     command = [sys.executable, "-m", "reports", "report", str(scenario), "--out", str(out)]
     proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    finished = out / CACHE / "simulation.pkl"
+    logs = out / CACHE / "margins"
+    logged = lambda: {p.name: p.read_text().splitlines() for p in logs.glob("*.jsonl")}  # noqa: E731
     deadline = time.monotonic() + 300
-    while time.monotonic() < deadline and proc.poll() is None and not finished.exists():
+    while time.monotonic() < deadline and proc.poll() is None and not any(logged().values()):
         time.sleep(0.01)
     proc.send_signal(signal.SIGINT)
     code, stderr = proc.wait(), proc.stderr.read()
     assert code == 130 and "--resume" in stderr.strip().splitlines()[-1], stderr
-    assert not (out / "report.html").exists()
-    stamp = finished.stat().st_mtime_ns
+    assert not (out / "report.html").exists() and not (out / CACHE / "margins.pkl").exists()
+    finished = {p: p.stat().st_mtime_ns for p in (out / CACHE).glob("*.pkl")}
+    assert {p.stem for p in finished} >= {"simulation", "certificate", "verification"}
+    before = logged()
     resumed = subprocess.run([*command, "--resume"], capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr
-    assert finished.stat().st_mtime_ns == stamp and (out / "report.pdf").exists()
+    assert all(p.stat().st_mtime_ns == stamp for p, stamp in finished.items()) and (out / "report.pdf").exists()
+    after = logged()
+    for name, lines in before.items():
+        values = [json.loads(line)["value"] for line in after[name]]
+        assert after[name][: len(lines)] == lines and len(values) == len(set(values)), name
 
 
 def test_as_implemented_section_states_the_limits(report):
