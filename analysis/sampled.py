@@ -139,7 +139,9 @@ class SampledSimulator(Simulator):
         if settings.jit:
             self._camera = compiled(self._camera, jacobian=False)
         self._camera = Buffered(self._camera)
-        self._window = loop.camera.image_window() if settings.view and loop.camera.has_image else None
+        self._window = None  # the image as bounds on f, point by point (when the run checks it)
+        if settings.view and loop.camera.has_image:
+            self._window = tuple(np.tile(bound, loop.camera.m) for bound in loop.camera.image_window())
 
     def _rk4(self, t: cs.MX, s: cs.MX, hold: cs.MX) -> tuple[cs.MX, cs.MX]:
         """The state after one control period from ``(t, s)`` with ``hold`` held, and the
@@ -206,7 +208,8 @@ class SampledSimulator(Simulator):
         f, e_ideal, e_image, depth = (v.ravel() for v in self._camera(t, s, noise))
         if np.any(depth <= 0):
             return e_ideal, f"a feature point is behind the camera at t = {t:.4g} s"
-        if self._window is not None and (outside := self.loop.camera.outside_image(f)).size:
+        if self._window is not None and (np.any(f < self._window[0]) or np.any(f > self._window[1])):
+            outside = self.loop.camera.outside_image(f)
             return e_ideal, f"feature {int(outside[0])} left the image at t = {t:.4g} s"
         return (e_image if image else e_ideal), None
 
