@@ -169,6 +169,7 @@ class SampledSimulator(Simulator):
             "quad_err_con": True,
             "max_num_steps": 100000,
             "min_step_size": 1e-12,
+            "disable_internal_warnings": True,  # SUNDIALS' own lines: the run's status says it instead
             # Adams with fixed-point iteration: over one control period the held-torque
             # dynamics are not stiff, and no Jacobian is formed at each of the many restarts
             # (about 15x faster than BDF/Newton here at the same tolerances).
