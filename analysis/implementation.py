@@ -66,6 +66,8 @@ class Implementation:
 
     def capture_steps(self, steps: int) -> np.ndarray:
         """Control samples at which images are captured: the first at or after each camera
-        tick, over ``steps`` samples."""
-        ticks = np.arange(math.floor(steps * self.period * self.camera_rate) + 1) / self.camera_rate
-        return np.unique(np.ceil(ticks * self.control_rate - 1e-9).astype(int))
+        tick, over ``steps`` samples (ticks at whole multiples of ``control_rate /
+        camera_rate`` samples, so that a tick exactly at the last sample is not lost to
+        rounding)."""
+        ticks = np.arange(math.floor(steps * self.camera_rate / self.control_rate + 1e-9) + 1)
+        return np.unique(np.ceil(ticks * self.control_rate / self.camera_rate - 1e-9).astype(int))

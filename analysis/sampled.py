@@ -115,11 +115,12 @@ class SampledSimulator(Simulator):
         self.stride = round(settings.dt * implementation.control_rate)
         n = loop.robot.n
         t, s, e = cs.MX.sym("t"), cs.MX.sym("s", loop.n_state), cs.MX.sym("e", loop.task_dim)
+        effort = cs.MX.sym("effort", n)  # an input, so that another torque scale needs no new code
+        self._effort = np.where(np.isfinite(limits.effort), limits.effort, 1e300)
         law = cs.Function("dvfc_law", [loop.t, loop.state, loop.hold], [loop.tau])
         if settings.jit and implementation.integrator == "cvodes":  # the RK4 period is compiled whole
             law = compiled(law, jacobian=False)
         commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e))
-        effort = cs.DM(np.where(np.isfinite(limits.effort), limits.effort, 1e300))
         applied = cs.fmin(cs.fmax(commanded, -effort), effort) if implementation.saturate else commanded
         if implementation.integrator == "rk4":
             after, quad = self._rk4(t, s, cs.vertcat(applied, e))
@@ -128,8 +129,8 @@ class SampledSimulator(Simulator):
             after, quad = result["xf"], result["qf"]
         for q in loop.quaternions:
             after[q] = after[q] / cs.norm_2(after[q])
-        period = cs.Function("dvfc_period", [s, t, e], [after, commanded, applied, quad])
-        last = cs.Function("dvfc_last", [t, s, e], [commanded, applied])  # at t = T: the law, no integration
+        period = cs.Function("dvfc_period", [s, t, e, effort], [after, commanded, applied, quad])
+        last = cs.Function("dvfc_last", [t, s, e, effort], [commanded, applied])  # at t = T: the law, no integration
         if settings.jit and implementation.integrator == "rk4":
             period, last = compiled(period, jacobian=False), compiled(last, jacobian=False)
         self._period, self._last = period, Buffered(last)
@@ -183,9 +184,11 @@ class SampledSimulator(Simulator):
         map accumulated over them): the states after each, the torques and quadratures of each."""
         if count not in self._chunks:
             s, t, e = cs.MX.sym("s", self.loop.n_state), cs.MX.sym("t"), cs.MX.sym("e", self.loop.task_dim)
+            effort = cs.MX.sym("effort", self.loop.robot.n)
             times = t + self.implementation.period * cs.DM(range(count)).T
             accumulated = self._period.mapaccum("dvfc_periods", count, [0], [0])
-            chunk = cs.Function("dvfc_chunk", [s, t, e], accumulated(s, times, cs.repmat(e, 1, count)))
+            held = [cs.repmat(e, 1, count), cs.repmat(effort, 1, count)]
+            chunk = cs.Function("dvfc_chunk", [s, t, e, effort], accumulated(s, times, *held))
             self._chunks[count] = Buffered(chunk)
         return self._chunks[count]
 
@@ -268,7 +271,7 @@ class SampledSimulator(Simulator):
                 break
             end = min(int(captures[measured]) + lag, steps) if measured < len(captures) else steps
             try:
-                after, commanded, applied, quad = self._chunk(end - k)(s, k * h, e_held)
+                after, commanded, applied, quad = self._chunk(end - k)(s, k * h, e_held, self._effort)
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc
@@ -302,8 +305,10 @@ class SampledSimulator(Simulator):
                 if time.perf_counter() - start > st.time_budget:
                     message = f"stopped at t = {k * h:.4g} s: time budget {st.time_budget:g} s exceeded"
                     stops.append(_Stop(k, 4, "time_budget", message, k, k + 1))
+        if not stops:  # images captured in the last latency arrive after T; a feature lost in one ends the run
+            measure_through(steps)
         if not stops:  # the law at t = T, no integration
-            commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held))
+            commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held, self._effort))
             history["tau"].append(np.abs(commanded[None, :]))
             history["tau_applied"].append(np.abs(applied[None, :]))
             if steps % self.stride == 0:
@@ -312,6 +317,8 @@ class SampledSimulator(Simulator):
         else:
             measure_through(min(stops, key=lambda x: (x.step, x.rank)).step)  # a feature lost before ends it there
             stop = min(stops, key=lambda x: (x.step, x.rank))
+        if not rows:  # stopped before the first period: the start is still a row (no torque counted)
+            rows.append((0, s, np.concatenate([self._last(0.0, s, e_held, self._effort)[1].ravel(), e_held])))
         rows = [r for r in rows if r[0] < max(stop.tau_end, 1)]  # the start is always a row
         if evaluated < len(rows):
             singular, kept_rows = self._evaluate(rows, evaluated, signal_chunks)

@@ -3,7 +3,9 @@ actuator saturation. Each property against the continuous loop integrated by CVO
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
+from fractions import Fraction
 
 import casadi as cs
 import numpy as np
@@ -212,3 +214,61 @@ def test_a_feature_lost_at_a_capture_ends_the_run_at_that_capture(as_built):
     assert traj.status == "out_of_view"
     assert np.isclose(captures, lost, rtol=0, atol=imp.period / 2).any()
     assert traj.t[-1] < lost and traj.stats["steps"] == round(lost / imp.period)
+
+
+def test_a_feature_lost_in_an_image_arriving_after_the_horizon_still_ends_the_run(as_built):
+    """The image captured at the last sample arrives after T, but a feature it has lost ends
+    the run at that capture all the same: the border is put between the farthest a feature
+    reaches at the earlier captures and at the last one (on a side where the last is farther)."""
+    loop, s0, settings = as_built
+    imp = settings.implementation
+    fine = replace(settings, dt=imp.period)  # every sample a row
+    traj = as_implemented(loop, fine).run(s0)
+    steps = round(settings.duration * imp.control_rate)
+    captures = imp.capture_steps(steps)
+    assert captures[-1] == steps and imp.latency_steps > 0
+    sim = as_implemented(loop, fine)
+    f = np.array([sim._camera(c * imp.period, traj["state"][c], np.zeros(loop.features.numel()))[0] for c in captures])
+    xy = f.reshape(len(captures), -1, 2)
+    x, y = xy[:, :, 0], xy[:, :, 1]
+    reach = {"right": x.max(1), "left": -x.min(1), "down": y.max(1), "up": -y.min(1)}
+    side = next(s for s, r in reach.items() if r[-1] > r[:-1].max())
+    border = (reach[side][:-1].max() + reach[side][-1]) / 2
+    far = 2000.0
+    left, right, up, down = (border if side == name else far for name in ("left", "right", "up", "down"))
+    camera = replace(loop.camera, width=left + right, height=up + down, principal_point=(left, up))
+    cut = as_implemented(replace(loop, camera=camera), fine).run(s0)
+    assert cut.status == "out_of_view", cut.message
+    assert cut.stats["steps"] == steps and cut.t[-1] < steps * imp.period
+
+
+def test_captures_are_the_first_samples_at_or_after_each_camera_tick():
+    """Against exact rational arithmetic (``fractions``) over 7 control rates x 9 camera rates
+    x horizons of 1 to 600 samples: the capture of tick ``j`` is ``ceil(j f_c / f_cam)``,
+    for every tick up to the last sample, the tick exactly at the last sample included."""
+    for control in (100, 200, 250, 500, 1000, 1250, 2000):
+        for camera in (7, 24, 25, 30, 50, 60, 90, 100, 200):
+            if camera > control:
+                continue
+            imp = Implementation(float(control), float(camera))
+            for steps in range(1, 601):
+                ticks = range(math.floor(Fraction(steps * camera, control)) + 1)
+                exact = sorted({math.ceil(Fraction(j * control, camera)) for j in ticks})
+                assert imp.capture_steps(steps).tolist() == exact, (control, camera, steps)
+
+
+def test_a_run_stopped_at_its_first_sample_keeps_the_start(as_built):
+    """With ``velocity_limits = "stop"`` and the start already faster than the limit, the run
+    ends at t = 0: status ``velocity_limit``, the start as its one row, the start's speed as
+    the peak and no torque counted (the law never acts)."""
+    loop, s0, settings = as_built
+    n = loop.robot.n
+    start = np.array(s0, dtype=float)
+    start[n : 2 * n] = 0.01
+    stopping = replace(settings, implementation=replace(settings.implementation, velocity_limits="stop"))
+    sim = as_implemented(loop, stopping)
+    sim.limits = replace(sim.limits, velocity=np.full(n, 0.005))
+    traj = sim.run(start)
+    assert traj.status == "velocity_limit", traj.message
+    assert traj.t.tolist() == [0.0] and np.allclose(traj.peaks["qd"], 0.01, rtol=0, atol=1e-15)
+    assert np.all(traj.peaks["tau"] == 0) and traj.stats["steps"] == 0
