@@ -67,9 +67,10 @@ def main() -> None:
     )
     for label, seconds in rows:
         print(f"  {label:40s} {seconds:8.2f} s   {seconds / t_continuous:8.1f}x the baseline")
+    fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result["margins"].items():
-        print(f"  {name:14s} holds at {m['holds_at']!s:>22}  breaks at {m['breaks_at']!s:>22}  {m['unit']}")
-    print(f"  linear delay margin {result['linear_delay_margin']} s ({result['linear_delay_margin_status']})")
+        print(f"  {name:14s} holds at {fmt(m['holds_at']):>8}  breaks at {fmt(m['breaks_at']):>8}  {m['unit']}")
+    print(f"  linear delay margin {fmt(result['linear_delay_margin'])} s ({result['linear_delay_margin_status']})")
 
 
 if __name__ == "__main__":
