@@ -86,10 +86,10 @@ def base_value(name: str, settings: Settings) -> float:
 def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) -> Settings:
     """The settings with one parameter changed (latency rounded to whole control periods).
 
-    A payload changes the plant's equations, and a torque scale the clipping when
-    ``saturate`` is on, so each value is a new right-hand side: those runs are made in
-    CasADi's virtual machine (``jit = False``) rather than compiling C code for every value
-    (see ``benchmarks/margins.py``)."""
+    A payload changes the plant's equations, so each mass is a new right-hand side: its runs
+    are made in CasADi's virtual machine (``jit = False``) rather than compiling C code for
+    every mass (see ``benchmarks/margins.py``). The other parameters are inputs of the
+    compiled code, or act between its calls."""
     imp = settings.implementation
     if name == "payload_mass":
         plant = settings.plant
@@ -100,8 +100,7 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
         return replace(settings, plant=payload, jit=False)
     if name == "latency":
         value = round(value * imp.control_rate) / imp.control_rate
-    jit = settings.jit and not (name == "torque_scale" and imp.saturate)
-    return replace(settings, implementation=replace(imp, **{name: value}), jit=jit)
+    return replace(settings, implementation=replace(imp, **{name: value}))
 
 
 @dataclass(frozen=True)
