@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from analysis.cli import app
 from analysis.linearize import DelayLoop, delay_loop, delay_margin
-from analysis.margins import PARAMETERS, search, tracking_bound, tracking_error, trial
+from analysis.margins import PARAMETERS, linear_margin_text, search, tracking_bound, tracking_error, trial
 from analysis.sampled import as_implemented
 from analysis.scenario import DEFAULT_SCENARIO, build, load
 
@@ -106,22 +106,24 @@ def test_linear_delay_margin_matches_a_simulation_of_the_delayed_loop():
 
 
 @pytest.mark.parametrize(
-    ("a", "bc", "status", "value"),
+    ("a", "bc", "status", "value", "words"),
     [
-        (0.0, -2.0, "found", np.pi / 4),
-        (-1.0, 0.0, "stable_over_range", None),
-        (1.0, 0.0, "unstable_at_zero_delay", None),
+        (0.0, -2.0, "found", np.pi / 4, "0.7854 s"),
+        (-1.0, 0.0, "stable_over_range", None, "none: stable for every delay searched"),
+        (1.0, 0.0, "unstable_at_zero_delay", None, "none: the linearised loop is unstable without delay"),
     ],
 )
-def test_delay_margin_says_why_there_is_none(a, bc, status, value):
+def test_delay_margin_says_why_there_is_none(a, bc, status, value, words):
     """The linearised delay margin is unambiguous: on scalar loops ``dz/dt = a z + bc z(t - L)``
     whose margins are known in closed form, ``-2 z(t - L)`` has ``L = pi/4`` (crossover at
     ``omega = 2``, where the delay's phase ``-omega L`` reaches ``-pi/2``; Pade order 8 matches
     that phase to round-off at ``omega L = pi/2``, so the bisection's 1e-5 s sets the
     tolerance), ``-z`` without delayed feedback is stable for every delay searched (to 1 s),
-    and ``+z`` is unstable with none."""
+    and ``+z`` is unstable with none. The human output says the same in words."""
     margin = delay_margin(DelayLoop(np.array([[a]]), np.array([[bc]]), np.array([[1.0]]), np.zeros(0)))
     assert margin.status == status
+    record = {"linear_delay_margin": margin.value, "linear_delay_margin_status": margin.status}
+    assert linear_margin_text(record) == words
     if value is None:
         assert margin.value is None
     else:
