@@ -13,12 +13,14 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 
-CC_FLAGS = ("-O1", "-shared", "-fPIC")
+CC_FLAGS = ("-shared", "-fPIC")
 JACOBIAN_PRAGMA = '#pragma GCC optimize ("O0")\n'
 """The generated Jacobian is large (about 1e5 operations): gcc needs minutes to optimise
 it but ten seconds to build it at -O0, where it still runs several times faster than
 CasADi's virtual machine. The function itself is optimised (-O1); the pragma switches
-the optimiser off from the Jacobian's body on."""
+the optimiser off from the Jacobian's body on. A function without Jacobian that runs
+thousands of times per run (the sampled loop's control period) is worth ``-O2``: about
+10 s more to build once, about 10% faster."""
 
 
 def cache_dir() -> Path:
@@ -42,12 +44,13 @@ def _source(function: cs.Function, jacobian: bool, directory: str) -> str:
     return text
 
 
-def compiled(function: cs.Function, *, jacobian: bool = True) -> cs.Function:
+def compiled(function: cs.Function, *, jacobian: bool = True, level: str = "-O1") -> cs.Function:
     """``function`` (and its Jacobian) as compiled C, loaded as a CasADi external.
 
     The Jacobian is generated under CasADi's name ``jac_<name>`` so that the
-    external function differentiates through it. Falls back to ``function`` itself
-    (CasADi's virtual machine) when no C compiler is on the PATH.
+    external function differentiates through it, built at the optimisation ``level``
+    (see :data:`JACOBIAN_PRAGMA`). Falls back to ``function`` itself (CasADi's virtual
+    machine) when no C compiler is on the PATH.
     """
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
@@ -55,14 +58,15 @@ def compiled(function: cs.Function, *, jacobian: bool = True) -> cs.Function:
     name = function.name()
     with tempfile.TemporaryDirectory() as tmp:
         text = _source(function, jacobian, tmp)
-        digest = hashlib.sha256((text + " ".join(CC_FLAGS)).encode()).hexdigest()[:24]
+        flags = (level, *CC_FLAGS)
+        digest = hashlib.sha256((text + " ".join(flags)).encode()).hexdigest()[:24]
         library = cache_dir() / f"{name}-{digest}.so"
         if not library.exists():
             library.parent.mkdir(parents=True, exist_ok=True)
             source = Path(tmp) / f"{name}-final.c"
             source.write_text(text)
             partial = library.with_suffix(f".{os.getpid()}.tmp")
-            subprocess.run([compiler, *CC_FLAGS, str(source), "-o", str(partial)], check=True, capture_output=True)
+            subprocess.run([compiler, *flags, str(source), "-o", str(partial)], check=True, capture_output=True)
             partial.replace(library)
     return cs.external(name, str(library))
 
@@ -84,10 +88,11 @@ class Buffered:
             self.buffer.set_arg(i, memoryview(array))
         for i, array in enumerate(self.outputs):
             self.buffer.set_res(i, memoryview(array))
+        self._targets = [array[0] if len(array) == 1 else array.T for array in self.inputs]  # vectors flat
 
     def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:
         """The outputs (new arrays, CasADi's shapes) at ``args`` (CasADi's shapes; vectors flat)."""
-        for array, value in zip(self.inputs, args, strict=True):
-            array[...] = np.reshape(value, array.shape[::-1]).T
+        for target, value in zip(self._targets, args, strict=True):
+            target[...] = np.reshape(value, target.shape)
         self.trigger()
         return [array.T.copy() for array in self.outputs]

@@ -132,7 +132,7 @@ class SampledSimulator(Simulator):
         period = cs.Function("dvfc_period", [s, t, e, effort], [after, commanded, applied, quad])
         last = cs.Function("dvfc_last", [t, s, e, effort], [commanded, applied])  # at t = T: the law, no integration
         if settings.jit and implementation.integrator == "rk4":
-            period, last = compiled(period, jacobian=False), compiled(last, jacobian=False)
+            period, last = compiled(period, jacobian=False, level="-O2"), compiled(last, jacobian=False)
         self._period, self._last = period, Buffered(last)
         self._chunks: dict[int, Buffered] = {}
         noise = cs.SX.sym("noise", loop.features.numel())
@@ -180,16 +180,12 @@ class SampledSimulator(Simulator):
         return cs.integrator("sampled", "cvodes", self.dae, 0.0, [self.implementation.period], options)
 
     def _chunk(self, count: int) -> Buffered:
-        """``count`` control periods from ``(s, t)`` with ``e_e`` held, in one call (the period's
-        map accumulated over them): the states after each, the torques and quadratures of each."""
+        """``count`` control periods in one call: the period's map accumulated over them, from
+        the state at the first, with the times, the held ``e_e`` and the effort limits of each
+        (one column per period); the states after each, the torques and quadratures of each.
+        (Given the columns, not built from one, the call costs about half as much.)"""
         if count not in self._chunks:
-            s, t, e = cs.MX.sym("s", self.loop.n_state), cs.MX.sym("t"), cs.MX.sym("e", self.loop.task_dim)
-            effort = cs.MX.sym("effort", self.loop.robot.n)
-            times = t + self.implementation.period * cs.DM(range(count)).T
-            accumulated = self._period.mapaccum("dvfc_periods", count, [0], [0])
-            held = [cs.repmat(e, 1, count), cs.repmat(effort, 1, count)]
-            chunk = cs.Function("dvfc_chunk", [s, t, e, effort], accumulated(s, times, *held))
-            self._chunks[count] = Buffered(chunk)
+            self._chunks[count] = Buffered(self._period.mapaccum("dvfc_chunk", count, [0], [0]))
         return self._chunks[count]
 
     def _image(self, noise: cs.SX) -> list[cs.SX]:
@@ -271,7 +267,8 @@ class SampledSimulator(Simulator):
                 break
             end = min(int(captures[measured]) + lag, steps) if measured < len(captures) else steps
             try:
-                after, commanded, applied, quad = self._chunk(end - k)(s, k * h, e_held, self._effort)
+                held = (np.repeat(v[:, None], end - k, 1) for v in (e_held, self._effort))
+                after, commanded, applied, quad = self._chunk(end - k)(s, np.arange(k, end) * h, *held)
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc

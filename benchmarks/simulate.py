@@ -23,7 +23,7 @@ from analysis.scenario import DEFAULT_SCENARIO, build, load
 from analysis.simulate import Simulator
 
 
-def best_of(fn, repeat: int = 3) -> float:
+def best_of(fn, repeat: int = 5) -> float:
     times = []
     for _ in range(repeat):
         start = time.perf_counter()
