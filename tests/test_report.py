@@ -231,12 +231,13 @@ def test_interrupted_report_resumes(tmp_path):
 
 def test_as_implemented_section_states_the_limits(report):
     """Section "As implemented": the sampled run of the default example (500 Hz, 60 Hz camera,
-    20 ms), labelled as a measurement, per joint its peak torque and speed against the URDF's
+    20 ms, RK4 between samples), labelled as a measurement, per joint its peak torque and speed against the URDF's
     limits (six rows, each ratio below 1: the default stays within them), and its feature
     tracks drawn inside the image border."""
     html = report[0].read_text()
     section = html[html.index("<h2>6. As implemented</h2>") : html.index("<h2>7.")]
     assert "500 Hz" in section and "60 Hz" in section and "20 ms" in section and "not certificates" in section
+    assert "by RK4 in 1 step per period" in section
     rows = section[section.index('<table id="limits">') :].split("</table>")[0].split("</tr>")[1:-1]
     assert len(rows) == 6
     cells = [re.findall(r'<td class="num">([0-9.e+-]+)</td>', row) for row in rows]
