@@ -104,8 +104,14 @@ def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target:
     problem = cp.Problem(objective, constraints)
     if solve(problem)[0] is None:
         return None
+    return _clipped(bounds, k_xi, k_c, k_ep, k_er)
+
+
+def _clipped(bounds: Bounds, k_xi: cp.Variable, k_c: cp.Variable, k_ep: cp.Variable, k_er: cp.Variable):
+    """The solved gains ``(K_xi, K_c, K_e)`` clipped to ``bounds`` (the solver's round-off can
+    step outside them)."""
+    clip = lambda v, b: np.clip(np.asarray(v, dtype=float), *b)  # noqa: E731
     k_e = np.repeat([float(k_ep.value), float(k_er.value)], 3)
-    clip = lambda v, b: np.clip(np.asarray(v, dtype=float), *b)  # noqa: E731  (solver round-off)
     return clip(k_xi.value, bounds.k_xi), clip(k_c.value, bounds.k_c), clip(k_e, bounds.k_e)
 
 
@@ -206,9 +212,7 @@ def synthesize_speed(
     best = float(golden_max(lambda x: np.array([value(float(v)) for v in x]), np.array([top]), GOLDEN_STEPS)[0])
     if value(best) <= 0:  # also leaves the solver's variables at the chosen s
         return failed
-    clip = lambda v, b: np.clip(np.asarray(v, dtype=float), *b)  # noqa: E731  (solver round-off)
-    k_e = np.repeat([float(k_ep.value), float(k_er.value)], 3)
-    point = GainPoint(clip(k_xi.value, bounds.k_xi), clip(k_c.value, bounds.k_c), clip(k_e, bounds.k_e), weights)
+    point = GainPoint(*_clipped(bounds, k_xi, k_c, k_ep, k_er), weights)
     cert = certify(point, reference, theta_max=theta_max)
     return Synthesis(point, cert, "ok")
 
