@@ -41,6 +41,7 @@ mutate: install
 bench: install
 	$(BIN)/python benchmarks/simulate.py
 	$(BIN)/python benchmarks/certify.py
+	$(BIN)/python benchmarks/margins.py
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

@@ -35,7 +35,7 @@ class Implementation:
         How the held-torque dynamics are integrated from one sample to the next: ``"rk4"``,
         the classical fourth-order Runge-Kutta method in ``substeps`` equal steps per control
         period (error ``O((h/substeps)^4)``), or ``"cvodes"``, CVODES restarted at every
-        sample with the run's error tolerances (about 15x slower).
+        sample with the run's error tolerances (about 5x slower).
     """
 
     control_rate: float
