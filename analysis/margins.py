@@ -5,8 +5,10 @@ For each parameter of :data:`PARAMETERS` (the others at the scenario's values) t
 value and the end of a stated range, and each run is judged by :func:`judge`: the loop
 *holds* when the run completes (no divergence, singularity or stop, every feature in the
 image), the torques stay within the effort limits when ``saturate`` is off, and the
-tracking error over the last half of the run stays within twice the continuous loop's
-(:data:`CRITERION`). These are measurements on simulated runs, not certificates.
+tracking error over the last half of the run stays within the operating envelope's
+certified ultimate bound (MATH fact 7; twice the continuous loop's error where the design
+has no certified envelope) (:data:`CRITERION`). These are measurements on simulated runs,
+not certificates.
 
 Each parameter's search is one task (local processes or a Dask cluster); every run is
 appended to ``DIR/<parameter>.jsonl`` as it finishes, so an interrupted search resumes
