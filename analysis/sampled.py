@@ -115,13 +115,15 @@ class SampledSimulator(Simulator):
         self.stride = round(settings.dt * implementation.control_rate)
         n = loop.robot.n
         t, s, e = cs.MX.sym("t"), cs.MX.sym("s", loop.n_state), cs.MX.sym("e", loop.task_dim)
-        effort = cs.MX.sym("effort", n)  # an input, so that another torque scale needs no new code
-        self._effort = np.where(np.isfinite(limits.effort), limits.effort, 1e300)
+        # The torque is clipped at the input ``effort`` (inf: not clipped), so that another
+        # torque scale or saturate setting needs no new code; a NaN torque stays NaN.
+        effort = cs.MX.sym("effort", n)
+        self._effort = limits.effort if implementation.saturate else np.full(n, np.inf)
         law = cs.Function("dvfc_law", [loop.t, loop.state, loop.hold], [loop.tau])
         if settings.jit and implementation.integrator == "cvodes":  # the RK4 period is compiled whole
             law = compiled(law, jacobian=False)
         commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e))
-        applied = cs.fmin(cs.fmax(commanded, -effort), effort) if implementation.saturate else commanded
+        applied = cs.if_else(commanded > effort, effort, cs.if_else(commanded < -effort, -effort, commanded))
         if implementation.integrator == "rk4":
             after, quad = self._rk4(t, s, cs.vertcat(applied, e))
         else:

@@ -190,6 +190,38 @@ MUTATIONS = (
         ),
         ("tests/test_grid.py::test_crash_between_data_write_and_state_save_resumes_exactly",),
     ),
+    # --- the loop as implemented ---------------------------------------------------------
+    Mutation(
+        "rk4-weights",
+        "the sampled loop's RK4 weighs its stages (1, 3, 1, 1)/6 (second order)",
+        "analysis/sampled.py",
+        (("s = s + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)", "s = s + step / 6 * (k1 + 3 * k2 + k3 + k4)"),),
+        ("tests/test_sampled.py::test_rk4_between_samples_is_fourth_order",),
+    ),
+    Mutation(
+        "images-arrive-late",
+        "each image's e_e is used one control period after its latency",
+        "analysis/sampled.py",
+        (
+            ("measure_through(k - lag)) is not", "measure_through(k - lag - 1)) is not"),
+            ("min(int(captures[measured]) + lag, steps)", "min(int(captures[measured]) + lag + 1, steps)"),
+        ),
+        ("tests/test_sampled.py::test_sampled_run_equals_a_sample_by_sample_loop",),
+    ),
+    Mutation(
+        "last-images-unchecked",
+        "the images captured in the last latency (arriving after T) are not checked for lost features",
+        "analysis/sampled.py",
+        (("            measure_through(steps)\n", "            pass\n"),),
+        ("tests/test_sampled.py::test_a_feature_lost_in_an_image_arriving_after_the_horizon_still_ends_the_run",),
+    ),
+    Mutation(
+        "margins-torque-unchecked",
+        "the margins' criterion ignores the torque limits when saturate is off",
+        "analysis/margins.py",
+        (("        if ratio > 1:\n", "        if ratio > 1e9:\n"),),
+        ("tests/test_margins.py",),
+    ),
 )
 
 

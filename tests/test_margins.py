@@ -149,3 +149,19 @@ def test_margins_command_writes_the_contract(tmp_path):
     assert record["tracking_bound"]["source"] == "envelope" and record["linear_delay_margin"] > 0
     assert record["linear_delay_margin_status"] == "found"
     assert "provenance" in record and (tmp_path / "m" / "margins.json").exists()
+
+
+def test_a_run_over_the_effort_limits_does_not_hold_unless_clipped(short_default):
+    """The criterion's torque clause: at 0.5x the URDF's efforts the default's start transient
+    (joint 2 at 0.87 of its limit) asks for more than the limit, so with ``saturate`` off the
+    run does not hold, for that reason; the same search point with ``saturate`` on is judged
+    on the run with clipped torques instead (its tracking), not on the torque asked for."""
+    path = str(short_default)
+    bound = tracking_bound(path)
+    over = trial(path, "torque_scale", 0.5, bound)
+    assert not over["holds"] and over["detail"].startswith("peak torque"), over
+    data = tomllib.loads(short_default.read_text())
+    data["implementation"]["saturate"] = True
+    clipped = short_default.parent / "clipped.toml"
+    clipped.write_text(tomli_w.dumps(data))
+    assert not trial(str(clipped), "torque_scale", 0.5, bound)["detail"].startswith("peak torque")
