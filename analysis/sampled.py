@@ -87,10 +87,11 @@ def limit_record(traj: Trajectory, limits: JointLimits) -> dict:
     }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, order=True)
 class _Stop:
     """Why and where a sampled run ends: the law's steps kept are ``k < tau_end``, the samples
-    whose speed counts ``k < qd_end``; ``rank`` orders stops found at the same step."""
+    whose speed counts ``k < qd_end``; stops order by step, then ``rank`` (the first that ends
+    the run is the least)."""
 
     step: int
     rank: int
@@ -165,14 +166,8 @@ class SampledSimulator(Simulator):
 
     def _cvodes(self) -> cs.Function:
         """CVODES over one control period (the reference integrator)."""
-        st = self.settings
         options = {
-            "abstol": st.atol,
-            "reltol": st.rtol,
-            "quad_err_con": True,
-            "max_num_steps": 100000,
-            "min_step_size": 1e-12,
-            "disable_internal_warnings": True,  # SUNDIALS' own lines: the run's status says it instead
+            **self.cvodes_options(),
             # Adams with fixed-point iteration: over one control period the held-torque
             # dynamics are not stiff, and no Jacobian is formed at each of the many restarts
             # (about 15x faster than BDF/Newton here at the same tolerances).
@@ -304,8 +299,9 @@ class SampledSimulator(Simulator):
                 if time.perf_counter() - start > st.time_budget:
                     message = f"stopped at t = {k * h:.4g} s: time budget {st.time_budget:g} s exceeded"
                     stops.append(_Stop(k, 4, "time_budget", message, k, k + 1))
-        if not stops:  # images captured in the last latency arrive after T; a feature lost in one ends the run
-            measure_through(steps)
+        # The captures up to the end (T, or the first stop) not measured yet: a feature lost in
+        # one ends the run there, though its image would arrive later.
+        measure_through(min(stops).step if stops else steps)
         if not stops:  # the law at t = T, no integration
             commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held, self._effort))
             history["tau"].append(np.abs(commanded[None, :]))
@@ -314,8 +310,7 @@ class SampledSimulator(Simulator):
                 rows.append((steps, s, np.concatenate([applied, e_held])))
             stop = _Stop(steps, 5, "ok", "", steps + 1, steps + 1)
         else:
-            measure_through(min(stops, key=lambda x: (x.step, x.rank)).step)  # a feature lost before ends it there
-            stop = min(stops, key=lambda x: (x.step, x.rank))
+            stop = min(stops)
         if not rows:  # stopped before the first period: the start is still a row (no torque counted)
             rows.append((0, s, np.concatenate([self._last(0.0, s, e_held, self._effort)[1].ravel(), e_held])))
         rows = [r for r in rows if r[0] < max(stop.tau_end, 1)]  # the start is always a row

@@ -153,19 +153,22 @@ class Simulator:
         dae = dynamics_function(self.loop)
         return compiled(dae) if self.settings.jit else dae
 
+    def cvodes_options(self) -> dict:
+        """CVODES's options for a run: the settings' tolerances on the states and quadratures."""
+        return {
+            "abstol": self.settings.atol,
+            "reltol": self.settings.rtol,
+            "quad_err_con": True,
+            "max_num_steps": 100000,
+            "min_step_size": 1e-12,  # a collapsing step ends the run at once instead of grinding
+            "disable_internal_warnings": True,  # SUNDIALS' own lines: the run's status says it instead
+        }
+
     def integrator(self, count: int) -> cs.Function:
         """CVODES over ``count`` output steps (built once per size)."""
         if count not in self._integrators:
-            st = self.settings
-            grid = np.arange(1, count + 1) * st.dt
-            options = {
-                "abstol": st.atol,
-                "reltol": st.rtol,
-                "quad_err_con": True,
-                "max_num_steps": 100000,
-                "min_step_size": 1e-12,  # a collapsing step ends the run at once instead of grinding
-                "disable_internal_warnings": True,  # SUNDIALS' own lines: the run's status says it instead
-            }
+            grid = np.arange(1, count + 1) * self.settings.dt
+            options = self.cvodes_options()
             self._integrators[count] = cs.integrator("closed_loop", "cvodes", self.dae, 0.0, grid, options)
         return self._integrators[count]
 

@@ -212,7 +212,7 @@ MUTATIONS = (
         "last-images-unchecked",
         "the images captured in the last latency (arriving after T) are not checked for lost features",
         "analysis/sampled.py",
-        (("            measure_through(steps)\n", "            pass\n"),),
+        (("if stops else steps)", "if stops else steps - lag)"),),
         ("tests/test_sampled.py::test_a_feature_lost_in_an_image_arriving_after_the_horizon_still_ends_the_run",),
     ),
     Mutation(
