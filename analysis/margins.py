@@ -34,7 +34,7 @@ from analysis.output import interrupted
 from analysis.results import envelope_record
 from analysis.sampled import as_implemented, limit_record, robot_limits
 from analysis.scenario import Scenario, ScenarioError, build, gain_point, load
-from analysis.simulate import Settings, Trajectory
+from analysis.simulate import Settings, Trajectory, rotation_angle
 from models.loop import ClosedLoop
 from models.robot import Payload, Robot
 
@@ -122,12 +122,9 @@ class TrackingBound:
 
 def tracking_error(traj: Trajectory) -> tuple[float, float]:
     """The largest position ``|p|`` (m) and rotation angle (deg) of the true tracking error
-    ``g_d^-1 g`` over the last half of the run (angle by ``atan2(|sk(R)^vee|, (tr R - 1)/2)``,
-    accurate at every angle)."""
+    ``g_d^-1 g`` over the last half of the run (angle by :func:`rotation_angle`)."""
     err = traj["g_tracking"][len(traj.t) // 2 :].reshape(-1, 4, 4).transpose(0, 2, 1)  # CasADi vec: columns
-    r = err[:, :3, :3]
-    vee = np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], axis=1) / 2
-    angle = np.arctan2(np.linalg.norm(vee, axis=1), (np.trace(r, axis1=1, axis2=2) - 1) / 2)
+    angle = rotation_angle(err[:, :3, :3])
     return float(np.linalg.norm(err[:, :3, 3], axis=1).max()), float(np.degrees(angle.max()))
 
 

@@ -325,6 +325,14 @@ class Simulator:
         )
 
 
+def rotation_angle(r: np.ndarray) -> np.ndarray:
+    """The angle (rad) of each rotation of a batch ``(..., 3, 3)``, by ``atan2(|sk(R)^vee|,
+    (tr R - 1)/2)``: accurate at every angle (``arccos`` of the trace resolves only about
+    1e-8 rad near 0)."""
+    vee = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1) / 2
+    return np.arctan2(np.linalg.norm(vee, axis=-1), (np.trace(r, axis1=-2, axis2=-1) - 1) / 2)
+
+
 def identity_residuals(traj: Trajectory) -> dict[str, float]:
     """Energy identities along the run, each as a relative residual (max over time).
 
@@ -355,14 +363,13 @@ def summary(traj: Trajectory) -> dict:
     v = traj["V"][:, 0]
     gap = np.linalg.norm(traj["e_e_image"] - e_e, axis=1)
     tracking = traj["g_tracking"][-1].reshape(4, 4, order="F")  # g_d^-1 g at the end
-    cosine = np.clip((np.trace(tracking[:3, :3]) - 1) / 2, -1.0, 1.0)
     return {
         "status": traj.status,
         "message": traj.message,
         "t_final": float(traj.t[-1]),
         "final": {
             "tracking_position": float(np.linalg.norm(tracking[:3, 3])),
-            "tracking_angle_deg": float(np.degrees(np.arccos(cosine))) if e_c.shape[1] == 6 else None,
+            "tracking_angle_deg": float(np.degrees(rotation_angle(tracking[:3, :3]))) if e_c.shape[1] == 6 else None,
             "e_c_position": float(np.linalg.norm(e_c[-1, :3])),
             "e_c_rotation": float(np.linalg.norm(e_c[-1, 3:])) if e_c.shape[1] == 6 else None,
             "e_e_position": float(np.linalg.norm(e_e[-1, :3])),

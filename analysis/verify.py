@@ -21,7 +21,7 @@ from analysis.adversary import worst_disturbance
 from analysis.envelope import DisturbanceBounds, level_bounds
 from analysis.linearize import linearize, peak_sinusoid, run_from_rest
 from analysis.sampled import as_implemented, limit_record, robot_limits
-from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals
+from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, rotation_angle
 from models.disturbance import BandLimitedNoise
 from models.kinematic import VisualFeedbackSystem
 from models.lie import SE3
@@ -351,8 +351,7 @@ def rotation_angles(traj: Trajectory, reference: SE3) -> tuple[np.ndarray, np.nd
     r_d = np.asarray(cs.DM(reference.rotation.matrix))
     r_ec = np.einsum("ji,bjk->bik", r_d, rot["gbar"])
     r_ee = np.einsum("bji,bjk->bik", rot["gbar"], rot["g"])
-    angle = lambda r: np.arccos(np.clip((np.trace(r, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0))  # noqa: E731
-    return angle(r_ec), angle(r_ee)
+    return rotation_angle(r_ec), rotation_angle(r_ee)
 
 
 def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: dict) -> list[Claim]:
