@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from timing import median_of
 
 from analysis.certify import GainPoint, certify, exact_gamma, sdp_gamma
 from analysis.envelope import DisturbanceBounds, design_of, envelope, grid_envelope
@@ -30,24 +31,15 @@ from models.loop import Weights
 SQUARE = np.array([[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [-0.05, -0.05, 0.0], [0.05, -0.05, 0.0]])
 
 
-def median_seconds(job, repeats: int = 20) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        job()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
-
-
 def envelope_timings(design: GainPoint, reference: SE3) -> None:
     """One design's envelope (the model built: mass bounds and V(0) given) against one exact gamma."""
     camera = Camera(800.0, SQUARE, 1280.0, 1024.0)
     mass = MassBounds(0.0019, 12.0)  # the UR5's bounds (models.inertia)
     bounds = DisturbanceBounds(0.0785, 0.0, 0.05)
     start = {"V0": 0.002}
-    gamma = median_seconds(lambda: exact_gamma(design, reference, np.eye(3)))
-    plain = median_seconds(lambda: envelope(design_of(design, reference, mass), camera, bounds, start, search=False))
-    full = median_seconds(lambda: envelope(design_of(design, reference, mass), camera, bounds, start))
+    gamma = median_of(lambda: exact_gamma(design, reference, np.eye(3)))
+    plain = median_of(lambda: envelope(design_of(design, reference, mass), camera, bounds, start, search=False))
+    full = median_of(lambda: envelope(design_of(design, reference, mass), camera, bounds, start))
     print("operating envelope of one design (median of 20)")
     print(f"  one exact gamma (baseline)                {gamma * 1e3:12,.2f} ms")
     print(f"  envelope: rate, bounds, boxes, start      {plain * 1e3:12,.2f} ms  ({plain / gamma:,.1f}x the baseline)")

@@ -19,15 +19,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from timing import seconds
+
 from analysis.margins import margins, run_tasks, with_value
 from analysis.sampled import as_implemented
 from analysis.scenario import DEFAULT_SCENARIO, build, load
-
-
-def timed(fn) -> float:
-    start = time.perf_counter()
-    fn()
-    return time.perf_counter() - start
 
 
 def main() -> None:
@@ -38,17 +34,17 @@ def main() -> None:
     loop, s0, settings = build(spec, base)
     continuous = as_implemented(loop, replace(settings, implementation=None, plant=None))
     continuous.run(s0)  # compiled (or loaded from the cache) before timing
-    t_continuous = timed(lambda: continuous.run(s0))
+    t_continuous = seconds(lambda: continuous.run(s0))[0]
     sampled = as_implemented(loop, settings)
     sampled.run(s0)
-    t_sampled = timed(lambda: sampled.run(s0))
+    t_sampled = seconds(lambda: sampled.run(s0))[0]
     payload = with_value(loop, settings, "payload_mass", 1.0)
-    t_vm = timed(lambda: as_implemented(loop, payload).run(s0))
+    t_vm = seconds(lambda: as_implemented(loop, payload).run(s0))[0]
     with tempfile.TemporaryDirectory() as cache:
         previous = os.environ.get("DVFC_CACHE")
         os.environ["DVFC_CACHE"] = cache
         try:
-            t_jit = timed(lambda: as_implemented(loop, replace(payload, jit=True)).run(s0))
+            t_jit = seconds(lambda: as_implemented(loop, replace(payload, jit=True)).run(s0))[0]
         finally:
             os.environ.pop("DVFC_CACHE") if previous is None else os.environ.update(DVFC_CACHE=previous)
     with tempfile.TemporaryDirectory() as directory:
@@ -65,8 +61,8 @@ def main() -> None:
         ("payload run, compiled for its plant", t_jit),
         (f"margins(), {runs} runs + 2", t_margins),
     )
-    for label, seconds in rows:
-        print(f"  {label:40s} {seconds:8.2f} s   {seconds / t_continuous:8.1f}x the baseline")
+    for label, wall in rows:
+        print(f"  {label:40s} {wall:8.2f} s   {wall / t_continuous:8.1f}x the baseline")
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result["margins"].items():
         print(f"  {name:14s} holds at {fmt(m['holds_at']):>8}  breaks at {fmt(m['breaks_at']):>8}  {m['unit']}")

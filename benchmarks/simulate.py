@@ -17,19 +17,11 @@ from dataclasses import replace
 
 import numpy as np
 from scipy.integrate import solve_ivp
+from timing import best_of
 
 from analysis.sampled import as_implemented
 from analysis.scenario import DEFAULT_SCENARIO, build, load
 from analysis.simulate import Simulator
-
-
-def best_of(fn, repeat: int = 5) -> float:
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def main() -> None:
