@@ -1,5 +1,5 @@
 """``python -m analysis`` runs the ``dvfc`` command line."""
 
-from analysis.cli import app
+from dvfc.analysis.cli import app
 
 app(prog_name="dvfc")

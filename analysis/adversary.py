@@ -19,9 +19,9 @@ import math
 import casadi as cs
 import numpy as np
 
-from analysis.envelope import DisturbanceBounds
-from analysis.linearize import driven_at_rest, equilibrium_configuration
-from models.loop import ClosedLoop
+from dvfc.analysis.envelope import DisturbanceBounds
+from dvfc.analysis.linearize import driven_at_rest, equilibrium_configuration
+from dvfc.models.loop import ClosedLoop
 
 
 def _blocks(n: int, task: int, bounds: DisturbanceBounds) -> list[tuple[slice, float]]:

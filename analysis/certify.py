@@ -1,6 +1,6 @@
 """Theorem 2 certificates: the smallest gamma with ``P(gamma) = N^T K N - W/(2 gamma^2) - I/2 >= 0``.
 
-``N`` comes from :func:`models.loop.output_matrix`, the expression the simulator uses.
+``N`` comes from :func:`dvfc.models.loop.output_matrix`, the expression the simulator uses.
 ``P`` does not depend on the robot (MATH fact 1): the ``xi`` block of ``N`` is the
 identity, so that block decouples and needs ``k_xi,i >= 1/2 + 1/(2 gamma^2)``. The
 rest, over ``(e_c, e_e)``, depends on ``K_c, K_e, W_c, W_e, g_d`` and on the rotation
@@ -38,10 +38,10 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
-from analysis.output import interrupted
-from models.lie import SE3, SO3
-from models.loop import Weights, disturbance_matrix, disturbance_weight, output_matrix
-from models.planar import TASK, planar_disturbance_matrix, planar_output_matrix
+from dvfc.analysis.output import interrupted
+from dvfc.models.lie import SE3, SO3
+from dvfc.models.loop import Weights, disturbance_matrix, disturbance_weight, output_matrix
+from dvfc.models.planar import TASK, planar_disturbance_matrix, planar_output_matrix
 
 INFLATION = 1e-6
 """Relative inflation of a computed gamma before the a posteriori check: at the exact
@@ -417,7 +417,7 @@ PLANAR_REGION = (
 
 PLANAR_ASSUMPTIONS = (
     "planar arm in a horizontal plane, camera looking straight down, target moving without rotating "
-    "in a parallel plane (models.planar)",
+    "in a parallel plane (dvfc.models.planar)",
     "exact estimation error e_e: from the image it is exact when every feature keeps its depth (P12)",
     "J_p of full row rank (away from the arm's singularities)",
     "feature points in front of the camera",

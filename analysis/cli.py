@@ -23,15 +23,15 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from analysis.certify import (
+from dvfc.analysis.certify import (
     NOT_APPLICABLE,
     GainPoint,
 )
-from analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
-from analysis.margins import MarginError, linear_margin_text, margins, planned_runs, run_tasks, runs_done
-from analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
-from analysis.pose import initial_view
-from analysis.results import (
+from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
+from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, run_tasks, runs_done
+from dvfc.analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
+from dvfc.analysis.pose import initial_view
+from dvfc.analysis.results import (
     certificate_result,
     design_limits,
     design_runner,
@@ -45,11 +45,11 @@ from analysis.results import (
     speed_theta_bar,
     verification_result,
 )
-from analysis.sampled import as_implemented, limit_record, robot_limits
-from analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
-from analysis.simulate import summary
-from analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
-from models.loop import Weights
+from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
+from dvfc.analysis.simulate import summary
+from dvfc.analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
+from dvfc.models.loop import Weights
 
 app = typer.Typer(
     add_completion=False,
@@ -111,7 +111,7 @@ def emit(result: dict, saved: Path | None, json_target: str | None, show: Callab
 
 @contextmanager
 def resumable(command: str) -> Iterator[None]:
-    """On Ctrl-C, wherever it lands (see :func:`analysis.output.interrupted`): one line saying
+    """On Ctrl-C, wherever it lands (see :func:`dvfc.analysis.output.interrupted`): one line saying
     how to resume with ``command``, exit status 130."""
     with interrupt_aware():
         try:

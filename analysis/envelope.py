@@ -49,12 +49,12 @@ from dataclasses import dataclass, field
 import casadi as cs
 import numpy as np
 
-from analysis.certify import GainPoint, theorem2_matrices
-from models.camera import Camera
-from models.disturbance import torque_bound
-from models.inertia import MassBounds
-from models.lie import SE3
-from models.planar import planar_output_matrix
+from dvfc.analysis.certify import GainPoint, theorem2_matrices
+from dvfc.models.camera import Camera
+from dvfc.models.disturbance import torque_bound
+from dvfc.models.inertia import MassBounds
+from dvfc.models.lie import SE3
+from dvfc.models.planar import planar_output_matrix
 
 SHRINK = 1e-6
 """Relative shrink of a computed rate before the a posteriori check ``Q - kappa D >= 0``: at
@@ -77,7 +77,7 @@ ASSUMPTIONS = (
 )
 
 PLANAR_ASSUMPTIONS = (
-    "the reduced planar loop (models.planar): horizontal motion, camera looking straight down, "
+    "the reduced planar loop (dvfc.models.planar): horizontal motion, camera looking straight down, "
     "target not rotating, every feature at a constant depth",
     "J_p of full row rank along the run (not implied by V <= c)",
     "m_lo <= lambda(M(q)) <= m_hi for every configuration (rigorous for revolute joints, from the URDF)",

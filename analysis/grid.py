@@ -27,11 +27,11 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
-from analysis.envelope import GridEnvelope, envelope_columns
-from analysis.output import atomic_write, interrupted, json_text
-from models.lie import SE3, SO3
-from models.planar import TASK, planar_output_matrix
+from dvfc.analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
+from dvfc.analysis.envelope import GridEnvelope, envelope_columns
+from dvfc.analysis.output import atomic_write, interrupted, json_text
+from dvfc.models.lie import SE3, SO3
+from dvfc.models.planar import TASK, planar_output_matrix
 
 AXES = {
     "k_xi": ("k_xi", None),
@@ -67,11 +67,11 @@ class GridSpec:
     gamma_bound: float | None = None
     envelope: GridEnvelope | None = None
     """With a scenario's ``[envelope]``: the context of the columns ``rate`` and
-    ``max_target_speed`` (:func:`analysis.envelope.envelope_columns`)."""
+    ``max_target_speed`` (:func:`dvfc.analysis.envelope.envelope_columns`)."""
 
     @property
     def planar(self) -> bool:
-        """The reduced planar loop (:mod:`models.planar`): two-entry ``K_c``, ``K_e``."""
+        """The reduced planar loop (:mod:`dvfc.models.planar`): two-entry ``K_c``, ``K_e``."""
         return len(self.k_c) == TASK
 
     @staticmethod
@@ -126,7 +126,7 @@ class GridSpec:
 
 def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray]:
     """Certify points ``start .. stop - 1``: gamma, margin, certified flag, reason code
-    (0 fine, 1-3 as :data:`analysis.certify.REASONS`, 4 failed re-check, 5 above the bound)."""
+    (0 fine, 1-3 as :data:`dvfc.analysis.certify.REASONS`, 4 failed re-check, 5 above the bound)."""
     d = spec.designs(start, stop)
     b = stop - start
     weights, which = np.unique(d["w"], axis=0, return_inverse=True)  # N depends on the weights only

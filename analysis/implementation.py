@@ -8,7 +8,7 @@ from typing import Literal
 
 import numpy as np
 
-from models.robot import JointLimits
+from dvfc.models.robot import JointLimits
 
 
 @dataclass(frozen=True)

@@ -22,11 +22,11 @@ import casadi as cs
 import control
 import numpy as np
 
-from analysis.simulate import Settings, Simulator, Trajectory
-from models.lie import SE3, SO3, quaternion_rate, quaternion_to_matrix
-from models.loop import ClosedLoop
-from models.planar import TASK, PlanarLoop
-from models.target import TargetMotion
+from dvfc.analysis.simulate import Settings, Simulator, Trajectory
+from dvfc.models.lie import SE3, SO3, quaternion_rate, quaternion_to_matrix
+from dvfc.models.loop import ClosedLoop
+from dvfc.models.planar import TASK, PlanarLoop
+from dvfc.models.target import TargetMotion
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """Where the loop as implemented stops working: measured margins of the nonlinear loop.
 
 For each parameter of :data:`PARAMETERS` (the others at the scenario's values) the run of
-:func:`analysis.sampled.as_implemented` is repeated by bisection between the scenario's
+:func:`dvfc.analysis.sampled.as_implemented` is repeated by bisection between the scenario's
 value and the end of a stated range, and each run is judged by :func:`judge`: the loop
 *holds* when the run completes (no divergence, singularity or stop, every feature in the
 image), the torques stay within the effort limits when ``saturate`` is off, and the
@@ -29,14 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.linearize import PADE_ORDER, delay_loop, delay_margin
-from analysis.output import interrupted
-from analysis.results import envelope_record
-from analysis.sampled import as_implemented, limit_record, robot_limits
-from analysis.scenario import Scenario, ScenarioError, build, gain_point, load
-from analysis.simulate import Settings, Trajectory, rotation_angle
-from models.loop import ClosedLoop
-from models.robot import Payload, Robot
+from dvfc.analysis.linearize import PADE_ORDER, delay_loop, delay_margin
+from dvfc.analysis.output import interrupted
+from dvfc.analysis.results import envelope_record
+from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.scenario import Scenario, ScenarioError, build, gain_point, load
+from dvfc.analysis.simulate import Settings, Trajectory, rotation_angle
+from dvfc.models.loop import ClosedLoop
+from dvfc.models.robot import Payload, Robot
 
 CRITERION = (
     "holds: the run as implemented completes (no divergence, singularity or stop, every feature inside the "
@@ -152,7 +152,7 @@ def _scenario(path: str) -> tuple[Scenario, ClosedLoop, np.ndarray, Settings]:
 
 def envelope_bound(path: str) -> TrackingBound | None:
     """The tracking bound the operating envelope certifies for the scenario's design (MATH
-    fact 7, :func:`analysis.results.envelope_record`): ``g_d^-1 g = g_ec g_ee`` (from (15),
+    fact 7, :func:`dvfc.analysis.results.envelope_record`): ``g_d^-1 g = g_ec g_ee`` (from (15),
     (24)), so its position is at most ``|p_ec| + |p_ee|`` and its angle at most
     ``theta_ec + theta_ee`` (the triangle inequality on SO(3)), each at the certified
     ultimate bound. None when no envelope with rotation bounds is certified."""

@@ -8,7 +8,7 @@ import casadi as cs
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from models.loop import ClosedLoop
+from dvfc.models.loop import ClosedLoop
 
 
 def xyz_rpy(matrix: np.ndarray) -> dict[str, list[float]]:

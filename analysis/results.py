@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.certify import (
+from dvfc.analysis.certify import (
     ASSUMPTIONS,
     NOT_APPLICABLE,
     PLANAR_ASSUMPTIONS,
@@ -26,17 +26,17 @@ from analysis.certify import (
     tight_gamma,
     tight_gamma_planar,
 )
-from analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
-from analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
-from analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
-from analysis.grid import GridSpec, SweepState
-from analysis.linearize import linearize, worst_case_disturbance
-from analysis.sampled import as_implemented, limit_record, robot_limits
-from analysis.scenario import Scenario, build, gain_point, load
-from analysis.simulate import Settings
-from analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, scaled
-from analysis.verify import Claim, verify
-from models.loop import ClosedLoop, Gains, Weights
+from dvfc.analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
+from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
+from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
+from dvfc.analysis.grid import GridSpec, SweepState
+from dvfc.analysis.linearize import linearize, worst_case_disturbance
+from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.scenario import Scenario, build, gain_point, load
+from dvfc.analysis.simulate import Settings
+from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, scaled
+from dvfc.analysis.verify import Claim, verify
+from dvfc.models.loop import ClosedLoop, Gains, Weights
 
 
 def design_runner(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> Callable[[GainPoint], dict]:
@@ -213,7 +213,7 @@ def grid_envelope_for(spec: Scenario, loop: ClosedLoop, point: GainPoint) -> Gri
 def speed_theta_bar(spec: Scenario, loop: ClosedLoop, point: GainPoint) -> float:
     """The ``theta_bar`` (radians) at which the target-speed synthesis works: the scenario's
     ``[envelope] theta_bar_deg``, else the one giving the scenario design's largest certified
-    target speed (:func:`analysis.envelope.grid_envelope`, the gain map's rule)."""
+    target speed (:func:`dvfc.analysis.envelope.grid_envelope`, the gain map's rule)."""
     section = spec.envelope
     if section is not None and section.theta_bar_deg is not None:
         return math.radians(section.theta_bar_deg)

@@ -38,11 +38,11 @@ from dataclasses import dataclass, replace
 import casadi as cs
 import numpy as np
 
-from analysis.compile import Buffered, compiled
-from analysis.output import interrupted
-from analysis.simulate import Settings, Simulator, Trajectory
-from models.loop import QUADRATURES, ClosedLoop
-from models.robot import JointLimits
+from dvfc.analysis.compile import Buffered, compiled
+from dvfc.analysis.output import interrupted
+from dvfc.analysis.simulate import Settings, Simulator, Trajectory
+from dvfc.models.loop import QUADRATURES, ClosedLoop
+from dvfc.models.robot import JointLimits
 
 
 def as_implemented(loop: ClosedLoop, settings: Settings) -> Simulator:

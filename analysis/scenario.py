@@ -18,16 +18,16 @@ import casadi as cs
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from analysis.certify import GainPoint
-from analysis.implementation import Implementation
-from analysis.simulate import Settings
-from models.camera import Camera
-from models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
-from models.lie import SE3
-from models.loop import ClosedLoop, Gains, Weights
-from models.planar import TASK, PlanarLoop
-from models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, Payload, Robot, RobotModelError, builtin_urdf
-from models.target import TargetMotion
+from dvfc.analysis.certify import GainPoint
+from dvfc.analysis.implementation import Implementation
+from dvfc.analysis.simulate import Settings
+from dvfc.models.camera import Camera
+from dvfc.models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
+from dvfc.models.lie import SE3
+from dvfc.models.loop import ClosedLoop, Gains, Weights
+from dvfc.models.planar import TASK, PlanarLoop
+from dvfc.models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, Payload, Robot, RobotModelError, builtin_urdf
+from dvfc.models.target import TargetMotion
 
 DEFAULT_SCENARIO = Path(__file__).parent / "scenarios" / "ur5_circle.toml"
 """The built-in default scenario (a copy of ``examples/ur5_circle.toml``)."""
@@ -230,7 +230,7 @@ class SimulationSection(_Strict):
 
 
 class ImplementationSection(_Strict):
-    """The digital controller (:class:`analysis.implementation.Implementation`); absent: the
+    """The digital controller (:class:`dvfc.analysis.implementation.Implementation`); absent: the
     paper's continuous loop."""
 
     control_rate: Positive
@@ -365,14 +365,14 @@ class RangeSpec(_Strict):
 
 
 class GridSection(_Strict):
-    """Axes swept by ``certify``: any of :data:`analysis.grid.AXES`."""
+    """Axes swept by ``certify``: any of :data:`dvfc.analysis.grid.AXES`."""
 
     model_config = ConfigDict(extra="allow", frozen=True)
 
     @model_validator(mode="before")
     @classmethod
     def _axes(cls, data: dict) -> dict:
-        from analysis.grid import AXES
+        from dvfc.analysis.grid import AXES
 
         if not isinstance(data, dict) or not data:
             raise ValueError("the grid is empty: give at least one axis, e.g. k_c = [1, 2, 4]")
@@ -406,7 +406,7 @@ class GridSection(_Strict):
 
 class Scenario(_Strict):
     """The whole scenario file. ``loop`` selects the paper's 6-D loop or the reduced planar
-    loop of :mod:`models.planar` (arms with fewer than six joints moving in a horizontal plane)."""
+    loop of :mod:`dvfc.models.planar` (arms with fewer than six joints moving in a horizontal plane)."""
 
     name: str = "scenario"
     loop: Literal["paper", "planar"] = "paper"
@@ -617,7 +617,7 @@ needs the camera looking straight down at a constant height."""
 
 
 def _check_planar(scenario: Scenario, robot: Robot, q0: np.ndarray) -> None:
-    """The reduced loop's assumptions (:mod:`models.planar`): a target that does not rotate and
+    """The reduced loop's assumptions (:mod:`dvfc.models.planar`): a target that does not rotate and
     moves in a horizontal plane (circle normal along +-z), and a camera looking straight down
     at ``q0`` whose optical axis and height no joint changes (every joint axis vertical). Then
     it keeps looking down at a constant height along any run (P12): a revolute joint about a
@@ -661,7 +661,7 @@ def build(
 ) -> tuple[ClosedLoop, np.ndarray, Settings]:
     """The closed loop (the paper's, or the reduced planar one), its initial state and the
     simulation settings of a scenario; ``check_view`` refuses a start with a feature behind
-    the camera or outside the image, or a singular arm (:func:`analysis.pose` shows them)."""
+    the camera or outside the image, or a singular arm (:func:`dvfc.analysis.pose` shows them)."""
     robot = build_robot(scenario.robot, base)
     n = robot.n
     q0 = _vector(scenario.robot.q0, n, "robot.q0")

@@ -2,7 +2,7 @@
 
 The state ``s = [q; qd; pbar; quat]`` is integrated by CVODES (BDF, Newton with the
 exact Jacobian from CasADi) together with the quadratures of
-:data:`models.loop.QUADRATURES` (error-controlled as well). The run proceeds in
+:data:`dvfc.models.loop.QUADRATURES` (error-controlled as well). The run proceeds in
 chunks of the output grid so that progress can be shown and a run that diverges, loses
 its features or exceeds its time budget stops with a clear status.
 """
@@ -17,11 +17,11 @@ from functools import cached_property
 import casadi as cs
 import numpy as np
 
-from analysis.compile import compiled
-from analysis.implementation import Implementation
-from analysis.output import interrupted
-from models.loop import QUADRATURES, ClosedLoop
-from models.robot import Robot
+from dvfc.analysis.compile import compiled
+from dvfc.analysis.implementation import Implementation
+from dvfc.analysis.output import interrupted
+from dvfc.models.loop import QUADRATURES, ClosedLoop
+from dvfc.models.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ class Settings:
         :data:`CHUNK_SECONDS` of wall time each (CVODES restarts at every call, so
         fewer calls are faster; the calls are where progress is shown and checked).
     implementation, plant
-        The loop as it runs on the robot (:func:`analysis.sampled.as_implemented`): the
+        The loop as it runs on the robot (:func:`dvfc.analysis.sampled.as_implemented`): the
         digital controller (None: the paper's continuous loop), the arm as it really is
         (None: the URDF's).
     view
@@ -99,7 +99,7 @@ class Trajectory:
 def dynamics_function(loop: ClosedLoop) -> cs.Function:
     """The DAE of the loop in CasADi's integrator signature, with the time offset of the
     chunk as parameter ``p`` (the integrator's own clock starts at 0 every chunk), followed
-    by the held inputs of the sampled loop (:attr:`models.loop.ClosedLoop.hold`)."""
+    by the held inputs of the sampled loop (:attr:`dvfc.models.loop.ClosedLoop.hold`)."""
     t_local, offset = cs.SX.sym("t"), cs.SX.sym("p")
     ode, quad = cs.substitute([loop.state_rate, loop.quadratures], [loop.t], [t_local + offset])
     empty = cs.SX(0, 1)

@@ -37,11 +37,11 @@ import cvxpy as cp
 import numpy as np
 import tomlkit
 
-from analysis.certify import Certificate, GainPoint, certify, output_blocks, solve
-from analysis.envelope import GOLDEN_STEPS, design_of, golden_max, s_limit
-from models.inertia import MassBounds
-from models.lie import SE3
-from models.loop import Weights
+from dvfc.analysis.certify import Certificate, GainPoint, certify, output_blocks, solve
+from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, s_limit
+from dvfc.models.inertia import MassBounds
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights
 
 TARGET_MARGIN = 1e-4
 """Relative margin below a gamma target that the synthesis aims at."""
@@ -193,7 +193,7 @@ def synthesize_speed(
 
     ``kappa*`` is concave in ``s`` (the value of a convex program whose constraints are jointly
     linear in ``(s, gains, kappa)``), so ``log(s kappa*)`` is concave and its maximum lies in
-    ``[s_top/2, s_top]`` (the tangent argument of :func:`analysis.envelope.best_s`), ``s_top``
+    ``[s_top/2, s_top]`` (the tangent argument of :func:`dvfc.analysis.envelope.best_s`), ``s_top``
     the largest ``s`` with a positive rate: that of the upper gains, since ``N^T K N`` grows
     with every gain. The result carries the ordinary Theorem 2 certificate over
     ``|theta_ec| <= theta_max``; its envelope is computed by the ordinary route by the caller."""
@@ -308,7 +308,7 @@ def scaled(bounds: Bounds, alpha: float) -> Bounds:
 
 
 def within_limits(run: dict) -> bool:
-    """:data:`LIMITS_CRITERION` on a run's limit record (:func:`analysis.sampled.limit_record`
+    """:data:`LIMITS_CRITERION` on a run's limit record (:func:`dvfc.analysis.sampled.limit_record`
     with the run's ``status``)."""
     return run["status"] == "ok" and max(run["torque_commanded_ratio"]) <= 1.0 and max(run["speed_ratio"]) <= 1.0
 

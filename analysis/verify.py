@@ -4,7 +4,7 @@ Each :class:`Claim` names the paper's statement, the quantity measured, the boun
 must meet and whether it does. Measurements that the paper does not claim (the image
 loop's gap from the ideal one) are reported with ``passed = None``.
 
-Bounds: identity residuals are relative (see :func:`analysis.simulate.identity_residuals`)
+Bounds: identity residuals are relative (see :func:`dvfc.analysis.simulate.identity_residuals`)
 and must be <= 1e-6 at CVODES tolerances 1e-10; pointwise inequalities are checked
 with an absolute slack of 1e-9 times the storage scale (round-off of the evaluation).
 """
@@ -17,17 +17,17 @@ from dataclasses import dataclass, replace
 import casadi as cs
 import numpy as np
 
-from analysis.adversary import worst_disturbance
-from analysis.envelope import DisturbanceBounds, level_bounds
-from analysis.linearize import linearize, peak_sinusoid, run_from_rest
-from analysis.sampled import as_implemented, limit_record, robot_limits
-from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, rotation_angle
-from models.disturbance import BandLimitedNoise
-from models.kinematic import VisualFeedbackSystem
-from models.lie import SE3
-from models.loop import ClosedLoop
-from models.planar import PlanarLoop
-from models.target import TargetMotion
+from dvfc.analysis.adversary import worst_disturbance
+from dvfc.analysis.envelope import DisturbanceBounds, level_bounds
+from dvfc.analysis.linearize import linearize, peak_sinusoid, run_from_rest
+from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, rotation_angle
+from dvfc.models.disturbance import BandLimitedNoise
+from dvfc.models.kinematic import VisualFeedbackSystem
+from dvfc.models.lie import SE3
+from dvfc.models.loop import ClosedLoop
+from dvfc.models.planar import PlanarLoop
+from dvfc.models.target import TargetMotion
 
 IDENTITY_TOL = 1e-6
 
@@ -404,7 +404,7 @@ def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: d
 
 
 def adversarial_claim(loop: ClosedLoop, s0: np.ndarray, env: dict) -> Claim:
-    """The worst ``V(T)`` found by :func:`analysis.adversary.worst_disturbance` from ``V(0) = 0``
+    """The worst ``V(T)`` found by :func:`dvfc.analysis.adversary.worst_disturbance` from ``V(0) = 0``
     against fact 7's ``c_inf (1 - exp(-kappa T))``, with the errors there against the ultimate
     bounds (the envelope's tightness)."""
     d = env["disturbance"]
@@ -474,7 +474,7 @@ def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Cla
 
 
 def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Claim]:
-    """The run as implemented (:func:`analysis.sampled.as_implemented`: the scenario's
+    """The run as implemented (:func:`dvfc.analysis.sampled.as_implemented`: the scenario's
     controller, plant and image) against what the robot can do: measurements, not claims of
     the paper, failing when a URDF limit is exceeded or the run does not complete."""
     traj = as_implemented(loop, settings).run(s0)

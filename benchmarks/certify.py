@@ -1,7 +1,7 @@
 """Benchmark: certificate throughput on a grid of 1e5 isotropic gain points.
 
-In one run: the vectorised exact route (:func:`analysis.grid.certify_batch`) in memory,
-the same grid end to end (:func:`analysis.grid.run_sweep`: batches stored as Parquet,
+In one run: the vectorised exact route (:func:`dvfc.analysis.grid.certify_batch`) in memory,
+the same grid end to end (:func:`dvfc.analysis.grid.run_sweep`: batches stored as Parquet,
 atomically, with the resumable state) and its bytes a point on disk, the per-point
 Clarabel SDP on a sample of the same points, and raw batched ``numpy.linalg.eigvalsh`` of
 as many 12x12 matrices (the ceiling); then the time of one anisotropic sound certificate
@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 from timing import median_of
 
-from analysis.certify import GainPoint, certify, exact_gamma, sdp_gamma
-from analysis.envelope import DisturbanceBounds, design_of, envelope, grid_envelope
-from analysis.grid import POINTS, GridSpec, certify_batch, run_sweep
-from models.camera import Camera
-from models.inertia import MassBounds
-from models.lie import SE3
-from models.loop import Weights
+from dvfc.analysis.certify import GainPoint, certify, exact_gamma, sdp_gamma
+from dvfc.analysis.envelope import DisturbanceBounds, design_of, envelope, grid_envelope
+from dvfc.analysis.grid import POINTS, GridSpec, certify_batch, run_sweep
+from dvfc.models.camera import Camera
+from dvfc.models.inertia import MassBounds
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights
 
 SQUARE = np.array([[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [-0.05, -0.05, 0.0], [0.05, -0.05, 0.0]])
 
@@ -34,7 +34,7 @@ SQUARE = np.array([[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [-0.05, -0.05, 0.0], [
 def envelope_timings(design: GainPoint, reference: SE3) -> None:
     """One design's envelope (the model built: mass bounds and V(0) given) against one exact gamma."""
     camera = Camera(800.0, SQUARE, 1280.0, 1024.0)
-    mass = MassBounds(0.0019, 12.0)  # the UR5's bounds (models.inertia)
+    mass = MassBounds(0.0019, 12.0)  # the UR5's bounds (dvfc.models.inertia)
     bounds = DisturbanceBounds(0.0785, 0.0, 0.05)
     start = {"V0": 0.002}
     gamma = median_of(lambda: exact_gamma(design, reference, np.eye(3)))

@@ -4,7 +4,7 @@ Times, in one process: one 10 s run of the continuous loop (compiled, the baseli
 run of the loop as implemented, one run with a payload made in CasADi's virtual machine
 and the same run compiled for its new plant (C code built into an empty cache: what every
 new payload mass costs when compiled), then the whole margin search of
-:func:`analysis.margins.margins` with ``--workers`` local processes (default 2). Prints the
+:func:`dvfc.analysis.margins.margins` with ``--workers`` local processes (default 2). Prints the
 times and their ratios to the continuous run.
 
     python benchmarks/margins.py [--workers N]
@@ -21,9 +21,9 @@ from pathlib import Path
 
 from timing import seconds
 
-from analysis.margins import margins, run_tasks, with_value
-from analysis.sampled import as_implemented
-from analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.margins import margins, run_tasks, with_value
+from dvfc.analysis.sampled import as_implemented
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
 
 
 def main() -> None:

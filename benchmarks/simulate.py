@@ -19,9 +19,9 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from timing import best_of
 
-from analysis.sampled import as_implemented
-from analysis.scenario import DEFAULT_SCENARIO, build, load
-from analysis.simulate import Simulator
+from dvfc.analysis.sampled import as_implemented
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.simulate import Simulator
 
 
 def main() -> None:

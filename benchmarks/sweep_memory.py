@@ -18,10 +18,10 @@ import time
 CHILD = """
 import sys, numpy as np
 from pathlib import Path
-from analysis.certify import GainPoint
-from analysis.grid import GridSpec, run_sweep
-from models.lie import SE3
-from models.loop import Weights
+from dvfc.analysis.certify import GainPoint
+from dvfc.analysis.grid import GridSpec, run_sweep
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights
 points = int(sys.argv[1])
 side = round(points ** (1 / 3))
 axes = (("k_c", np.geomspace(0.5, 10, side)), ("k_e_p", np.linspace(1, 20, side)),

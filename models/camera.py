@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
-from models.lie import SE3, Matrix, hat
+from dvfc.models.lie import SE3, Matrix, hat
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
-from models.lie import Matrix
+from dvfc.models.lie import Matrix
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.lie import rpy_to_matrix
+from dvfc.models.lie import rpy_to_matrix
 
 HI_METHOD = (
     "rigorous upper bound for every q: lambda_max(B) with |M_ij(q)| <= B_ij = sum over links of "
@@ -96,7 +96,7 @@ def _links(root: ET.Element) -> dict[str, _Link]:
 
 def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[float, ...] = ()) -> MassBounds:
     """``m_lo``, ``m_hi`` of the arm whose movable joints are ``joints`` (root first; every
-    other movable joint frozen at zero, as in :func:`models.robot.frozen_urdf`). See the
+    other movable joint frozen at zero, as in :func:`dvfc.models.robot.frozen_urdf`). See the
     module text. A joint axis not of unit length counts with the worse of 1 and its length."""
     root = ET.parse(urdf).getroot()
     by_child = {j.find("child").get("link"): j for j in root.findall("joint")}

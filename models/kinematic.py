@@ -17,7 +17,7 @@ from functools import cached_property
 
 import casadi as cs
 
-from models.lie import SE3, SO3, Matrix, quaternion_rate, quaternion_to_matrix
+from dvfc.models.lie import SE3, SO3, Matrix, quaternion_rate, quaternion_to_matrix
 
 
 @dataclass

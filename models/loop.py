@@ -28,11 +28,11 @@ from typing import Literal
 import casadi as cs
 import numpy as np
 
-from models.camera import Camera
-from models.disturbance import Disturbance, torque
-from models.lie import SE3, SO3, Matrix, quaternion_rate, quaternion_to_matrix
-from models.robot import Robot
-from models.target import TargetMotion
+from dvfc.models.camera import Camera
+from dvfc.models.disturbance import Disturbance, torque
+from dvfc.models.lie import SE3, SO3, Matrix, quaternion_rate, quaternion_to_matrix
+from dvfc.models.robot import Robot
+from dvfc.models.target import TargetMotion
 
 Mode = Literal["ideal", "image"]
 
@@ -148,7 +148,7 @@ class ClosedLoop:
     sampled
         The loop as a digital controller runs it: the torque applied and the ``e_e`` the
         law and observer use are held inputs (:attr:`hold`), set at the samples by
-        :class:`analysis.sampled.SampledSimulator`, instead of (35) and (15)/(21) evaluated
+        :class:`dvfc.analysis.sampled.SampledSimulator`, instead of (35) and (15)/(21) evaluated
         continuously.
     """
 

@@ -73,8 +73,8 @@ from functools import cached_property
 import casadi as cs
 import numpy as np
 
-from models.lie import SE3, SO3, Matrix
-from models.loop import ClosedLoop, pseudo_inverse
+from dvfc.models.lie import SE3, SO3, Matrix
+from dvfc.models.loop import ClosedLoop, pseudo_inverse
 
 TASK = 2
 """Dimension of the reduced task (horizontal position)."""
@@ -102,7 +102,7 @@ def planar_disturbance_matrix(w_e: float, n: int) -> np.ndarray:
 class PlanarLoop(ClosedLoop):
     """The reduced loop (P1)-(P12) for a planar arm with a downward-looking camera.
 
-    Same parameters as :class:`models.loop.ClosedLoop`; ``reference`` gives the desired
+    Same parameters as :class:`dvfc.models.loop.ClosedLoop`; ``reference`` gives the desired
     offset ``p_d`` (its first two coordinates, world-aligned); the weights used are
     ``w_pc`` (``w_c``) and ``w_pe`` (``w_e``); ``gains.k_c`` and ``gains.k_e`` have two entries.
     """

@@ -22,8 +22,8 @@ import casadi as cs
 import numpy as np
 from adam.casadi import KinDynComputations
 
-from models.inertia import MassBounds, mass_matrix_bounds
-from models.lie import SE3, Matrix, vee
+from dvfc.models.inertia import MassBounds, mass_matrix_bounds
+from dvfc.models.lie import SE3, Matrix, vee
 
 _ERD = "cmeel.prefix/share/example-robot-data/robots"
 _SHIPPED = Path(__file__).parent / "urdf"
@@ -253,7 +253,7 @@ class Robot:
 
     @cached_property
     def mass_bounds(self) -> MassBounds:
-        """Rigorous ``m_lo <= lambda(M(q)) <= m_hi`` for every ``q`` (:mod:`models.inertia`)."""
+        """Rigorous ``m_lo <= lambda(M(q)) <= m_hi`` for every ``q`` (:mod:`dvfc.models.inertia`)."""
         return mass_matrix_bounds(self.urdf, self.joints, self.armature)
 
     @cached_property

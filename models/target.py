@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
-from models.lie import SE3, SO3, Matrix, vee
+from dvfc.models.lie import SE3, SO3, Matrix, vee
 
 
 def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,5 +1,5 @@
 """``python -m reports`` runs the full ``dvfc`` command line."""
 
-from reports.cli import app
+from dvfc.reports.cli import app
 
 app(prog_name="dvfc")

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-from analysis.cli import (
+from dvfc.analysis.cli import (
     DEFAULT_SCENARIO,
     OutOpt,
     ScenarioArg,
@@ -20,8 +20,8 @@ from analysis.cli import (
     prepare_out_dir,
     resumable,
 )
-from analysis.results import verdict
-from reports.document import CACHE, STEPS, StageCache, assemble, write
+from dvfc.analysis.results import verdict
+from dvfc.reports.document import CACHE, STEPS, StageCache, assemble, write
 
 
 @app.command()

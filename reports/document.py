@@ -20,22 +20,22 @@ from pathlib import Path
 import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
-from analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
-from analysis.margins import MarginError, linear_margin_text, margins, run_tasks
-from analysis.output import atomic_write, interrupted
-from analysis.pose import xyz_rpy
-from analysis.results import (
+from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
+from dvfc.analysis.margins import MarginError, linear_margin_text, margins, run_tasks
+from dvfc.analysis.output import atomic_write, interrupted
+from dvfc.analysis.pose import xyz_rpy
+from dvfc.analysis.results import (
     certificate_result,
     grid_envelope_for,
     implementation_record,
     verdict,
     verification_result,
 )
-from analysis.sampled import as_implemented, limit_record, robot_limits
-from analysis.scenario import Scenario, gain_point
-from analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, summary
-from models.loop import ClosedLoop
-from reports import figures
+from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.scenario import Scenario, gain_point
+from dvfc.analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, summary
+from dvfc.models.loop import ClosedLoop
+from dvfc.reports import figures
 
 STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "gain map", "figures")
 """The stages of :func:`assemble`, in order (reported to ``progress``)."""
@@ -56,10 +56,10 @@ class ReportData:
     figures: dict[str, str]
     provenance: dict
     implemented: dict
-    """The run as implemented (:func:`analysis.sampled.as_implemented`): how, its summary, and
+    """The run as implemented (:func:`dvfc.analysis.sampled.as_implemented`): how, its summary, and
     per joint its peak torque and speed against the URDF's limits."""
     margins: dict | None
-    """The margins of the loop as implemented (:func:`analysis.margins.margins`), or
+    """The margins of the loop as implemented (:func:`dvfc.analysis.margins.margins`), or
     ``{"reason": ...}`` when there are none to measure; None without an ``[implementation]``."""
 
 
@@ -107,7 +107,7 @@ class StageCache:
 
 
 def measure_margins(path: Path, cache: StageCache) -> dict:
-    """The margins of the scenario at ``path`` (:func:`analysis.margins.margins`), measured in
+    """The margins of the scenario at ``path`` (:func:`dvfc.analysis.margins.margins`), measured in
     this process; the runs are logged in the cache's scratch directory so that a resumed
     report continues an interrupted search. ``{"reason": ...}`` when the scenario's own run
     does not hold."""
@@ -188,7 +188,7 @@ def assemble(
 
 def supply_facts(traj: Trajectory) -> dict[str, float | bool]:
     """What Lemma 2 says about the run shown: with ``w``, ``V(t) - V(0) = int u^T nu +
-    int x^T G w`` (its residual, :func:`analysis.simulate.identity_residuals`) and the
+    int x^T G w`` (its residual, :func:`dvfc.analysis.simulate.identity_residuals`) and the
     smallest values of both supplies against ``-V(0)``; ``int u^T nu >= -V(0)`` is stated
     for ``w = 0`` only."""
     i = traj.integrals
@@ -222,7 +222,7 @@ def _vector(values, digits: int = 4) -> str:
 
 def render(data: ReportData) -> str:
     """The report as one HTML document."""
-    env = Environment(loader=PackageLoader("reports"), autoescape=True, undefined=StrictUndefined)
+    env = Environment(loader=PackageLoader("dvfc.reports"), autoescape=True, undefined=StrictUndefined)
     env.filters["num"] = _number
     env.filters["vec"] = _vector
     spec = data.spec

@@ -19,8 +19,8 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from analysis.grid import GainMap
-from analysis.simulate import Trajectory
+from dvfc.analysis.grid import GainMap
+from dvfc.analysis.simulate import Trajectory
 
 CONTROL, ESTIMATE, BOUND, BOUNDED = "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728"
 COMPONENTS = ("#1f77b4", "#d62728", "#2ca02c")

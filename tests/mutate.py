@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+LAYERS = ("models", "analysis", "reports")
+"""The top-level folders installed as ``dvfc.models``, ``dvfc.analysis``, ``dvfc.reports``."""
 
 
 @dataclass(frozen=True)
@@ -233,9 +235,12 @@ def tracked_files() -> list[str]:
 
 
 def copy_repository(target: Path) -> None:
+    """The tracked files, and the package ``dvfc`` laid out as installed (its sub-packages linked)."""
     for name in tracked_files():
         (target / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / name, target / name)
+    for layer in LAYERS:
+        (target / "dvfc" / layer).symlink_to(Path("..") / layer, target_is_directory=True)
 
 
 def apply(mutation: Mutation, copy: Path) -> None:
@@ -262,9 +267,10 @@ def pytest(copy: Path, tests: tuple[str, ...]) -> tuple[int, str, float]:
 
 def check_imports(copy: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(copy)}
-    out = subprocess.run([sys.executable, "-c", "import analysis, models; print(analysis.__file__, models.__file__)"],
+    code = "import dvfc.analysis, dvfc.models; print(dvfc.analysis.__file__, dvfc.models.__file__)"
+    out = subprocess.run([sys.executable, "-c", code],
                          cwd=copy, env=env, capture_output=True, text=True, check=True).stdout  # fmt: skip
-    if not all(Path(p).resolve().is_relative_to(copy.resolve()) for p in out.split()):
+    if not all(Path(p).resolve().is_relative_to(copy.resolve()) for p in out.split()):  # links resolved
         raise SystemExit(f"the copy's modules are not the ones imported: {out}")
 
 
@@ -295,7 +301,7 @@ def main() -> int:
         print(f"baseline: {len(baseline)} test selections pass ({seconds:.0f} s)", flush=True)
         for m in chosen:
             copy = Path(tmp) / m.name
-            shutil.copytree(pristine, copy)
+            shutil.copytree(pristine, copy, symlinks=True)
             apply(m, copy)
             code, output, seconds = pytest(copy, m.tests)
             shutil.rmtree(copy)

@@ -1,6 +1,6 @@
 """An independent reference for Theorem 2, written from the paper in NumPy only.
 
-The certifier builds ``N`` from :mod:`models.loop` (CasADi) and finds the smallest gamma by
+The certifier builds ``N`` from :mod:`dvfc.models.loop` (CasADi) and finds the smallest gamma by
 a Schur complement (MATH fact 3). The tests judge it against this module, which shares
 none of that code: the matrices are rebuilt from the paper's text and the smallest gamma
 is found by a different route (bisection on the smallest eigenvalue of the whole ``P``).

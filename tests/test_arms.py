@@ -13,9 +13,9 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
-from models.loop import pseudo_inverse
-from models.robot import Robot, builtin_urdf
-from reports.cli import app
+from dvfc.models.loop import pseudo_inverse
+from dvfc.models.robot import Robot, builtin_urdf
+from dvfc.reports.cli import app
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
 runner = CliRunner()

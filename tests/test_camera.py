@@ -8,9 +8,9 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from analysis.scenario import build, load
-from models.camera import Camera
-from models.lie import SE3
+from dvfc.analysis.scenario import build, load
+from dvfc.models.camera import Camera
+from dvfc.models.lie import SE3
 
 SQUARE = np.array([[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [-0.05, -0.05, 0.0], [0.05, -0.05, 0.0]])
 CAMERA = Camera(800.0, SQUARE)

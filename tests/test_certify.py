@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from analysis.certify import (
+from dvfc.analysis.certify import (
     GainPoint,
     certify,
     exact_gamma,
@@ -19,9 +19,10 @@ from analysis.certify import (
     tight_gamma,
     tight_lmi,
 )
-from models.lie import SE3
-from models.loop import Weights, output_matrix
-from tests import reference as ref
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights, output_matrix
+
+import reference as ref
 
 REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
 I3 = np.eye(3)

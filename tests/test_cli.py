@@ -17,12 +17,13 @@ import tomli_w
 import typer
 from typer.testing import CliRunner
 
-import analysis.cli as cli_module
-from analysis.cli import app
-from analysis.output import interrupt_aware, interrupted
-from analysis.scenario import DEFAULT_SCENARIO
-from models.robot import Robot, builtin_urdf
-from tests.conftest import scenario_dict
+import dvfc.analysis.cli as cli_module
+from dvfc.analysis.cli import app
+from dvfc.analysis.output import interrupt_aware, interrupted
+from dvfc.analysis.scenario import DEFAULT_SCENARIO
+from dvfc.models.robot import Robot, builtin_urdf
+
+from conftest import scenario_dict
 
 runner = CliRunner()
 EXAMPLES = Path(__file__).parent.parent / "examples"
@@ -268,7 +269,8 @@ def test_simulate_writes_trajectory_and_summary(tmp_path):
 def test_cli_process_exit_status_and_message(tmp_path):
     """A real process: bad input gives status 2 and a single line, no traceback."""
     path = write(tmp_path, setter("gains.k_c", [1.0] * 5))
-    proc = subprocess.run([sys.executable, "-m", "analysis", "simulate", str(path)], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "dvfc.analysis", "simulate", str(path)], capture_output=True,
+                          text=True)
     assert proc.returncode == 2
     assert proc.stderr.strip() == "error: gains.k_c: expected 6 entries, got 5"
 
@@ -408,7 +410,7 @@ def test_native_solver_text_never_reaches_the_user(tmp_path):
     data["target"].update(xyz=[0.72, 0.20, -0.45], motion={"kind": "static"})
     path = tmp_path / "reach.toml"
     path.write_text(tomli_w.dumps(data))
-    proc = subprocess.run([sys.executable, "-m", "analysis", "simulate", str(path), "--out", str(tmp_path / "o")],
+    proc = subprocess.run([sys.executable, "-m", "dvfc.analysis", "simulate", str(path), "--out", str(tmp_path / "o")],
                           capture_output=True, text=True)  # fmt: skip
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith("run stopped: CVODES stopped"), lines
@@ -474,7 +476,7 @@ def test_target_placed_twice_is_refused(tmp_path):
 def test_help_texts_print_every_bracketed_word():
     """Every command's help prints its text as written: no ``[grid]``, ``[certify]`` or other
     bracketed word swallowed as markup, and flags not shown as ``<bool>``."""
-    from reports.cli import app as full_app
+    from dvfc.reports.cli import app as full_app
 
     commands = typer.main.get_command(full_app).commands
     assert {"simulate", "certify", "verify", "synthesize", "report", "pose"} <= set(commands)

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.certify import GainPoint, certify, p_min_eigenvalue, tight_gamma
-from models.lie import SE3
-from models.loop import Weights
+from dvfc.analysis.certify import GainPoint, certify, p_min_eigenvalue, tight_gamma
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights
 
 REFERENCE = SE3.from_xyz_rpy([0.0, 0.0, 0.35], [0.0, 0.0, 0.0])
 POINT = GainPoint(np.full(6, 20.0), np.full(6, 3.0), np.full(6, 10.0), Weights(4, 1, 4, 1))

@@ -16,15 +16,16 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
-import analysis.cli as cli_module
-import analysis.grid as grid
-from analysis.certify import GainPoint, certify
-from analysis.cli import app
-from analysis.grid import POINTS, GridSpec, axis_value, gain_map, read_points, run_sweep
-from analysis.scenario import gain_point
-from models.lie import SE3
-from models.loop import Weights
-from tests.conftest import scenario_dict
+import dvfc.analysis.cli as cli_module
+import dvfc.analysis.grid as grid
+from dvfc.analysis.certify import GainPoint, certify
+from dvfc.analysis.cli import app
+from dvfc.analysis.grid import POINTS, GridSpec, axis_value, gain_map, read_points, run_sweep
+from dvfc.analysis.scenario import gain_point
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights
+
+from conftest import scenario_dict
 
 REFERENCE = SE3.from_xyz_rpy([0.0, 0.0, 0.35], [0.0, 0.0, 0.0])
 runner = CliRunner()
@@ -90,7 +91,7 @@ def write_grid_scenario(tmp_path: Path, gamma: float | None = None, k_c_num: int
 
 def cli(*args: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "analysis", "certify", *args],
+        [sys.executable, "-m", "dvfc.analysis", "certify", *args],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,

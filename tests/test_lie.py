@@ -20,7 +20,7 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from models.lie import (
+from dvfc.models.lie import (
     SE3,
     SO3,
     hat,

@@ -8,10 +8,11 @@ import control
 import numpy as np
 import pytest
 
-from analysis.certify import GainPoint, certify, tight_gamma
-from analysis.linearize import driven, equilibrium_state, linearize, worst_case_disturbance
-from analysis.simulate import Settings, Simulator
-from tests.conftest import build_loop
+from dvfc.analysis.certify import GainPoint, certify, tight_gamma
+from dvfc.analysis.linearize import driven, equilibrium_state, linearize, worst_case_disturbance
+from dvfc.analysis.simulate import Settings, Simulator
+
+from conftest import build_loop
 
 
 @pytest.fixture(scope="module")

@@ -15,9 +15,10 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from analysis.simulate import identity_residuals
-from models.lie import vee
-from tests.conftest import build_loop, run, static_target
+from dvfc.analysis.simulate import identity_residuals
+from dvfc.models.lie import vee
+
+from conftest import build_loop, run, static_target
 
 IDENTITY_TOL = 1e-6
 

@@ -13,11 +13,11 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
-from analysis.cli import app
-from analysis.linearize import DelayLoop, delay_loop, delay_margin
-from analysis.margins import PARAMETERS, linear_margin_text, search, tracking_bound, tracking_error, trial
-from analysis.sampled import as_implemented
-from analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.cli import app
+from dvfc.analysis.linearize import DelayLoop, delay_loop, delay_margin
+from dvfc.analysis.margins import PARAMETERS, linear_margin_text, search, tracking_bound, tracking_error, trial
+from dvfc.analysis.sampled import as_implemented
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
 
 
 @pytest.fixture(scope="module")

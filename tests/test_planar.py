@@ -1,4 +1,4 @@
-"""The reduced planar loop of :mod:`models.planar`, step by step of its derivation (P1)-(P12),
+"""The reduced planar loop of :mod:`dvfc.models.planar`, step by step of its derivation (P1)-(P12),
 on the 2-DOF direct-drive testbed."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from analysis.certify import GainPoint, certify_planar, planar_blocks, theorem2_matrices
-from analysis.scenario import Scenario, ScenarioError, build, load
-from analysis.verify import lemma_2, theorem_1
-from models.lie import SE3
-from models.loop import Weights, pseudo_inverse
-from models.planar import PlanarLoop
+from dvfc.analysis.certify import GainPoint, certify_planar, planar_blocks, theorem2_matrices
+from dvfc.analysis.scenario import Scenario, ScenarioError, build, load
+from dvfc.analysis.verify import lemma_2, theorem_1
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights, pseudo_inverse
+from dvfc.models.planar import PlanarLoop
 
 EXAMPLE = Path(__file__).parent.parent / "examples" / "planar2dd_reduced.toml"
 

@@ -12,12 +12,13 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from analysis.certify import GainPoint, certify
-from analysis.cli import app
-from models.lie import SE3
-from models.loop import Weights
-from tests import reference as ref
-from tests.test_cli import setter, write
+from dvfc.analysis.certify import GainPoint, certify
+from dvfc.analysis.cli import app
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights
+
+import reference as ref
+from test_cli import setter, write
 
 REFERENCE = SE3.from_xyz_rpy([0.01, 0.02, 0.35], [0.2, -0.1, 0.3])
 gain = st.floats(0.6, 50.0)

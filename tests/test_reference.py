@@ -29,11 +29,12 @@ import numpy as np
 from hypothesis import HealthCheck, Phase, event, given, settings
 from hypothesis import strategies as st
 
-from analysis.certify import GainPoint, certify, certify_planar, tight_gamma, tight_gamma_planar
-from analysis.grid import GridSpec, certify_batch
-from models.lie import SE3
-from models.loop import Weights
-from tests import reference as ref
+from dvfc.analysis.certify import GainPoint, certify, certify_planar, tight_gamma, tight_gamma_planar
+from dvfc.analysis.grid import GridSpec, certify_batch
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights
+
+import reference as ref
 
 P_D = np.array([0.03, -0.02, 0.4])
 R_D = ref.rotation(np.array([0.3, -0.5, 0.8]))
@@ -259,7 +260,7 @@ def test_reference_matrices_match_the_model():
     agree at random rotations to round-off (1e-12 of entries of order 10)."""
     import casadi as cs
 
-    from models.loop import disturbance_weight, output_matrix
+    from dvfc.models.loop import disturbance_weight, output_matrix
 
     rng = np.random.default_rng(3)
     w = rng.uniform(0.3, 5, 4)

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from analysis.margins import PARAMETERS
-from analysis.scenario import DEFAULT_SCENARIO
-from reports.cli import app
-from reports.document import CACHE
+from dvfc.analysis.margins import PARAMETERS
+from dvfc.analysis.scenario import DEFAULT_SCENARIO
+from dvfc.reports.cli import app
+from dvfc.reports.document import CACHE
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
 CHROMIUM = shutil.which("chromium")
@@ -36,7 +36,7 @@ FIGURES = (
 def report(tmp_path_factory) -> tuple[Path, Path, str]:
     """The report of the default scenario, made by the installed command line."""
     out = tmp_path_factory.mktemp("report")
-    proc = subprocess.run([sys.executable, "-m", "reports", "report", str(DEFAULT_SCENARIO), "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(DEFAULT_SCENARIO), "--out", str(out)],
                           capture_output=True, text=True)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     return out / "report.html", out / "report.pdf", proc.stdout
@@ -206,7 +206,7 @@ def test_interrupted_report_resumes(tmp_path):
     scenario = tmp_path / "short.toml"
     scenario.write_text(text)
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "reports", "report", str(scenario), "--out", str(out)]
+    command = [sys.executable, "-m", "dvfc.reports", "report", str(scenario), "--out", str(out)]
     proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     logs = out / CACHE / "margins"
     logged = lambda: {p.name: p.read_text().splitlines() for p in logs.glob("*.jsonl")}  # noqa: E731

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from adam.core.constants import Representations
 
-from models.lie import SE3, vee
-from models.robot import (
+from dvfc.models.lie import SE3, vee
+from dvfc.models.robot import (
     BUILTIN_ARMATURE,
     BUILTIN_CAMERA_FRAME,
     BUILTIN_URDF,

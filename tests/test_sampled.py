@@ -11,12 +11,13 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from analysis.implementation import Implementation
-from analysis.sampled import SampledSimulator, as_implemented
-from analysis.scenario import DEFAULT_SCENARIO, build, load
-from analysis.simulate import Simulator, identity_residuals
-from models.robot import Payload, Robot
-from tests.conftest import build_loop
+from dvfc.analysis.implementation import Implementation
+from dvfc.analysis.sampled import SampledSimulator, as_implemented
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.simulate import Simulator, identity_residuals
+from dvfc.models.robot import Payload, Robot
+
+from conftest import build_loop
 
 HORIZON = 0.1
 

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 import tomli_w
 
-from analysis.results import verification_result
-from analysis.scenario import ScenarioError, build, load
-from analysis.simulate import Simulator
-from tests.conftest import build_loop
+from dvfc.analysis.results import verification_result
+from dvfc.analysis.scenario import ScenarioError, build, load
+from dvfc.analysis.simulate import Simulator
+
+from conftest import build_loop
 
 EXAMPLE = Path(__file__).parent.parent / "examples" / "planar2dd_reduced.toml"
 

@@ -16,12 +16,12 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
-from analysis.certify import GainPoint, certify, exact_gamma
-from analysis.cli import app
-from analysis.envelope import DisturbanceBounds, design_of, envelope
-from analysis.results import logged_runs, speed_theta_bar
-from analysis.scenario import build, gain_point, load
-from analysis.synthesize import (
+from dvfc.analysis.certify import GainPoint, certify, exact_gamma
+from dvfc.analysis.cli import app
+from dvfc.analysis.envelope import DisturbanceBounds, design_of, envelope
+from dvfc.analysis.results import logged_runs, speed_theta_bar
+from dvfc.analysis.scenario import build, gain_point, load
+from dvfc.analysis.synthesize import (
     FEASIBLE_STEPS,
     SEARCH_STEPS,
     TARGET_MARGIN,
@@ -34,10 +34,11 @@ from analysis.synthesize import (
     synthesize,
     synthesize_speed,
 )
-from models.lie import SE3
-from models.loop import Weights
-from tests import reference as ref
-from tests.conftest import scenario_dict
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Weights
+
+import reference as ref
+from conftest import scenario_dict
 
 REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
 WEIGHTS = Weights(4.0, 1.0, 4.0, 1.0)

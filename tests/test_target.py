@@ -6,8 +6,8 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from models.lie import SE3, vee
-from models.target import TargetMotion
+from dvfc.models.lie import SE3, vee
+from dvfc.models.target import TargetMotion
 
 START = SE3.from_xyz_rpy([0.4, 0.1, 0.1], [np.pi, 0.0, -np.pi / 2])
 MOTIONS = {

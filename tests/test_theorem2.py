@@ -10,11 +10,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from analysis.certify import GainPoint, certify, tight_gamma
-from analysis.linearize import linearize, piecewise_constant, run_from_rest, worst_case_disturbance
-from analysis.simulate import identity_residuals
-from analysis.verify import ATTAINED, FROM_REST_HORIZON, from_rest_claims, theorem_2
-from tests.conftest import build_loop
+from dvfc.analysis.certify import GainPoint, certify, tight_gamma
+from dvfc.analysis.linearize import linearize, piecewise_constant, run_from_rest, worst_case_disturbance
+from dvfc.analysis.simulate import identity_residuals
+from dvfc.analysis.verify import ATTAINED, FROM_REST_HORIZON, from_rest_claims, theorem_2
+
+from conftest import build_loop
 
 
 @pytest.fixture(scope="module")

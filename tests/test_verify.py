@@ -10,10 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.certify import GainPoint, certify
-from analysis.verify import Claim, fastest_rate, kinematic_claims, lemma_2, lyapunov_derivative, verify_paper
-from models.loop import ClosedLoop
-from tests.conftest import build_loop
+from dvfc.analysis.certify import GainPoint, certify
+from dvfc.analysis.verify import Claim, fastest_rate, kinematic_claims, lemma_2, lyapunov_derivative, verify_paper
+from dvfc.models.loop import ClosedLoop
+
+from conftest import build_loop
 
 
 def claims_of(loop, s0, settings):

@@ -1,0 +1,1 @@
+"""dvfc: passivity-based dynamic visual feedback control, executable and checkable."""
