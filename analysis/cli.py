@@ -23,6 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.certify import (
     NOT_APPLICABLE,
     GainPoint,
@@ -46,7 +47,7 @@ from dvfc.analysis.results import (
     verification_result,
 )
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError, build, gain_point, load
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
 from dvfc.analysis.simulate import summary
 from dvfc.analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
 from dvfc.models.loop import Weights
@@ -130,16 +131,16 @@ def command_provenance(scenario: Path) -> dict:
     return provenance(scenario, ["dvfc", *sys.argv[1:]])
 
 
-def load_scenario(path: Path, mode: str | None = None, check_view: bool = True):
-    """Read, validate and build a scenario, or exit with status 2 and one line: every
-    command rejects the same bad input, whether or not it uses the faulty part."""
+def load_case(path: Path, mode: str | None = None, check_view: bool = True) -> Case:
+    """Read, validate and build a scenario once for the command, or exit with status 2 and one
+    line: every command rejects the same bad input, whether or not it uses the faulty part."""
     try:
-        spec, base = load(path)
-        loop, s0, settings = build(spec, base, mode=mode, check_view=check_view)
-        axes = spec.grid.axes() if spec.grid is not None else None
+        case = Case.load(path, mode=mode, check_view=check_view)
+        if case.scenario.grid is not None:  # its ranges are checked here, before any work
+            case.scenario.grid.axes()
     except ScenarioError as exc:
         raise fail(str(exc)) from exc
-    return spec, loop, s0, settings, axes
+    return case
 
 
 ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (default: the built-in UR5 scenario).")]
@@ -156,7 +157,8 @@ def simulate(
     mode: Annotated[Mode | None, typer.Option(help="Override [simulation] mode.")] = None,
 ) -> None:
     """Simulate the closed loop (36), (42) and check its energy identities."""
-    spec, loop, s0, settings, _ = load_scenario(scenario, mode.value if mode else None)
+    case = load_case(scenario, mode.value if mode else None)
+    spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
 
@@ -207,9 +209,9 @@ def pose(scenario: ScenarioArg = DEFAULT_SCENARIO, json_target: JsonOpt = None) 
     """Show where everything is at the start: the camera's pose at q0, the target's pose (in the
     world and from the camera) and each feature point's image position and depth, for placing
     the target in view (see [target] relative_to_camera). Exit 1 when a point is out of view."""
-    spec, loop, s0, _, _ = load_scenario(scenario, check_view=False)
+    case = load_case(scenario, check_view=False)
     check_json_target(json_target)
-    result = {"scenario": spec.name, **initial_view(loop, s0)}
+    result = {"scenario": case.name, **initial_view(case.loop, case.s0)}
     emit(result, None, json_target, show_pose)
     if not all(f["in_view"] for f in result["features"]):
         raise typer.Exit(1)
@@ -300,8 +302,9 @@ def certify_command(
     """Certify Theorem 2 (L2 gain <= gamma) for the scenario's gains, or every point of its
     [grid], over the [certify] region. Exit 0: all certified; 1: some not; 2: bad input."""
     start = time.perf_counter()
-    spec, loop, s0, _, axes = load_scenario(scenario)
-    point = gain_point(spec, loop.robot.n)
+    case = load_case(scenario)
+    spec, loop, point = case.scenario, case.loop, case.point
+    axes = spec.grid.axes() if spec.grid is not None else None
     check_json_target(json_target)
     if axes is not None and spec.loop == "paper" and loop.robot.n < 6:
         err.print(f"NOT CERTIFIED: {NOT_APPLICABLE.format(n=loop.robot.n)}", markup=False, soft_wrap=True)
@@ -316,11 +319,11 @@ def certify_command(
                   f"a point{'; plus CSV, about 4x more' if csv else ''})", markup=False, soft_wrap=True)  # fmt: skip
         directory = prepare_out_dir(out_dir or Path("out") / f"{spec.name}-grid")
         how = (workers, scheduler, resume, batch_size, csv)
-        sweep(spec, scenario, point, axes, directory, json_target, how, start, grid_envelope_for(spec, loop, point))
+        sweep(spec, scenario, point, axes, directory, json_target, how, start, grid_envelope_for(case))
         return
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("certifying and measuring lower bounds on the L2 gain"):
-        result, cert = certificate_result(spec, loop, s0, command_provenance(scenario), lower_bounds=lower_bounds)
+        result, cert = certificate_result(case, command_provenance(scenario), lower_bounds=lower_bounds)
     emit(result, directory / "certificate.json" if directory else None, json_target, show_certificate)
     if not cert.certified:
         raise typer.Exit(1)
@@ -481,7 +484,8 @@ def synthesize_command(
     (fact 6), reach [synthesize] gamma with the smallest gains, or (objective = "target_speed")
     maximise the envelope's certified target speed (facts 7-8); write them as a scenario."""
     start = time.perf_counter()
-    spec, loop, s0, settings, _ = load_scenario(scenario)
+    case = load_case(scenario)
+    spec, loop = case.scenario, case.loop
     n = loop.robot.n
     cfg = spec.synthesize
     if spec.loop != "paper" or n < 6:
@@ -492,7 +496,7 @@ def synthesize_command(
     bounds = Bounds(tuple(cfg.k_xi), tuple(cfg.k_c), tuple(cfg.k_e))
     weights = Weights(**spec.weights.model_dump())
     speed = cfg.objective == "target_speed"
-    theta = speed_theta_bar(spec, loop, gain_point(spec, n)) if speed else None
+    theta = speed_theta_bar(case) if speed else None
     design = designer(weights, spec.reference.se3(), n, theta_max=math.radians(spec.certify.theta_max_deg),
                       gamma_target=cfg.gamma, search_weights=cfg.search_weights,
                       speed=(loop.robot.mass_bounds, theta) if speed else None)  # fmt: skip
@@ -510,7 +514,7 @@ def synthesize_command(
                 if not err.is_terminal:
                     err.print(f"limits search: {text}", markup=False, soft_wrap=True)
 
-            run = logged_runs(design_runner(loop, s0, settings), log, resume=resume)
+            run = logged_runs(design_runner(case), log, resume=resume)
             search = search_within_limits(design, bounds, run, show)
         log.unlink(missing_ok=True)  # the search is done: its runs are in the result
         result = search.result
@@ -543,8 +547,8 @@ def synthesize_command(
         record["scenario_file"] = str(target)
         if speed:  # re-certified by the ordinary route: the written file's own envelope
             with err.status("certifying the written design's operating envelope"):
-                written, written_loop, written_s0, _, _ = load_scenario(target)
-                env = envelope_record(written, written_loop, written_s0, gain_point(written, n))
+                written = load_case(target)
+                env = envelope_record(written)
             record["point"]["envelope"] = env
             record["max_target_speed"] = env["max_target_speed"]
             if env["max_target_speed"] is None:
@@ -553,7 +557,7 @@ def synthesize_command(
             record["limits"] = search.chosen.run
         else:
             with err.status("simulating the design against the arm's limits"):
-                record["limits"] = design_limits(target)
+                record["limits"] = design_limits(load_case(target))
         record["seconds"] = time.perf_counter() - start
     emit(record, None, json_target, show_synthesis)
     if result.point is None or (speed and record["max_target_speed"] is None):
@@ -573,7 +577,8 @@ def margins_command(
     mass, pixel noise and torque-limit scale, each by bisection on the nonlinear loop; and
     the delay margin of the linearised loop. Exit 0 done, 1 no margin (the scenario's own run
     fails), 2 bad input."""
-    spec, _, _, settings, _ = load_scenario(scenario)
+    case = load_case(scenario)
+    spec, settings = case.scenario, case.settings
     if settings.implementation is None:
         raise fail("implementation: margins are of the loop as implemented; add an [implementation] section")
     check_json_target(json_target)
@@ -590,7 +595,7 @@ def margins_command(
             task = bar.add_task("margins", total=planned_runs())
             poll = lambda: bar.update(task, completed=runs_done(directory))  # noqa: E731
             result = margins(
-                scenario,
+                case,
                 directory,
                 map_tasks=lambda f, args: run_tasks(f, args, workers, scheduler, poll),
                 resume=resume,
@@ -626,11 +631,11 @@ def verify_command(
 ) -> None:
     """Check every claim of the paper (Lemmas 1-2, Theorems 1-2, the passivity remarks, the
     Lyapunov derivative) on simulated trajectories; measure the image loop's gap."""
-    spec, loop, s0, settings, _ = load_scenario(scenario)
+    case = load_case(scenario)
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("simulating and checking the claims"):
-        result, claims = verification_result(spec, loop, s0, settings, command_provenance(scenario))
+        result, claims = verification_result(case, command_provenance(scenario))
     failed = result["summary"]["failed"] + result["summary"]["inconclusive"]
     emit(result, directory / "verification.json" if directory else None, json_target, lambda r: show_claims(r, claims))
     if failed:

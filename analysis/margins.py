@@ -24,16 +24,16 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import wait as futures_wait
 from dataclasses import dataclass, replace
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.linearize import PADE_ORDER, delay_loop, delay_margin
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import Scenario, ScenarioError, build, gain_point, load
+from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory, rotation_angle
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.robot import Payload, Robot
@@ -144,20 +144,14 @@ def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: Trackin
     return within, detail
 
 
-@lru_cache(maxsize=2)
-def _scenario(path: str) -> tuple[Scenario, ClosedLoop, np.ndarray, Settings]:
-    spec, base = load(path)
-    return (spec, *build(spec, base))
-
-
-def envelope_bound(path: str) -> TrackingBound | None:
+def envelope_bound(case: Case, envelope: dict | None = None) -> TrackingBound | None:
     """The tracking bound the operating envelope certifies for the scenario's design (MATH
     fact 7, :func:`dvfc.analysis.results.envelope_record`): ``g_d^-1 g = g_ec g_ee`` (from (15),
     (24)), so its position is at most ``|p_ec| + |p_ee|`` and its angle at most
     ``theta_ec + theta_ee`` (the triangle inequality on SO(3)), each at the certified
-    ultimate bound. None when no envelope with rotation bounds is certified."""
-    spec, loop, s0, _ = _scenario(path)
-    env = envelope_record(spec, loop, s0, gain_point(spec, loop.robot.n), search=False)
+    ultimate bound (of ``envelope``, the case's :func:`~dvfc.analysis.results.envelope_record`,
+    computed here when not given). None when no envelope with rotation bounds is certified."""
+    env = envelope_record(case, search=False) if envelope is None else envelope
     b = env.get("bounds")
     if b is None or b["theta_ec_deg"] is None:
         return None
@@ -172,12 +166,11 @@ def envelope_bound(path: str) -> TrackingBound | None:
     return TrackingBound(position, angle, "envelope", text)
 
 
-def continuous_bound(path: str) -> TrackingBound:
+def continuous_bound(case: Case) -> TrackingBound:
     """:data:`TRACKING_FACTOR` times the continuous loop's tracking error, position and angle
     each (the scenario's loop without its ``[implementation]`` and ``[plant]``)."""
-    _, loop, s0, settings = _scenario(path)
-    paper = replace(settings, implementation=None, plant=None)
-    traj = as_implemented(loop, paper).run(s0)
+    paper = replace(case.settings, implementation=None, plant=None)
+    traj = as_implemented(case.loop, paper).run(case.s0)
     if traj.status != "ok":
         raise MarginError(f"the continuous loop itself does not complete ({traj.message})")
     position, angle = (TRACKING_FACTOR * e for e in tracking_error(traj))
@@ -186,27 +179,27 @@ def continuous_bound(path: str) -> TrackingBound:
     return TrackingBound(position, angle, "continuous", text)
 
 
-def tracking_bound(path: str) -> TrackingBound:
+def tracking_bound(case: Case, envelope: dict | None = None) -> TrackingBound:
     """The envelope's certified tracking bound (:func:`envelope_bound`), else
     :func:`continuous_bound`."""
-    return envelope_bound(path) or continuous_bound(path)
+    return envelope_bound(case, envelope) or continuous_bound(case)
 
 
-def trial(path: str, name: str, value: float, bound: TrackingBound) -> dict:
+def trial(case: Case, name: str, value: float, bound: TrackingBound) -> dict:
     """One run at ``name = value`` judged against ``bound``, with its wall time (s, setting
     up the simulator included)."""
-    _, loop, s0, settings = _scenario(path)
+    loop = case.loop
     start = time.perf_counter()
-    changed = with_value(loop, settings, name, value)
-    traj = as_implemented(loop, changed).run(s0)
+    changed = with_value(loop, case.settings, name, value)
+    traj = as_implemented(loop, changed).run(case.s0)
     holds, detail = judge(traj, loop, changed, bound)
     return {"value": value, "holds": holds, "detail": detail, "seconds": time.perf_counter() - start}
 
 
-def search(path: str, name: str, bound: TrackingBound, log: str | None = None) -> dict:
+def search(case: Case, name: str, bound: TrackingBound, log: str | None = None) -> dict:
     """The bisection of one parameter (a task): the runs in ``log`` (JSON lines) are reused,
     new ones appended. Returns the margin record."""
-    _, _, _, settings = _scenario(path)
+    settings = case.settings
     p = PARAMETERS[name]
     done: dict[float, dict] = {}
     if log is not None and Path(log).exists():
@@ -217,7 +210,7 @@ def search(path: str, name: str, bound: TrackingBound, log: str | None = None) -
 
     def run(value: float) -> bool:
         if value not in done:
-            done[value] = trial(path, name, value, bound)
+            done[value] = trial(case, name, value, bound)
             if interrupted(None):  # Ctrl-C swallowed by native code: the run may be cut short, not logged
                 raise KeyboardInterrupt
             if log is not None:
@@ -313,20 +306,29 @@ def linear_margin_text(result: dict) -> str:
 
 
 def margins(
-    path: Path,
+    case: Case,
     directory: Path,
     *,
     map_tasks: Callable[[Callable, list[tuple]], list],
     resume: bool = False,
+    envelope: dict | None = None,
+    own_run: Trajectory | None = None,
 ) -> dict:
-    """Every margin of :data:`PARAMETERS` on the scenario at ``path`` and the linearised
-    loop's delay margin (JSON-ready, without provenance). ``map_tasks(function,
-    argument_tuples)`` runs the searches and returns their results in order."""
-    spec, loop, s0, settings = _scenario(str(path))
+    """Every margin of :data:`PARAMETERS` of the case and the linearised loop's delay margin
+    (JSON-ready, without provenance). ``map_tasks(function, argument_tuples)`` runs the
+    searches (each task receives the case) and returns their results in order; ``envelope``
+    (the case's envelope record) and ``own_run`` (the case run as implemented): when already
+    computed."""
+    spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     if settings.implementation is None:
         raise ScenarioError("implementation: margins are of the loop as implemented; add an [implementation] section")
-    bound = tracking_bound(str(path))
-    own = trial(str(path), "latency", settings.implementation.latency, bound)
+    bound = tracking_bound(case, envelope)
+    if own_run is None:
+        own = trial(case, "latency", settings.implementation.latency, bound)
+    else:
+        holds, detail = judge(own_run, loop, settings, bound)
+        own = {"value": settings.implementation.latency, "holds": holds, "detail": detail,
+               "seconds": own_run.wall_time}  # fmt: skip
     if not own["holds"]:
         raise MarginError(f"the scenario's own run does not hold ({own['detail']}): no margin to measure")
     names = [n for n in PARAMETERS if applicable(n, settings, loop) is None]
@@ -334,7 +336,7 @@ def margins(
     if not resume:
         for log in logs.values():
             log.unlink(missing_ok=True)
-    results = map_tasks(search, [(str(path), n, bound, str(logs[n])) for n in names])
+    results = map_tasks(search, [(case, n, bound, str(logs[n])) for n in names])
     found = dict(zip(names, results, strict=True))
     out = {}
     for name, p in PARAMETERS.items():

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.certify import (
     ASSUMPTIONS,
     NOT_APPLICABLE,
@@ -32,23 +33,23 @@ from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, 
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.linearize import linearize, worst_case_disturbance
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import Scenario, build, gain_point, load
-from dvfc.analysis.simulate import Settings
+from dvfc.analysis.scenario import Scenario
+from dvfc.analysis.simulate import Settings, Trajectory
 from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, scaled
 from dvfc.analysis.verify import Claim, verify
 from dvfc.models.loop import ClosedLoop, Gains, Weights
 
 
-def design_runner(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> Callable[[GainPoint], dict]:
-    """Runs of designs (gains and weights) of one scenario as implemented (its controller,
+def design_runner(case: Case) -> Callable[[GainPoint], dict]:
+    """Runs of designs (gains and weights) of one case as implemented (its controller,
     plant and image; each design runs once, so without compiling): for a design, the run's
     status and, per joint, the peak torques and speed against the URDF's limits."""
-    settings = replace(settings, jit=False)
+    loop, settings = case.loop, replace(case.settings, jit=False)
     limits = robot_limits(loop, settings)
 
     def run(point: GainPoint) -> dict:
         designed = replace(loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
-        traj = as_implemented(designed, settings).run(s0)
+        traj = as_implemented(designed, settings).run(case.s0)
         return {"status": traj.status, "message": traj.message, **limit_record(traj, limits)}
 
     return run
@@ -81,11 +82,9 @@ def logged_runs(run: Callable[[GainPoint], dict], log: Path, *, resume: bool) ->
     return logged
 
 
-def design_limits(path: Path) -> dict:
-    """The design of the scenario file ``path`` run as implemented (:func:`design_runner`)."""
-    spec, base = load(path)
-    loop, s0, settings = build(spec, base)
-    return design_runner(loop, s0, settings)(gain_point(spec, loop.robot.n))
+def design_limits(case: Case) -> dict:
+    """The case's own design run as implemented (:func:`design_runner`)."""
+    return design_runner(case)(case.point)
 
 
 def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
@@ -179,15 +178,15 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
     }
 
 
-def envelope_record(spec: Scenario, loop: ClosedLoop, s0: np.ndarray, point: GainPoint, *, search: bool = True) -> dict:
-    """The operating envelope of the scenario's design (MATH facts 7-9), with what it assumes."""
-    planar = spec.loop == "planar"
+def envelope_record(case: Case, *, search: bool = True) -> dict:
+    """The operating envelope of the case's design (MATH facts 7-9), with what it assumes."""
+    loop, point, planar = case.loop, case.point, case.planar
     if not planar and loop.robot.n < 6:
         return {"rate": None, "reason": NOT_APPLICABLE.format(n=loop.robot.n)}
-    design = design_of(point, None if planar else spec.reference.se3(), loop.robot.mass_bounds)
-    section = spec.envelope
+    design = design_of(point, None if planar else case.reference, loop.robot.mass_bounds)
+    section = case.scenario.envelope
     theta = None if section is None or section.theta_bar_deg is None else math.radians(section.theta_bar_deg)
-    env = envelope(design, loop.camera, disturbance_bounds(section, loop), start_storage(loop, s0), theta,
+    env = envelope(design, loop.camera, disturbance_bounds(section, loop), start_storage(loop, case.s0), theta,
                    search=search)  # fmt: skip
     mass = loop.robot.mass_bounds
     return {
@@ -200,24 +199,24 @@ def envelope_record(spec: Scenario, loop: ClosedLoop, s0: np.ndarray, point: Gai
     }
 
 
-def grid_envelope_for(spec: Scenario, loop: ClosedLoop, point: GainPoint) -> GridEnvelope | None:
+def grid_envelope_for(case: Case) -> GridEnvelope | None:
     """The context of a grid's envelope columns when the scenario has an ``[envelope]``."""
-    if spec.envelope is None:
+    section, loop = case.scenario.envelope, case.loop
+    if section is None:
         return None
-    planar = spec.loop == "planar"
-    design = design_of(point, None if planar else spec.reference.se3(), loop.robot.mass_bounds)
-    theta = None if spec.envelope.theta_bar_deg is None else math.radians(spec.envelope.theta_bar_deg)
-    return grid_envelope(design, loop.camera, disturbance_bounds(spec.envelope, loop), theta)
+    design = design_of(case.point, None if case.planar else case.reference, loop.robot.mass_bounds)
+    theta = None if section.theta_bar_deg is None else math.radians(section.theta_bar_deg)
+    return grid_envelope(design, loop.camera, disturbance_bounds(section, loop), theta)
 
 
-def speed_theta_bar(spec: Scenario, loop: ClosedLoop, point: GainPoint) -> float:
+def speed_theta_bar(case: Case) -> float:
     """The ``theta_bar`` (radians) at which the target-speed synthesis works: the scenario's
     ``[envelope] theta_bar_deg``, else the one giving the scenario design's largest certified
     target speed (:func:`dvfc.analysis.envelope.grid_envelope`, the gain map's rule)."""
-    section = spec.envelope
+    section, loop = case.scenario.envelope, case.loop
     if section is not None and section.theta_bar_deg is not None:
         return math.radians(section.theta_bar_deg)
-    design = design_of(point, spec.reference.se3(), loop.robot.mass_bounds)
+    design = design_of(case.point, case.reference, loop.robot.mass_bounds)
     return grid_envelope(design, loop.camera, disturbance_bounds(section, loop), None).theta_bar
 
 
@@ -231,20 +230,17 @@ def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, 
     return certify(point, spec.reference.se3(), theta_max=theta_max, gamma_bound=bound, with_sdp=with_sdp)
 
 
-def certificate_result(
-    spec: Scenario, loop: ClosedLoop, s0: np.ndarray, provenance: dict, *, lower_bounds: bool = True
-) -> tuple[dict, Certificate]:
-    """Theorem 2 at the scenario's gains: the paper's gamma, the fact-4 gamma, and (optionally)
-    lower bounds on the true gain, over the ``[certify]`` region."""
+def certificate_result(case: Case, provenance: dict, *, lower_bounds: bool = True) -> tuple[dict, Certificate]:
+    """Theorem 2 at the case's gains: the paper's gamma, the fact-4 gamma, and (optionally)
+    lower bounds on the true gain, over the ``[certify]`` region; the operating envelope."""
     start = time.perf_counter()
-    point = gain_point(spec, loop.robot.n)
-    planar = spec.loop == "planar"
+    spec, point, planar = case.scenario, case.point, case.planar
     cert = certificate_for(spec, point)
-    tight = tight_gamma_planar(point) if planar else tight_gamma(point, spec.reference.se3())
+    tight = tight_gamma_planar(point) if planar else tight_gamma(point, case.reference)
     record = point_record(point, cert, tight if cert.gamma is not None else None)
     if lower_bounds:
-        record.update(lower_bound_record(loop, s0, record))
-    record["envelope"] = envelope_record(spec, loop, s0, point)
+        record.update(lower_bound_record(case.loop, case.s0, record))
+    record["envelope"] = envelope_record(case)
     result = {
         "scenario": spec.name,
         "loop": spec.loop,
@@ -264,17 +260,20 @@ def certificate_result(
 
 
 def verification_result(
-    spec: Scenario, loop: ClosedLoop, s0: np.ndarray, settings: Settings, provenance: dict
+    case: Case, provenance: dict, envelope: dict | None = None, implemented_run: Trajectory | None = None
 ) -> tuple[dict, list[Claim]]:
-    """Every claim of the paper checked on simulated runs, at the gamma certified for the gains."""
+    """Every claim of the paper checked on simulated runs, at the gamma certified for the gains;
+    the envelope's claims against ``envelope`` (:func:`envelope_record` of the case), the limits
+    on ``implemented_run`` (the case run as implemented), each computed here when not given."""
     start = time.perf_counter()
-    point = gain_point(spec, loop.robot.n)
+    spec, loop, point = case.scenario, case.loop, case.point
     cert = certificate_for(spec, point, with_sdp=False, bounded=False)
     gamma = cert.gamma
-    if gamma is None and spec.loop == "paper" and loop.robot.n < 6:  # test the paper's claims as written
-        gamma = exact_gamma(point, spec.reference.se3(), np.eye(3))[0]
+    if gamma is None and not case.planar and loop.robot.n < 6:  # test the paper's claims as written
+        gamma = exact_gamma(point, case.reference, np.eye(3))[0]
         gamma = None if not np.isfinite(gamma) else gamma
-    claims = verify(loop, s0, settings, gamma, envelope_record(spec, loop, s0, point, search=False))
+    envelope = envelope_record(case, search=False) if envelope is None else envelope
+    claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run)
     count = lambda status: sum(c.status == status for c in claims)  # noqa: E731
     result = {
         "scenario": spec.name,

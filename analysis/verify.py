@@ -473,11 +473,12 @@ def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Cla
     ]
 
 
-def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Claim]:
+def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Trajectory | None = None) -> list[Claim]:
     """The run as implemented (:func:`dvfc.analysis.sampled.as_implemented`: the scenario's
-    controller, plant and image) against what the robot can do: measurements, not claims of
-    the paper, failing when a URDF limit is exceeded or the run does not complete."""
-    traj = as_implemented(loop, settings).run(s0)
+    controller, plant and image; ``run`` when already made) against what the robot can do:
+    measurements, not claims of the paper, failing when a URDF limit is exceeded or the run
+    does not complete."""
+    traj = as_implemented(loop, settings).run(s0) if run is None else run
     limits = robot_limits(loop, settings)
     record = limit_record(traj, limits)
     how = "sampled" if settings.implementation is not None else "continuous"
@@ -501,17 +502,23 @@ def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Cl
 
 
 def verify(
-    loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None, envelope: dict | None = None
+    loop: ClosedLoop,
+    s0: np.ndarray,
+    settings: Settings,
+    gamma: float | None,
+    envelope: dict | None = None,
+    implemented_run: Trajectory | None = None,
 ) -> list[Claim]:
     """All claims, in the paper's order, on the paper's loop (continuous, exact model, no
     image border), then the operating envelope's (facts 7-8) when given, then the run as
     implemented against the robot's limits. Each variant of the paper's loop runs once, so
     its right-hand sides are evaluated by CasADi's virtual machine rather than compiled; the
-    run as implemented follows the scenario's ``jit``."""
+    run as implemented follows the scenario's ``jit`` (``implemented_run``: that run, when
+    already made)."""
     paper = replace(settings, jit=False, implementation=None, plant=None, view=False)
     return [
         *verify_paper(loop, s0, paper, gamma, envelope),
-        *implemented(loop, s0, settings),
+        *implemented(loop, s0, settings, implemented_run),
     ]
 
 

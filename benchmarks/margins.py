@@ -21,6 +21,7 @@ from pathlib import Path
 
 from timing import seconds
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.margins import margins, run_tasks, with_value
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
@@ -49,7 +50,7 @@ def main() -> None:
             os.environ.pop("DVFC_CACHE") if previous is None else os.environ.update(DVFC_CACHE=previous)
     with tempfile.TemporaryDirectory() as directory:
         start = time.perf_counter()
-        result = margins(DEFAULT_SCENARIO, Path(directory),
+        result = margins(Case.load(DEFAULT_SCENARIO), Path(directory),
                          map_tasks=lambda f, a: run_tasks(f, a, workers, None, lambda: None))  # fmt: skip
         t_margins = time.perf_counter() - start
     runs = sum(m.get("runs", 0) for m in result["margins"].values())

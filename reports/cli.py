@@ -15,7 +15,7 @@ from dvfc.analysis.cli import (
     app,
     command_provenance,
     err,
-    load_scenario,
+    load_case,
     out,
     prepare_out_dir,
     resumable,
@@ -32,8 +32,8 @@ def report(
 ) -> None:
     """Write the design-review report of a scenario: report.html (self-contained) and report.pdf.
     Exit 0: certified and every check passes; 1: not certified, or a check fails or is inconclusive."""
-    spec, loop, s0, settings, _ = load_scenario(scenario)
-    directory = prepare_out_dir(out_dir or Path("out") / spec.name)
+    case = load_case(scenario)
+    directory = prepare_out_dir(out_dir or Path("out") / case.name)
     provenance_ = command_provenance(scenario)
     key = f"{provenance_['scenario_sha256']} dvfc {provenance_['toolkit']['dvfc']}"
     cache = StageCache(directory / CACHE, key, resume)
@@ -55,7 +55,7 @@ def report(
             if not err.is_terminal:  # CI logs, nohup: one plain line a stage
                 err.print(f"report: {name} ({done + 1}/{len(STEPS) + 1})", markup=False)
 
-        data = assemble(spec, loop, s0, settings, provenance_, progress=step, cache=cache, path=scenario)
+        data = assemble(case, provenance_, progress=step, cache=cache)
         step("HTML and PDF")
         html, pdf = write(data, directory)
     out.print(f"report: {html}\n        {pdf}", markup=False)

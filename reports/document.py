@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, run_tasks
 from dvfc.analysis.output import atomic_write, interrupted
@@ -32,8 +33,8 @@ from dvfc.analysis.results import (
     verification_result,
 )
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import Scenario, gain_point
-from dvfc.analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, summary
+from dvfc.analysis.scenario import Scenario
+from dvfc.analysis.simulate import Simulator, Trajectory, identity_residuals, summary
 from dvfc.models.loop import ClosedLoop
 from dvfc.reports import figures
 
@@ -106,54 +107,57 @@ class StageCache:
         return path
 
 
-def measure_margins(path: Path, cache: StageCache) -> dict:
-    """The margins of the scenario at ``path`` (:func:`dvfc.analysis.margins.margins`), measured in
-    this process; the runs are logged in the cache's scratch directory so that a resumed
-    report continues an interrupted search. ``{"reason": ...}`` when the scenario's own run
-    does not hold."""
+def measure_margins(case: Case, cache: StageCache, envelope: dict, own_run: Trajectory) -> dict:
+    """The margins of the case (:func:`dvfc.analysis.margins.margins`, given its envelope and
+    its run as implemented), measured in this process; the runs are logged in the cache's
+    scratch directory so that a resumed report continues an interrupted search.
+    ``{"reason": ...}`` when the scenario's own run does not hold."""
     scratch = cache.scratch("margins")
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            return margins(path, scratch or Path(tmp), map_tasks=lambda f, a: run_tasks(f, a, 1, None, lambda: None),
-                           resume=scratch is not None)  # fmt: skip
+            return margins(case, scratch or Path(tmp), map_tasks=lambda f, a: run_tasks(f, a, 1, None, lambda: None),
+                           resume=scratch is not None, envelope=envelope, own_run=own_run)  # fmt: skip
         except MarginError as exc:
             return {"reason": str(exc)}
 
 
 def assemble(
-    spec: Scenario,
-    loop: ClosedLoop,
-    s0: np.ndarray,
-    settings: Settings,
+    case: Case,
     provenance: dict,
     progress: Callable[[str], None] = lambda step: None,
     cache: StageCache | None = None,
-    path: Path | None = None,
 ) -> ReportData:
-    """Run every job of the review on the scenario (read from ``path``, which the margins of
-    the loop as implemented need: without it, or without an ``[implementation]``, they are
-    not measured); ``progress`` is told each step of :data:`STEPS`; the simulation, the
-    certificate, the verification and the margins go through ``cache``."""
+    """Run every job of the review on the case, each once: the simulation of the paper's loop
+    and of the loop as implemented (one run when they are the same loop), the certificate with
+    its envelope, the verification (reusing both), the margins of the loop as implemented
+    (without an ``[implementation]``, none), the gain map; ``progress`` is told each step of
+    :data:`STEPS`; the runs, the certificate, the verification and the margins go through
+    ``cache``."""
+    spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     stage = cache or StageCache(None, "", False)
     progress(STEPS[0])
-    trajectory = stage("simulation", lambda: Simulator(loop, settings).run(s0))
     implemented = stage("implemented", lambda: as_implemented(loop, settings).run(s0))
+    # the paper's loop is the one implemented when there is no [implementation] and no [plant]: the same
+    # run, unless it stopped where a feature left the image (the paper's run goes on there)
+    same = settings.implementation is None and settings.plant is None and implemented.status == "ok"
+    trajectory = implemented if same else stage("simulation", lambda: Simulator(loop, settings).run(s0))
     progress(STEPS[1])
-    certificate = stage("certificate", lambda: certificate_result(spec, loop, s0, provenance)[0])
+    certificate = stage("certificate", lambda: certificate_result(case, provenance)[0])
+    envelope = certificate["points"][0]["envelope"]
     progress(STEPS[2])
-    verification = stage("verification", lambda: verification_result(spec, loop, s0, settings, provenance)[0])
+    verification = stage("verification", lambda: verification_result(case, provenance, envelope, implemented)[0])
     progress(STEPS[3])
     measured = None
-    if settings.implementation is not None and path is not None:
-        measured = stage("margins", lambda: measure_margins(path, stage))
+    if settings.implementation is not None:
+        measured = stage("margins", lambda: measure_margins(case, stage, envelope, implemented))
     progress(STEPS[4])
-    point = gain_point(spec, loop.robot.n)
+    point = case.point
     axes = spec.grid.axes() if spec.grid is not None else None
     gamma_certified = certificate["points"][0]["gamma"]
     gmap, design = None, {"gamma": gamma_certified}
     if gamma_certified is not None:  # no map where Theorem 2 does not apply (the paper's loop with n < 6)
         quantity = spec.report.map
-        context = grid_envelope_for(spec, loop, point) if quantity != "gamma" else None
+        context = grid_envelope_for(case) if quantity != "gamma" else None
         gmap = gain_map(point, spec.reference.se3(), axes, spec.certify.gamma, envelope=context, quantity=quantity)
         if context is not None:  # the design's own value on the map, by the same batched route
             itself = [("w_pc", np.array([point.weights.w_pc]))]  # a one-point grid: the design exactly

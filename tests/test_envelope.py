@@ -14,6 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from dvfc.analysis.adversary import worst_disturbance
+from dvfc.analysis.case import Case
 from dvfc.analysis.certify import output_blocks, random_rotations
 from dvfc.analysis.cli import app
 from dvfc.analysis.envelope import (
@@ -319,7 +320,7 @@ def test_grid_columns_match_the_single_design_envelope():
     spec, base = load(EXAMPLES / "ur5_envelope.toml")
     loop, _, _ = build(spec, base)
     point = gain_point(spec, 6)
-    context = grid_envelope_for(spec, loop, point)
+    context = grid_envelope_for(Case(spec, base))
     grid = GridSpec.around(point, loop.reference, [("k_c", np.array([2.0, 3.0, 4.5]))], None, context)
     columns = certify_batch(grid, 0, grid.size)
     design = design_of(point, loop.reference, loop.robot.mass_bounds)

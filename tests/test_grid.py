@@ -21,7 +21,6 @@ import dvfc.analysis.grid as grid
 from dvfc.analysis.certify import GainPoint, certify
 from dvfc.analysis.cli import app
 from dvfc.analysis.grid import POINTS, GridSpec, axis_value, gain_map, read_points, run_sweep
-from dvfc.analysis.scenario import gain_point
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
@@ -267,8 +266,8 @@ def test_named_points_are_the_smallest_gamma_and_the_cheapest_meeting_the_requir
 
 def grid_designs(scenario: Path, indices: np.ndarray) -> dict[str, np.ndarray]:
     """The gains of the grid points ``indices`` of a scenario's sweep."""
-    spec, loop, _, _, axes = cli_module.load_scenario(scenario)
-    grid = GridSpec.around(gain_point(spec, loop.robot.n), spec.reference.se3(), axes)
+    case = cli_module.load_case(scenario)
+    grid = GridSpec.around(case.point, case.reference, case.scenario.grid.axes())
     rows = [grid.designs(int(i), int(i) + 1) for i in indices]
     return {k: np.concatenate([r[k] for r in rows]) for k in ("k_xi", "k_c", "k_e")}
 

@@ -13,6 +13,7 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.cli import app
 from dvfc.analysis.linearize import DelayLoop, delay_loop, delay_margin
 from dvfc.analysis.margins import PARAMETERS, linear_margin_text, search, tracking_bound, tracking_error, trial
@@ -33,13 +34,13 @@ def short_default(tmp_path_factory):
 def test_latency_margin_holds_below_and_breaks_above(short_default):
     """The measured latency margin brackets the breaking point: the loop holds at 0.8x the
     margin and breaks at 1.25x (latencies rounded to whole control periods, as the search's)."""
-    path = str(short_default)
-    bound = tracking_bound(path)
-    margin = search(path, "latency", bound)
+    case = Case.load(short_default)
+    bound = tracking_bound(case)
+    margin = search(case, "latency", bound)
     value = margin["value"]
     assert value is not None and margin["breaks_at"] <= 1.25 * value
-    assert trial(path, "latency", 0.8 * value, bound)["holds"]
-    assert not trial(path, "latency", 1.25 * value, bound)["holds"]
+    assert trial(case, "latency", 0.8 * value, bound)["holds"]
+    assert not trial(case, "latency", 1.25 * value, bound)["holds"]
 
 
 def test_without_a_certified_envelope_the_criterion_is_twice_the_continuous_loops(short_default, tmp_path):
@@ -47,12 +48,12 @@ def test_without_a_certified_envelope_the_criterion_is_twice_the_continuous_loop
     ``theta_bar`` is self-consistent), the tracking bound falls back to twice the continuous
     loop's error, position and angle each, and the criterion says so; with the envelope the
     criterion is its certified ultimate bound."""
-    assert tracking_bound(str(short_default)).source == "envelope"
+    assert tracking_bound(Case.load(short_default)).source == "envelope"
     data = tomllib.loads(short_default.read_text())
     data["envelope"] = {"torque": 100.0}
     path = tmp_path / "unbounded.toml"
     path.write_text(tomli_w.dumps(data))
-    bound = tracking_bound(str(path))
+    bound = tracking_bound(Case.load(path))
     assert bound.source == "continuous" and "2x the continuous loop's" in bound.text
     spec, base = load(path)
     loop, s0, settings = build(spec, base)
@@ -156,12 +157,12 @@ def test_a_run_over_the_effort_limits_does_not_hold_unless_clipped(short_default
     (joint 2 at 0.87 of its limit) asks for more than the limit, so with ``saturate`` off the
     run does not hold, for that reason; the same search point with ``saturate`` on is judged
     on the run with clipped torques instead (its tracking), not on the torque asked for."""
-    path = str(short_default)
-    bound = tracking_bound(path)
-    over = trial(path, "torque_scale", 0.5, bound)
+    case = Case.load(short_default)
+    bound = tracking_bound(case)
+    over = trial(case, "torque_scale", 0.5, bound)
     assert not over["holds"] and over["detail"].startswith("peak torque"), over
     data = tomllib.loads(short_default.read_text())
     data["implementation"]["saturate"] = True
     clipped = short_default.parent / "clipped.toml"
     clipped.write_text(tomli_w.dumps(data))
-    assert not trial(str(clipped), "torque_scale", 0.5, bound)["detail"].startswith("peak torque")
+    assert not trial(Case.load(clipped), "torque_scale", 0.5, bound)["detail"].startswith("peak torque")

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import tomli_w
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.results import verification_result
 from dvfc.analysis.scenario import ScenarioError, build, load
 from dvfc.analysis.simulate import Simulator
@@ -30,19 +31,19 @@ def planar(tmp_path: Path, **robot_or_target) -> Path:
     return path
 
 
-def out_of_reach(tmp_path: Path):
+def out_of_reach(tmp_path: Path) -> Case:
     """Target at rest 0.75 m from the shoulder, beyond the arm's 0.70 m reach, in view from the
     start (q0 = [-0.15, 1.0], tip 0.62 m out): the law stretches the arm into its elbow
     singularity. The arm crosses from sigma_min = 0.025 to singular within one 10 ms output
     step, so the stop threshold is raised to 0.05 to catch it at an output step."""
-    spec, base = load(planar(tmp_path, robot={"q0": [-0.15, 1.0]}, simulation={"sigma_min": 0.05},
-                             target={"xyz": [0.72, 0.20, -0.45], "motion": {"kind": "static"}}))  # fmt: skip
-    return spec, *build(spec, base)
+    return Case.load(planar(tmp_path, robot={"q0": [-0.15, 1.0]}, simulation={"sigma_min": 0.05},
+                            target={"xyz": [0.72, 0.20, -0.45], "motion": {"kind": "static"}}))  # fmt: skip
 
 
 def test_run_stops_at_the_singularity(tmp_path):
-    _, loop, s0, settings = out_of_reach(tmp_path)
-    traj = Simulator(loop, settings).run(s0)
+    case = out_of_reach(tmp_path)
+    settings = case.settings
+    traj = Simulator(case.loop, settings).run(case.s0)
     sigma = traj["sigma_min_arm_jacobian"][:, 0]
     assert traj.status == "singular" and traj.t[-1] < settings.duration
     assert "J_p is near-singular" in traj.message and f"t = {traj.t[-1]:.4g} s" in traj.message
@@ -51,8 +52,7 @@ def test_run_stops_at_the_singularity(tmp_path):
 
 
 def test_verify_reports_the_singularity(tmp_path):
-    spec, loop, s0, settings = out_of_reach(tmp_path)
-    result, _ = verification_result(spec, loop, s0, settings, {})
+    result, _ = verification_result(out_of_reach(tmp_path), {})
     claim = next(c for c in result["claims"] if c["claim"].startswith("no singularity"))
     assert claim["status"] == "FAIL" and "near-singular" in claim["detail"]
 

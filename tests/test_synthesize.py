@@ -16,11 +16,12 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify, exact_gamma
 from dvfc.analysis.cli import app
 from dvfc.analysis.envelope import DisturbanceBounds, design_of, envelope
 from dvfc.analysis.results import logged_runs, speed_theta_bar
-from dvfc.analysis.scenario import build, gain_point, load
+from dvfc.analysis.scenario import build, load
 from dvfc.analysis.synthesize import (
     FEASIBLE_STEPS,
     SEARCH_STEPS,
@@ -147,7 +148,7 @@ def test_target_speed_synthesis_beats_every_point_of_a_grid():
     loop = build(spec, base)[0]
     reference, mass, camera = spec.reference.se3(), loop.robot.mass_bounds, loop.camera
     disturbance = DisturbanceBounds(0.0785, 0.0, 0.0)
-    theta = speed_theta_bar(spec, loop, gain_point(spec, 6))
+    theta = speed_theta_bar(Case(spec, base))
     out = synthesize_speed(WEIGHTS, reference, 6, SPEED_BOUNDS, mass, theta)
 
     def speed(point: GainPoint) -> float:
