@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from dvfc.analysis.certify import GainPoint
+from dvfc.analysis.output import provenance
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, gain_point, load
 from dvfc.analysis.simulate import Settings
 from dvfc.models.lie import SE3
@@ -52,6 +53,19 @@ class Case:
     def with_scenario(self, scenario: Scenario) -> Case:
         """The same case with another validated scenario (other gains, say), built anew."""
         return Case(scenario, self.base, None, self.mode, self.check_view)
+
+    def provenance(self, command: list[str]) -> dict:
+        """Versions, the scenario's SHA-256 (of its file, or of its validated JSON when built
+        from a dictionary), ``command`` and the date (:func:`dvfc.analysis.output.provenance`)."""
+        content = None if self.path is not None else self.scenario.model_dump_json().encode()
+        return provenance(self.path, command, content)
+
+    def with_gains(self, **gains: float | list[float]) -> Case:
+        """The same case with some ``[gains]`` entries replaced (``k_xi``, ``k_c``, ``k_e``),
+        validated and built anew."""
+        data = self.scenario.model_dump()
+        data["gains"].update(gains)
+        return self.with_scenario(Scenario.model_validate(data))
 
     @property
     def name(self) -> str:

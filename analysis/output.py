@@ -62,14 +62,16 @@ def _version(package: str) -> str | None:
         return None
 
 
-def provenance(scenario_path: Path, command: list[str]) -> dict[str, Any]:
-    """Toolkit and dependency versions, the scenario file's SHA-256, the command and the date."""
+def provenance(scenario_path: Path | None, command: list[str], content: bytes | None = None) -> dict[str, Any]:
+    """Toolkit and dependency versions, the scenario's SHA-256 (of the file, or of ``content``
+    for a scenario that is not a file), the command and the date."""
+    content = Path(scenario_path).read_bytes() if content is None else content
     return {
         "toolkit": {"dvfc": _version("dvfc")},
         "dependencies": {name: _version(name) for name in DEPENDENCIES},
         "python": sys.version.split()[0],
         "scenario": str(scenario_path),
-        "scenario_sha256": hashlib.sha256(Path(scenario_path).read_bytes()).hexdigest(),
+        "scenario_sha256": hashlib.sha256(content).hexdigest(),
         "command": command,
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
     }

@@ -1,1 +1,106 @@
-"""dvfc: passivity-based dynamic visual feedback control, executable and checkable."""
+"""dvfc: passivity-based dynamic visual feedback control (Kawai and Fujita), executable and checkable.
+
+The curated API, one function a job, each taking a :class:`~dvfc.analysis.case.Case` (a
+scenario read, validated and built once)::
+
+    import dvfc
+
+    case = dvfc.load()                       # the built-in default, or dvfc.load("my_cell.toml")
+    run = dvfc.simulate(case)                # the loop as implemented (a Trajectory)
+    certificate = dvfc.certify(case)         # Theorem 2 and the operating envelope (JSON-ready)
+    plane = dvfc.gain_map(case)              # Theorem 2 over a plane of gains
+    verification = dvfc.verify(case)         # every claim of the paper on simulated runs
+    margins = dvfc.margins(case, "out/m")    # where the loop as implemented stops holding (measured)
+    html, pdf = dvfc.report(case, "out/r")   # the design-review report
+
+Everything else lives in the layers: :mod:`dvfc.models` (the symbolic model), :mod:`dvfc.analysis`
+(runs, certificates, checks, synthesis) and :mod:`dvfc.reports`. The names are imported on first
+use, so ``import dvfc.models.lie`` stays light.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from dvfc.analysis.case import Case
+    import numpy as np
+
+    from dvfc.analysis.grid import GainMap
+    from dvfc.analysis.simulate import Trajectory
+
+__all__ = ["Case", "certify", "gain_map", "load", "margins", "report", "simulate", "verify"]
+
+
+def __getattr__(name: str):
+    if name == "Case":
+        from dvfc.analysis.case import Case
+
+        return Case
+    raise AttributeError(f"module 'dvfc' has no attribute {name!r}")
+
+
+def load(path: str | Path | None = None, *, mode: str | None = None) -> Case:
+    """Read, validate and build a scenario file (the built-in default when None); ``mode``
+    overrides ``[simulation] mode`` ("ideal" or "image"). Bad input raises
+    :class:`~dvfc.analysis.scenario.ScenarioError` naming the field."""
+    from dvfc.analysis.case import Case
+    from dvfc.analysis.scenario import DEFAULT_SCENARIO
+
+    return Case.load(DEFAULT_SCENARIO if path is None else path, mode=mode)
+
+
+def simulate(case: Case) -> Trajectory:
+    """The case's loop as implemented (sampled when it has an ``[implementation]``, else the
+    paper's continuous loop), from its initial state."""
+    from dvfc.analysis.sampled import as_implemented
+
+    return as_implemented(case.loop, case.settings).run(case.s0)
+
+
+def certify(case: Case, *, lower_bounds: bool = True) -> dict:
+    """Theorem 2 at the case's gains (closed form, SDP cross-check, a posteriori check), the
+    scaled-storage gamma, lower bounds on the true gain (unless ``lower_bounds`` is False) and
+    the operating envelope; the JSON of ``dvfc certify``."""
+    from dvfc.analysis.results import certificate_result
+
+    return certificate_result(case, case.provenance(["dvfc.certify"]), lower_bounds=lower_bounds)[0]
+
+
+def gain_map(case: Case, axes: list[tuple[str, np.ndarray]] | None = None) -> GainMap:
+    """Theorem 2 certified over the plane of two gain or weight ``axes`` (name, values) through
+    the case's design (by default ``k_c`` and ``k_e`` from a tenth to ten times the design's),
+    each point by the exact closed form with its a posteriori check."""
+    from dvfc.analysis.grid import gain_map as certify_plane
+
+    return certify_plane(case.point, case.reference, axes, case.scenario.certify.gamma)
+
+
+def verify(case: Case) -> dict:
+    """Every claim of the paper checked on simulated runs of the case; the JSON of ``dvfc verify``."""
+    from dvfc.analysis.results import verification_result
+
+    return verification_result(case, case.provenance(["dvfc.verify"]))[0]
+
+
+def margins(case: Case, directory: str | Path, *, workers: int = 1, resume: bool = False) -> dict:
+    """The measured margins of the case's loop as implemented (each parameter by bisection on the
+    nonlinear sampled loop, runs logged in ``directory``); the JSON of ``dvfc margins``."""
+    from dvfc.analysis.margins import margins as measure
+    from dvfc.analysis.margins import run_tasks
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    result = measure(case, directory, map_tasks=lambda f, a: run_tasks(f, a, workers, None, lambda: None),
+                     resume=resume)  # fmt: skip
+    return {**result, "provenance": case.provenance(["dvfc.margins"])}
+
+
+def report(case: Case, directory: str | Path) -> tuple[Path, Path]:
+    """Write the design-review report of the case: ``directory/report.html`` and ``report.pdf``."""
+    from dvfc.reports.document import assemble, write
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    return write(assemble(case, case.provenance(["dvfc.report"])), directory)
