@@ -1,11 +1,12 @@
 # make demo: create .venv, install, run the default scenario end to end.
 # make test: same install plus the browser and PDF tools of the report tests, then ruff and every test.
+# make check: ruff and the quick tier (every test not marked slow), for everyday work.
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 PYTHON ?= python3
 
-.PHONY: install system-deps demo test lint bench mutate clean
+.PHONY: install system-deps demo test check lint bench mutate clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -34,14 +35,16 @@ lint: install
 test: lint system-deps
 	$(BIN)/pytest -q --nbmake tests notebooks
 
-# make mutate: break the code on purpose (tests/mutate.py) and check every mutation is caught (~10 min).
-mutate: install
-	$(BIN)/python tests/mutate.py --write
+check: lint
+	$(BIN)/pytest -q -m "not slow" tests
 
+# make mutate: break the code on purpose (tests/mutation/harness.py) and check every mutation is caught (~10 min).
+mutate: install
+	$(BIN)/python tests/mutation/harness.py --write
+
+# make bench: every benchmark; their numbers written to docs/measured.md.
 bench: install
-	$(BIN)/python benchmarks/simulate.py
-	$(BIN)/python benchmarks/certify.py
-	$(BIN)/python benchmarks/margins.py
+	$(BIN)/python benchmarks/measured.py
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

@@ -1,4 +1,4 @@
-"""Adversarial check of the operating envelope (MATH fact 7): the worst disturbance found.
+"""Adversarial check of the operating envelope (docs/math.md, fact 7): the worst disturbance found.
 
 From the equilibrium (``x(0) = 0``, so ``V(0) = 0``, inside every certified set) the
 nonlinear loop is driven by a piecewise-constant disturbance ``w = [tau_d; v; omega]``

@@ -1,14 +1,14 @@
 """Theorem 2 certificates: the smallest gamma with ``P(gamma) = N^T K N - W/(2 gamma^2) - I/2 >= 0``.
 
 ``N`` comes from :func:`dvfc.models.loop.output_matrix`, the expression the simulator uses.
-``P`` does not depend on the robot (MATH fact 1): the ``xi`` block of ``N`` is the
+``P`` does not depend on the robot (docs/math.md, fact 1): the ``xi`` block of ``N`` is the
 identity, so that block decouples and needs ``k_xi,i >= 1/2 + 1/(2 gamma^2)``. The
 rest, over ``(e_c, e_e)``, depends on ``K_c, K_e, W_c, W_e, g_d`` and on the rotation
 ``R_ec`` of the state.
 
 Two routes to the smallest gamma:
 
-- exact (MATH fact 3): with ``A = N^T K N - I/2`` and ``s = 1/(2 gamma^2)``, the largest
+- exact (docs/math.md, fact 3): with ``A = N^T K N - I/2`` and ``s = 1/(2 gamma^2)``, the largest
   ``s`` with ``A - s W >= 0`` is ``min(min k_xi - 1/2, lambda_min(D^-1/2 S D^-1/2))``,
   ``S`` the Schur complement of the ``e_c`` block ``A_cc`` (where ``W`` vanishes) and
   ``D = W_e^2``; it requires ``A_cc > 0``. Batched over many gain points.
@@ -19,9 +19,9 @@ gamma is the computed one inflated by :data:`INFLATION`, and it is certified onl
 ``lambda_min(P(gamma)) >= 0`` there (the margin reported).
 
 Region: for block-isotropic ``K_e`` (``k_e1 = k_e2 = k_e3``, ``k_e4 = k_e5 = k_e6``)
-``P(R_ec)`` is congruent to ``P(I)`` (MATH fact 2), so ``R_ec = I`` decides for every
+``P(R_ec)`` is congruent to ``P(I)`` (docs/math.md, fact 2), so ``R_ec = I`` decides for every
 rotation. Otherwise the isotropic gains ``K_min`` (blockwise minima of ``K_e``) give a
-sound bound for every ``R_ec`` (MATH fact 5); a search over rotations reports the worst
+sound bound for every ``R_ec`` (docs/math.md, fact 5); a search over rotations reports the worst
 case it finds and the gap.
 """
 
@@ -67,7 +67,7 @@ class GainPoint:
 
     @property
     def isotropic(self) -> bool:
-        """Block-isotropic ``K_e`` (the exact reduction of MATH fact 2 applies)."""
+        """Block-isotropic ``K_e`` (the exact reduction of docs/math.md, fact 2 applies)."""
         return bool(np.ptp(self.k_e[:3]) == 0 and np.ptp(self.k_e[3:]) == 0)
 
     def with_k_e(self, k_e: np.ndarray) -> GainPoint:
@@ -117,7 +117,7 @@ def output_blocks(weights: np.ndarray, reference: SE3, rotations: np.ndarray) ->
 
 
 def exact_s(n_ce: np.ndarray, k_xi_min: np.ndarray, k_c: np.ndarray, k_e: np.ndarray, w_e: np.ndarray):
-    """Largest ``s = 1/(2 gamma^2)`` with ``A - s W >= 0`` (MATH fact 3), batched.
+    """Largest ``s = 1/(2 gamma^2)`` with ``A - s W >= 0`` (docs/math.md, fact 3), batched.
 
     Parameters are batches, for a task of ``t`` entries (6 for the paper's loop, 2 for the
     planar one): ``n_ce`` (B, 2t, 2t), ``k_xi_min`` (B,), ``k_c``, ``k_e`` (B, t), ``w_e``
@@ -257,7 +257,7 @@ class TightCertificate:
 
 
 def tight_lmi(point: GainPoint, reference: SE3, alpha: float, gamma: float) -> np.ndarray:
-    """The dissipation LMI of the storage ``alpha V`` (MATH fact 4), at ``R_ec = R_ee = I``::
+    """The dissipation LMI of the storage ``alpha V`` (docs/math.md, fact 4), at ``R_ec = R_ee = I``::
 
         [[alpha N^T K N - I/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]] >= 0
 

@@ -365,7 +365,7 @@ def show_certificate(result: dict) -> None:
 
 
 def show_envelope(e: dict) -> None:
-    """Human output of the operating envelope (MATH facts 7-9)."""
+    """Human output of the operating envelope (docs/math.md, facts 7-9)."""
     if e.get("rate") is None:
         out.print(f"Operating envelope: not certified: {e['reason']}", markup=False)
         return

@@ -182,8 +182,8 @@ POINTS = "points"
 BYTES_PER_POINT = 20
 """Disk size of one grid point in Parquet (zstd), for the estimate printed before a sweep:
 gamma and margin (8 bytes each, nearly incompressible) plus the index, the axis values,
-the flag and the reason code (a few bytes after dictionary and run-length encoding);
-measured 17-18 bytes a point on grids of 1e5-1e6 points (benchmarks/certify.py)."""
+the flag and the reason code (a few bytes after dictionary and run-length encoding); the
+measured size is in docs/measured.md (``benchmarks/certify.py``), at most this."""
 
 
 def batch_table(result: dict[str, np.ndarray], axes: list[str]) -> pa.Table:

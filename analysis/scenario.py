@@ -298,7 +298,7 @@ class CertifySection(_Strict):
 
 
 class EnvelopeSection(_Strict):
-    """Bounds on the disturbance for the operating envelope (MATH facts 7-9): the target's
+    """Bounds on the disturbance for the operating envelope (docs/math.md, facts 7-9): the target's
     speed (m/s) and angular rate (rad/s), the joint-torque disturbance ``|tau_d|`` (N m,
     Euclidean norm), and optionally ``theta_bar`` (degrees). Each one absent is derived
     from the scenario's own target motion and disturbances."""

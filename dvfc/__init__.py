@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from dvfc.analysis.case import Case
     import numpy as np
 
+    from dvfc.analysis.case import Case
     from dvfc.analysis.grid import GainMap
     from dvfc.analysis.simulate import Trajectory
 

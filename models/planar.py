@@ -2,7 +2,7 @@
 
 The paper's law needs ``J_b pinv(J_b) = I_6`` ((40)-(41)); an arm with ``n < 6`` joints,
 like the planar two-link testbed of Fig. 3, cannot produce every camera velocity, so that
-cancellation fails (MATH, "where the guarantees stop"). This module restates the problem
+cancellation fails (docs/math.md, "Where the guarantees stop"). This module restates the problem
 in the directions the arm does control and re-derives each step for them. Equation labels
 ``(P1)``... are this derivation's; the paper's equation each one mirrors is in brackets.
 
@@ -49,7 +49,7 @@ away from the arm's singularities), ``o(t)`` for the target's horizontal positio
   constant depth, the features are affine in the relative position, so
   ``f - fbar = A (p - pbar)`` exactly, ``A = dfbar/dpbar`` (``2m x 2``), and
   ``e_e = pinv(A) (f - fbar)`` holds exactly, not to first order as (21).
-- (P13) [MATH fact 7] the operating envelope. (P8) is exactly quadratic in ``e_c, e_e``
+- (P13) [docs/math.md, fact 7] the operating envelope. (P8) is exactly quadratic in ``e_c, e_e``
   (no rotation error function), so ``V <= x^T D x`` with
   ``D = diag(m_hi/2 I_n, w_c/2 I_2, w_e/2 I_2)``, ``m_hi >= lambda_max(M(q))`` for every ``q``,
   for every state: no ``theta_bar`` and no self-consistency condition. Completing the square

@@ -84,7 +84,7 @@ def image_plane(traj: Trajectory, focal_length: float) -> str:
 
 
 def envelope_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, float], envelope: dict) -> str:
-    """The image (its border), the certified feature regions of MATH fact 8 (boxes at the
+    """The image (its border), the certified feature regions of docs/math.md, fact 8 (boxes at the
     certified level, and at the ultimate level ``c_inf``) and the simulated feature tracks."""
     fig, ax = plt.subplots(figsize=(6.0, 5.0))
     for name, style, label in (("boxes_px", "-", "certified region (V <= c)"),

@@ -1,7 +1,7 @@
 """An independent reference for Theorem 2, written from the paper in NumPy only.
 
 The certifier builds ``N`` from :mod:`dvfc.models.loop` (CasADi) and finds the smallest gamma by
-a Schur complement (MATH fact 3). The tests judge it against this module, which shares
+a Schur complement (docs/math.md, fact 3). The tests judge it against this module, which shares
 none of that code: the matrices are rebuilt from the paper's text and the smallest gamma
 is found by a different route (bisection on the smallest eigenvalue of the whole ``P``).
 
@@ -11,7 +11,7 @@ is found by a different route (bisection on the smallest eigenvalue of the whole
 - (39): ``dV/dt = u^T nu + x^T G w``, ``G = [[I, 0], [0, 0], [0, W_e diag(R_ee, R_ee)]]``, so
   ``W = G G^T = diag(I, 0, W_e^2)`` (Theorem 2).
 - Theorem 2: ``P(gamma) = N^T K N - W / (2 gamma^2) - I/2``.
-- MATH fact 4: ``[[alpha N^T K N - I/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]] >= 0``.
+- docs/math.md, fact 4: ``[[alpha N^T K N - I/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]] >= 0``.
 - (P9)-(P11): the planar loop's ``N = [[I, 0, 0], [0, -w_c I2, 0], [0, w_c I2, -w_e I2]]``.
 
 Smallest gamma. With ``A = N^T K N - I/2`` and ``s = 1/(2 gamma^2)``, ``f(s) = lambda_min(A - s W)``
@@ -153,7 +153,7 @@ class Design:
         return np.r_[self.k_xi, self.k_c, self.k_e]
 
     def blockwise_minimum(self) -> Design:
-        """The design with ``K_e`` replaced by its blockwise minima (MATH fact 5)."""
+        """The design with ``K_e`` replaced by its blockwise minima (docs/math.md, fact 5)."""
         k_e = np.repeat([self.k_e[:3].min(), self.k_e[3:].min()], 3)
         return Design(self.k_xi, self.k_c, k_e, self.w, self.p_d, self.r_d)
 

@@ -68,6 +68,7 @@ LIMIT_CLAIMS = ("as implemented", "URDF <limit effort>", "URDF <limit velocity>"
 
 
 @pytest.mark.parametrize("name", ["panda_circle", "puma560_circle", "planar2dd_reduced"])
+@pytest.mark.slow
 def test_verify_every_claim_of_the_paper_holds(name, tmp_path):
     """n = 7 (J_b pinv(J_b) = I_6 since J_b has full row rank), n = 6, and the reduced planar
     loop: every claim of the paper passes on simulation. Whether the run stays within the
@@ -80,6 +81,7 @@ def test_verify_every_claim_of_the_paper_holds(name, tmp_path):
     assert len(limits) == 3 and code == int(any(c["status"] == "FAIL" for c in limits))
 
 
+@pytest.mark.slow
 def test_default_example_is_a_loop_a_ur5_can_run(tmp_path):
     """The default example runs sampled (500 Hz torques, 60 Hz images 20 ms late, noisy
     pixels) within the UR5's effort and velocity limits for its whole run, every feature in
@@ -100,6 +102,7 @@ def test_default_example_is_a_loop_a_ur5_can_run(tmp_path):
     assert code == 0 and all(c["status"] in ("PASS", "MEASURED") for c in result["claims"])
 
 
+@pytest.mark.slow
 def test_redundant_arm_self_motion_is_bounded_by_xi(tmp_path):
     """n = 7: the null-space motion, invisible in x, is measured and stays below int |xi| dt."""
     _, result = run("verify", str(short("panda_circle", tmp_path, 5.0)))

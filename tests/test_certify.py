@@ -1,4 +1,4 @@
-"""Theorem 2 certificates: exact closed form (MATH fact 3) against the SDP, invariance
+"""Theorem 2 certificates: exact closed form (docs/math.md, fact 3) against the SDP, invariance
 and soundness over rotations (facts 2 and 5), minimality, failure reasons. The L2
 inequality (45) on integrated trajectories is in ``test_theorem2.py`` (runs from rest, where
 it constrains gamma)."""

@@ -266,6 +266,7 @@ def test_simulate_writes_trajectory_and_summary(tmp_path):
     assert on_disk["summary"]["identity_residuals"]["dissipation"] < 1e-6
 
 
+@pytest.mark.slow
 def test_cli_process_exit_status_and_message(tmp_path):
     """A real process: bad input gives status 2 and a single line, no traceback."""
     path = write(tmp_path, setter("gains.k_c", [1.0] * 5))
@@ -275,6 +276,7 @@ def test_cli_process_exit_status_and_message(tmp_path):
     assert proc.stderr.strip() == "error: gains.k_c: expected 6 entries, got 5"
 
 
+@pytest.mark.slow
 def test_certify_default_scenario_json(tmp_path):
     result = runner.invoke(app, ["certify", str(write(tmp_path)), "--json", "-"])
     assert result.exit_code == 0, result.output
@@ -286,11 +288,13 @@ def test_certify_default_scenario_json(tmp_path):
     assert "SO(3)" in data["region"]
 
 
+@pytest.mark.slow
 def test_certify_uncertified_point_exits_1(tmp_path):
     result = runner.invoke(app, ["certify", str(write(tmp_path, setter("gains.k_xi", 0.5)))])
     assert result.exit_code == 1 and "k_xi <= 1/2" in result.stdout
 
 
+@pytest.mark.slow
 def test_certify_required_gamma_exits_1(tmp_path):
     result = runner.invoke(app, ["certify", str(write(tmp_path, setter("certify.gamma", 0.1))), "--json", "-"])
     assert result.exit_code == 1 and "exceeds the required bound" in json.loads(result.stdout)["points"][0]["reason"]
@@ -301,6 +305,7 @@ def test_certify_bad_region_is_exit_2(tmp_path):
     assert result.exit_code == 2 and result.stderr.startswith("error: certify.theta_max_deg")
 
 
+@pytest.mark.slow
 def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
     target = tmp_path / "syn.toml"
     result = runner.invoke(app, ["synthesize", str(write(tmp_path)), "--out", str(target), "--json", "-"])
@@ -313,6 +318,7 @@ def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
     assert json.loads(check.stdout)["points"][0]["gamma"] == pytest.approx(record["point"]["gamma"], rel=1e-9)
 
 
+@pytest.mark.slow
 def test_target_speed_synthesis_reports_the_written_designs_certified_speed(tmp_path):
     """``objective = "target_speed"``: the speed reported is the envelope that ``certify``
     computes for the file written (the ordinary route), not the synthesis' own value."""
@@ -328,6 +334,7 @@ def test_target_speed_synthesis_reports_the_written_designs_certified_speed(tmp_
     assert record["max_target_speed"] is not None and record["max_target_speed"] == speed
 
 
+@pytest.mark.slow
 def test_verify_passes_and_writes_json(tmp_path):
     """The default example (the loop as a UR5 runs it) over 4 s: every claim holds."""
     out = tmp_path / "v"
@@ -341,6 +348,7 @@ def test_verify_passes_and_writes_json(tmp_path):
     assert data["summary"]["failed"] == 0 and all(c["status"] in ("PASS", "MEASURED") for c in data["claims"])
 
 
+@pytest.mark.slow
 def test_verify_short_horizon_fails_convergence(tmp_path):
     """0.2 s is too short for x -> 0: verify says FAIL and exits 1; the idealised law's torque
     exceeds the UR5's wrist effort limit, also a FAIL. The human table prints each FAIL's
@@ -400,6 +408,7 @@ def test_simulate_shows_the_true_tracking_error_first(tmp_path):
     assert final["tracking_angle_deg"] == pytest.approx(angle, rel=1e-9, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_native_solver_text_never_reaches_the_user(tmp_path):
     """A run whose step size collapses (the planar arm stretched into its elbow singularity with
     the singularity stop off): SUNDIALS' own lines ("At t = ..., the error test failed ...")

@@ -1,4 +1,4 @@
-"""The operating envelope (MATH facts 7-9): each link of fact 7's chain on its own, the mass
+"""The operating envelope (docs/math.md, facts 7-9): each link of fact 7's chain on its own, the mass
 bounds from the URDF, the rotation reductions, and visibility on simulated runs."""
 
 from __future__ import annotations
@@ -279,6 +279,7 @@ def test_certify_reports_the_envelope_contract(tmp_path):
     assert "every feature stays in the image for all t >= 0" in " ".join(table.stdout.split())
 
 
+@pytest.mark.slow
 def test_verify_confirms_the_envelope_on_a_run():
     """``dvfc verify``'s envelope claims (fact 7's inequality from t = 0, fact 8's boxes, the
     ultimate errors against fact 7's bound, the worst ``V(T)`` an adversarial search finds from
@@ -332,6 +333,7 @@ def test_grid_columns_match_the_single_design_envelope():
     assert np.all(np.diff(columns["max_target_speed"]) >= 0)
 
 
+@pytest.mark.slow
 def test_worst_motion_at_095_of_the_largest_certified_speed_keeps_every_feature_in_view():
     """Facts 7-8 at the edge: with the target speed at 0.95 of ``max_target_speed`` (rate and
     torque as the scenario bounds them) the statement still holds, so from the equilibrium

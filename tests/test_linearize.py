@@ -60,6 +60,7 @@ def test_quotient_removes_only_unobservable_modes(default):
 
 
 @pytest.mark.parametrize("gains", [(20.0, 3.0, 10.0), (10.0, 2.0, 5.0), (40.0, 6.0, 20.0)])
+@pytest.mark.slow
 def test_lower_bound_below_tight_below_paper(gains):
     """gamma_lower <= gamma_tight <= gamma (a tight gamma below a lower bound would be a bug)."""
     k_xi, k_c, k_e = gains

@@ -157,6 +157,7 @@ def test_image_mode_keeps_lemma_2_but_not_43():
     assert residuals["dissipation"] > 100 * residuals["passivity"]
 
 
+@pytest.mark.slow
 def test_compiled_dynamics_match_virtual_machine(tmp_path, monkeypatch):
     """The C-compiled right-hand side gives the same trajectory as CasADi's VM, to 1e-8: the
     two evaluate the same expressions in a different order (round-off ~1e-15), which CVODES

@@ -43,6 +43,7 @@ def test_latency_margin_holds_below_and_breaks_above(short_default):
     assert not trial(case, "latency", 1.25 * value, bound)["holds"]
 
 
+@pytest.mark.slow
 def test_without_a_certified_envelope_the_criterion_is_twice_the_continuous_loops(short_default, tmp_path):
     """When the design has no certified envelope (here a torque bound of 100 N m: no
     ``theta_bar`` is self-consistent), the tracking bound falls back to twice the continuous

@@ -7,6 +7,7 @@ import json
 
 import casadi as cs
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -60,6 +61,7 @@ def strip_timing(data: dict) -> dict:
     return data
 
 
+@pytest.mark.slow
 def test_same_scenario_and_seed_give_identical_results(tmp_path):
     """Two runs of simulate and of certify on the same scenario (with seeded torque noise)
     give identical JSON apart from timing and the date."""

@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, Phase, event, given, settings
 from hypothesis import strategies as st
 
@@ -116,6 +117,7 @@ def check_reference_agrees(design: ref.Design, gamma: float | None, certified: b
 
 @budget(40)
 @given(designs(), regions)
+@pytest.mark.slow
 def test_certificate_is_sound_complete_and_minimal(design, theta_max):
     """Single points (closed form, a posteriori check), every regime, isotropic or not, over
     SO(3) or a smaller region. Sound at the independent worst rotation; the reported worst case
@@ -153,6 +155,7 @@ def test_sdp_cross_checked_certificate_is_complete(design):
 
 @budget(8)
 @given(designs(), st.integers(0, 2**32 - 1))
+@pytest.mark.slow
 def test_tight_certificate_is_sound_complete_and_minimal(design, seed):
     """Fact 4: the scaled-storage LMI holds at the reported ``(alpha, gamma)`` for the reference
     matrices at random ``(R_ec, R_ee)`` (with the true anisotropic ``K_e``); a gamma always
@@ -185,6 +188,7 @@ def planar_designs(draw) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
 
 @budget(25)
 @given(planar_designs())
+@pytest.mark.slow
 def test_planar_certificates_are_sound_complete_and_minimal(design):
     """(P11) and its fact-4 tightening on the reduced planar loop (``N`` constant: no rotation)."""
     k_xi, k_c, k_e, w = design

@@ -23,6 +23,8 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
 from dvfc.reports.document import CACHE
 
+pytestmark = pytest.mark.slow  # every test here reads the whole review of the default scenario (about a minute)
+
 EXAMPLES = Path(__file__).parent.parent / "examples"
 CHROMIUM = shutil.which("chromium")
 POPPLER = shutil.which("pdftoppm")

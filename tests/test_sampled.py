@@ -243,6 +243,7 @@ def test_a_feature_lost_in_an_image_arriving_after_the_horizon_still_ends_the_ru
     assert cut.stats["steps"] == steps and cut.t[-1] < steps * imp.period
 
 
+@pytest.mark.slow
 def test_captures_are_the_first_samples_at_or_after_each_camera_tick():
     """Against exact rational arithmetic (``fractions``) over 7 control rates x 9 camera rates
     x horizons of 1 to 600 samples: the capture of tick ``j`` is ``ceil(j f_c / f_cam)``,

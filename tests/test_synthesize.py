@@ -1,4 +1,4 @@
-"""Gain synthesis (MATH fact 6): bounds respected, certified at the reported gamma, no point
+"""Gain synthesis (docs/math.md, fact 6): bounds respected, certified at the reported gamma, no point
 of a grid inside the bounds certifies a smaller gamma (an optimum at a corner), and the
 smallest gains reaching a gamma target (an interior optimum) beat a fine grid."""
 
@@ -137,6 +137,7 @@ def test_smallest_gains_for_a_target_are_interior_and_beat_a_fine_grid():
 SPEED_BOUNDS = Bounds((1.0, 30.0), (0.5, 5.0), (0.5, 15.0))
 
 
+@pytest.mark.slow
 def test_target_speed_synthesis_beats_every_point_of_a_grid():
     """Facts 7-8 with fact 6: the gains maximising ``s kappa*(s)`` have a certified target speed
     (the ordinary envelope's, from ``V(0) = 0``, at ``theta_bar`` of its own choice) at least that
@@ -263,6 +264,7 @@ def _worst(limits: dict) -> float:
     return max(max(limits["torque_commanded_ratio"]), max(limits["speed_ratio"]))
 
 
+@pytest.mark.slow
 def test_design_respecting_limits_runs_within_them_where_the_optimum_does_not(limited, tmp_path):
     """The unconstrained optimum exceeds the UR5's limits (its own run); the written design,
     simulated afresh from its file by ``dvfc simulate``, completes within every joint's effort
@@ -303,6 +305,7 @@ def test_the_next_bracket_point_above_the_chosen_design_exceeds_a_limit(limited,
     assert result.exit_code == 1 or _worst(summary["limits"]) > 1
 
 
+@pytest.mark.slow
 def test_no_design_within_the_limits_is_exit_1_and_writes_nothing(tmp_path):
     """Effort limits at 1% of the URDF's (``[implementation] torque_scale``): gravity alone
     exceeds them, no design of the family is within them; exit 1, no file, the status says so."""
@@ -316,6 +319,7 @@ def test_no_design_within_the_limits_is_exit_1_and_writes_nothing(tmp_path):
     assert record["point"] is None and record["status"].startswith("no design within the limits")
 
 
+@pytest.mark.slow
 def test_target_speed_design_respecting_limits_runs_within_them(tmp_path):
     """The same search for ``objective = "target_speed"``: the speed-optimal gains exceed the
     UR5's limits, the design written runs within them, and its certified target speed (the

@@ -34,6 +34,7 @@ def worst():
             "paper": certify(point, loop.reference), "tight": tight_gamma(point, loop.reference)}  # fmt: skip
 
 
+@pytest.mark.slow
 def test_run_from_rest_is_exact(worst):
     """The run starts at ``x = 0`` (``V(0) = 0`` to round-off) and satisfies (43) to 1e-6, and
     reproduces the search's own value of the gain (same system, same ``w``, another integrator

@@ -29,6 +29,7 @@ def rotating_target(data):
 
 
 @pytest.mark.parametrize("edit", [None, rotating_target], ids=["default", "rotating target"])
+@pytest.mark.slow
 def test_every_claim_holds(edit):
     claims = claims_of(*build_loop(edit))
     failed = [c.as_dict() for c in claims if c.passed is False]
@@ -45,6 +46,7 @@ class WithoutCoriolisFeedforward(ClosedLoop):
         return super().tau - r.coriolis @ self.qd_d
 
 
+@pytest.mark.slow
 def test_wrong_controller_is_caught():
     loop, s0, settings = build_loop()
     wrong = WithoutCoriolisFeedforward(**{f: getattr(loop, f) for f in loop.__dataclass_fields__})
@@ -71,6 +73,7 @@ def test_lyapunov_derivative_resolves_a_light_wrist():
     assert claim.status == "PASS" and claim.value <= 1e-4, claim.as_dict()
 
 
+@pytest.mark.slow
 def test_lemma_2_input_scaled_to_stay_in_the_region():
     """An input 16 times the nominal size drives the default arm into a singularity of J_b,
     where Lemma 2 is not stated: the check scales its input down and confirms the lemma,

@@ -9,8 +9,8 @@ failing test (exit status 1); it survives when they pass (exit 0); anything else
 collection error, no tests collected) is a harness error. The unmutated copy must pass the
 same tests first.
 
-Run ``make mutate`` (or ``.venv/bin/python tests/mutate.py [--only NAME] [--write]``);
-``--write`` rewrites the result table in ``MUTATIONS.md``. Exit status 0 only when every
+Run ``make mutate`` (or ``.venv/bin/python tests/mutation/harness.py [--only NAME] [--write]``);
+``--write`` rewrites the result table in ``MUTATIONS.md`` beside this file. Exit status 0 only when every
 mutation is caught.
 """
 
@@ -27,7 +27,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parent.parent.parent
+TABLE = Path(__file__).resolve().parent / "MUTATIONS.md"
 LAYERS = ("models", "analysis", "reports")
 """The top-level folders installed as ``dvfc.models``, ``dvfc.analysis``, ``dvfc.reports``."""
 
@@ -323,7 +324,7 @@ def main() -> int:
 
 
 def write_table(rows, total: float) -> None:
-    path = ROOT / "MUTATIONS.md"
+    path = TABLE
     marker = "<!-- results -->"
     head = path.read_text().split(marker)[0] if path.exists() else ""
     lines = [marker, "", f"Last run: {len(rows)} mutations, {total:.0f} s in all.", "",
