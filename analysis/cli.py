@@ -29,6 +29,7 @@ from dvfc.analysis.certify import (
 )
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, run_tasks, runs_done
+from dvfc.analysis.multirate import implemented_text
 from dvfc.analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
 from dvfc.analysis.pose import initial_view
 from dvfc.analysis.results import (
@@ -300,7 +301,7 @@ def certify_command(
     """Certify Theorem 2 (L2 gain <= gamma) for the scenario's gains, or every point of its
     [grid], over the [certify] region. Exit 0: all certified; 1: some not; 2: bad input."""
     start = time.perf_counter()
-    spec, loop, s0, _, axes = load_scenario(scenario)
+    spec, loop, s0, settings, axes = load_scenario(scenario)
     point = gain_point(spec, loop.robot.n)
     check_json_target(json_target)
     if axes is not None and spec.loop == "paper" and loop.robot.n < 6:
@@ -320,7 +321,8 @@ def certify_command(
         return
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("certifying and measuring lower bounds on the L2 gain"):
-        result, cert = certificate_result(spec, loop, s0, command_provenance(scenario), lower_bounds=lower_bounds)
+        result, cert = certificate_result(spec, loop, s0, command_provenance(scenario), lower_bounds=lower_bounds,
+                                          settings=settings)  # fmt: skip
     emit(result, directory / "certificate.json" if directory else None, json_target, show_certificate)
     if not cert.certified:
         raise typer.Exit(1)
@@ -357,6 +359,8 @@ def show_certificate(result: dict) -> None:
         )
     else:
         out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)
+    if "implemented" in p:
+        out.print(implemented_text(p["implemented"]), markup=False, soft_wrap=True)
     if "envelope" in p:
         show_envelope(p["envelope"])
 

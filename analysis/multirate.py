@@ -38,6 +38,7 @@ from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.linearize import _quaternion_product, equilibrium_configuration
 from dvfc.analysis.simulate import Settings
 from dvfc.models.loop import ClosedLoop
+from dvfc.models.planar import PlanarLoop
 from dvfc.models.target import TargetMotion
 
 LYAPUNOV_MARGIN = 0.5
@@ -289,6 +290,8 @@ def applicability(loop: ClosedLoop, settings: Settings) -> str | None:
     imp = settings.implementation
     if imp is None:
         return "the scenario has no [implementation]: the loop is the paper's continuous one"
+    if isinstance(loop, PlanarLoop):
+        return "the reduced planar loop: the statement is derived for the paper's loop (36)"
     if loop.robot.n != 6:
         return (f"the arm has {loop.robot.n} joints: the equilibrium is isolated only for n = 6 (with n > 6 the "
                 "self-motion gives rho = 1, with n < 6 J_b is not invertible)")  # fmt: skip
@@ -391,3 +394,18 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
         "margins": linear_margins(system),
         "seconds": time.perf_counter() - start,
     }
+
+
+def implemented_text(record: dict) -> str:
+    """Fact 14's record in one line of words."""
+    if not record["applies"]:
+        return f"local certificate of the loop as implemented (fact 14): {record['reason']}"
+    m = record["margins"]
+    fmt = lambda r, scale=1.0: "none in range" if r["value"] is None else f"{r['value'] * scale:.4g}"  # noqa: E731
+    margins = (f"latency <= {fmt(m['latency'], 1e3)} ms, camera >= {fmt(m['camera_rate'])} Hz, "
+               f"control >= {fmt(m['control_rate'])} Hz")  # fmt: skip
+    verdict = "CERTIFIED" if record["certified"] else f"NOT CERTIFIED ({record['reason']})"
+    rate = "-" if record["rate"] is None else f"{record['rate']:.4g}"
+    return (f"loop as implemented, linearised at rest (fact 14, local): {verdict}: rho = {record['rho']:.6g} over "
+            f"{record['period'] * 1e3:.4g} ms, rate {rate} 1/s, Lyapunov margin "
+            f"{record['lyapunov_margin']:.3g}; linear margins {margins}")  # fmt: skip

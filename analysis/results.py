@@ -31,6 +31,7 @@ from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPT
 from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.linearize import linearize, worst_case_disturbance
+from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, build, gain_point, load
 from dvfc.analysis.simulate import Settings
@@ -232,10 +233,13 @@ def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, 
 
 
 def certificate_result(
-    spec: Scenario, loop: ClosedLoop, s0: np.ndarray, provenance: dict, *, lower_bounds: bool = True
+    spec: Scenario, loop: ClosedLoop, s0: np.ndarray, provenance: dict, *, lower_bounds: bool = True,
+    settings: Settings | None = None,
 ) -> tuple[dict, Certificate]:
     """Theorem 2 at the scenario's gains: the paper's gamma, the fact-4 gamma, and (optionally)
-    lower bounds on the true gain, over the ``[certify]`` region."""
+    lower bounds on the true gain, over the ``[certify]`` region; with ``settings`` that have an
+    implementation, also the local certificate of the loop as implemented (``implemented``,
+    docs/math.md, fact 14: :func:`dvfc.analysis.multirate.implemented_record`)."""
     start = time.perf_counter()
     point = gain_point(spec, loop.robot.n)
     planar = spec.loop == "planar"
@@ -245,6 +249,8 @@ def certificate_result(
     if lower_bounds:
         record.update(lower_bound_record(loop, s0, record))
     record["envelope"] = envelope_record(spec, loop, s0, point)
+    if settings is not None and settings.implementation is not None:
+        record["implemented"] = implemented_record(loop, s0, settings)
     result = {
         "scenario": spec.name,
         "loop": spec.loop,

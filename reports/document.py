@@ -139,7 +139,7 @@ def assemble(
     trajectory = stage("simulation", lambda: Simulator(loop, settings).run(s0))
     implemented = stage("implemented", lambda: as_implemented(loop, settings).run(s0))
     progress(STEPS[1])
-    certificate = stage("certificate", lambda: certificate_result(spec, loop, s0, provenance)[0])
+    certificate = stage("certificate", lambda: certificate_result(spec, loop, s0, provenance, settings=settings)[0])
     progress(STEPS[2])
     verification = stage("verification", lambda: verification_result(spec, loop, s0, settings, provenance)[0])
     progress(STEPS[3])
