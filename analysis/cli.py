@@ -575,8 +575,8 @@ def margins_command(
 ) -> None:
     """Measure where the loop as implemented stops holding: latency, camera rate, payload
     mass, pixel noise and torque-limit scale, each by bisection on the nonlinear loop; and
-    the delay margin of the linearised loop. Exit 0 done, 1 no margin (the scenario's own run
-    fails), 2 bad input."""
+    the linear margins of the sampled loop linearised at rest (fact 14). Exit 0 done, 1 no
+    margin (the scenario's own run fails), 2 bad input."""
     spec, _, _, settings, _ = load_scenario(scenario)
     if settings.implementation is None:
         raise fail("implementation: margins are of the loop as implemented; add an [implementation] section")
@@ -618,8 +618,7 @@ def show_margins(result: dict) -> None:
         table.add_row(name, f"{value} {m['unit']}", fmt(m["holds_at"]), fmt(m["breaks_at"]), note)
     out.print(table)
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
-    out.print(f"linearised loop's delay margin: {linear_margin_text(result)} ({result['linear_delay_margin_method']})",
-              markup=False, soft_wrap=True)  # fmt: skip
+    out.print(linear_margin_text(result), markup=False, soft_wrap=True)
 
 
 @app.command("verify")

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dvfc.analysis.linearize import PADE_ORDER, delay_loop, delay_margin
+from dvfc.analysis.multirate import implemented_record, implemented_text
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
@@ -303,13 +303,9 @@ def run_tasks(
 
 
 def linear_margin_text(result: dict) -> str:
-    """The linearised loop's delay margin in words: the value, or why there is none."""
-    status = result["linear_delay_margin_status"]
-    if status == "found":
-        return f"{result['linear_delay_margin']:.4g} s"
-    if status == "stable_over_range":
-        return "none: stable for every delay searched"
-    return "none: the linearised loop is unstable without delay"
+    """The linear margins of the loop as implemented (docs/math.md, fact 14) in words, or why
+    the statement does not apply."""
+    return implemented_text(result["linear_margins"])
 
 
 def margins(
@@ -319,8 +315,9 @@ def margins(
     map_tasks: Callable[[Callable, list[tuple]], list],
     resume: bool = False,
 ) -> dict:
-    """Every margin of :data:`PARAMETERS` on the scenario at ``path`` and the linearised
-    loop's delay margin (JSON-ready, without provenance). ``map_tasks(function,
+    """Every margin of :data:`PARAMETERS` on the scenario at ``path`` and, beside them, the
+    linear margins of the sampled loop linearised at rest (``linear_margins``: docs/math.md,
+    fact 14, :func:`dvfc.analysis.multirate.implemented_record`) (JSON-ready, without provenance). ``map_tasks(function,
     argument_tuples)`` runs the searches and returns their results in order."""
     spec, loop, s0, settings = _scenario(str(path))
     if settings.implementation is None:
@@ -341,17 +338,11 @@ def margins(
         reason = applicable(name, settings, loop)
         out[name] = found.get(name) or {"value": None, "unit": p.unit, "holds_at": None, "breaks_at": None,
                                         "reason": reason}  # fmt: skip
-    linear = delay_margin(delay_loop(loop, s0[: loop.robot.n]))
     return {
         "scenario": spec.name,
         "margins": out,
         "criterion": CRITERION.format(bound=bound.text),
         "tracking_bound": bound.as_dict(),
-        "linear_delay_margin": linear.value,
-        "linear_delay_margin_status": linear.status,
-        "linear_delay_margin_method": (
-            f"the paper's loop linearised at rest with the e_e measurement delayed (Pade order {PADE_ORDER}, "
-            f"eigenvalues, bisection to 10 us) over delays up to {linear.upper:g} s"
-        ),
+        "linear_margins": implemented_record(loop, s0, settings),
         "scenario_run": own,
     }

@@ -66,7 +66,9 @@ def main() -> None:
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result["margins"].items():
         print(f"  {name:14s} holds at {fmt(m['holds_at']):>8}  breaks at {fmt(m['breaks_at']):>8}  {m['unit']}")
-    print(f"  linear delay margin {fmt(result['linear_delay_margin'])} s ({result['linear_delay_margin_status']})")
+    for name, m in result["linear_margins"]["margins"].items():
+        print(f"  linear {name:12s} stable at {fmt(m['stable_at']):>8}  unstable at {fmt(m['unstable_at']):>8}  "
+              f"{m['unit']}")
 
 
 if __name__ == "__main__":
