@@ -273,8 +273,11 @@ class MultirateLoop:
         return monodromy(*self._maps[imp.period], self.output, sched), sched
 
     def rho(self, **change: float) -> float:
-        """``rho(Pi)`` with the implementation's fields changed by ``change``."""
-        return spectral_radius(self.monodromy(replace(self.implementation, **change))[0])
+        """``rho(Pi)`` with the implementation's fields changed by ``change``; ``inf`` when the
+        product of the step maps overflows (never counted stable)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            pi = self.monodromy(replace(self.implementation, **change))[0]
+        return spectral_radius(pi) if np.isfinite(pi).all() else math.inf
 
 
 def multirate_loop(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> MultirateLoop:
@@ -359,13 +362,16 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
     imp = settings.implementation
     try:
         system = multirate_loop(loop, s0[: loop.robot.n], imp)
-        pi, sched = system.monodromy(imp)
+        with np.errstate(over="ignore", invalid="ignore"):
+            pi, sched = system.monodromy(imp)
     except ValueError as exc:  # NotApplicableError, or no equilibrium configuration
         return not_applicable(str(exc))
     lin = system.lin
     effort = imp.limits(loop.robot.limits).effort
     if imp.saturate and not np.all(np.abs(lin.tau_eq) < effort):
         return not_applicable("saturation is active at the equilibrium (|g(q_eq)| not strictly inside the efforts)")
+    if not np.isfinite(pi).all():
+        return {**not_applicable(""), "applies": True, "reason": "the period map overflows: far from stable"}
     rho = spectral_radius(pi)
     check = lyapunov_check(pi)
     period = sched.steps * imp.period
@@ -398,7 +404,7 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
 
 def implemented_text(record: dict) -> str:
     """Fact 14's record in one line of words."""
-    if not record["applies"]:
+    if record["rho"] is None:  # does not apply, or the period map overflows
         return f"local certificate of the loop as implemented (fact 14): {record['reason']}"
     m = record["margins"]
     fmt = lambda r, scale=1.0: "none in range" if r["value"] is None else f"{r['value'] * scale:.4g}"  # noqa: E731

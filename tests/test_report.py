@@ -266,7 +266,7 @@ def test_as_implemented_section_embeds_the_measured_margins(report):
         expected = [m["range"][0], m["holds_at"], m["breaks_at"], m["range"][1]]
         assert cells == ["-" if v is None else f"{v:.4g}" for v in expected], row
         assert f"<td>{m['unit']}</td>" in row
-    linear = section[section.index('<p id="linear-margins">') :].split("</p>")[0]
+    linear = unescape(section[section.index('<p id="linear-margins">') :].split("</p>")[0])
     assert stored["linear_margins"]["certified"]
     assert f"latency <= {stored['linear_margins']['margins']['latency']['value'] * 1e3:.4g} ms" in linear
     assert "not measured" in linear
