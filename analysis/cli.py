@@ -30,6 +30,7 @@ from dvfc.analysis.certify import (
 )
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, run_tasks, runs_done
+from dvfc.analysis.multirate import implemented_text
 from dvfc.analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
 from dvfc.analysis.pose import initial_view
 from dvfc.analysis.results import (
@@ -360,6 +361,8 @@ def show_certificate(result: dict) -> None:
         )
     else:
         out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)
+    if "implemented" in p:
+        out.print(implemented_text(p["implemented"]), markup=False, soft_wrap=True)
     if "envelope" in p:
         show_envelope(p["envelope"])
 
@@ -575,8 +578,8 @@ def margins_command(
 ) -> None:
     """Measure where the loop as implemented stops holding: latency, camera rate, payload
     mass, pixel noise and torque-limit scale, each by bisection on the nonlinear loop; and
-    the delay margin of the linearised loop. Exit 0 done, 1 no margin (the scenario's own run
-    fails), 2 bad input."""
+    the linear margins of the sampled loop linearised at rest (fact 14). Exit 0 done, 1 no
+    margin (the scenario's own run fails), 2 bad input."""
     case = load_case(scenario)
     spec, settings = case.scenario, case.settings
     if settings.implementation is None:
@@ -619,8 +622,7 @@ def show_margins(result: dict) -> None:
         table.add_row(name, f"{value} {m['unit']}", fmt(m["holds_at"]), fmt(m["breaks_at"]), note)
     out.print(table)
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
-    out.print(f"linearised loop's delay margin: {linear_margin_text(result)} ({result['linear_delay_margin_method']})",
-              markup=False, soft_wrap=True)  # fmt: skip
+    out.print(linear_margin_text(result), markup=False, soft_wrap=True)
 
 
 @app.command("verify")

@@ -15,7 +15,7 @@ Both are lower bounds: a certified gamma below either is a contradiction (a bug)
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 
 import casadi as cs
@@ -355,90 +355,3 @@ def frequency_peak(sys: control.StateSpace) -> tuple[float, float, np.ndarray]:
     best = max(fine, key=lambda w: sigma(w)[0])
     value, direction = sigma(best)
     return value, float(best), direction
-
-
-PADE_ORDER = 8
-"""Order of the Pade approximant of the delay: exact phase to ``omega L`` of about 8 rad."""
-
-
-@dataclass
-class DelayLoop:
-    """The ideal loop linearised at rest with the measurement of ``e_e`` cut open:
-    ``dz/dt = A z + B e_m``, ``e_e = C z``; closed by ``e_m(t) = e_e(t - L)``."""
-
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    q_eq: np.ndarray
-
-    def delayed(self, delay: float, order: int = PADE_ORDER) -> np.ndarray:
-        """The closed loop's state matrix with the delay replaced, channel by channel, by its
-        Pade approximant of ``order`` (python-control ``pade``)."""
-        if delay == 0:
-            return self.a + self.b @ self.c
-        pade = control.tf2ss(*control.pade(delay, order))
-        k = self.c.shape[0]
-        ap, bp = np.kron(np.eye(k), pade.A), np.kron(np.eye(k), pade.B)
-        cp, dp = np.kron(np.eye(k), pade.C), np.kron(np.eye(k), pade.D)
-        return np.block([[self.a + self.b @ dp @ self.c, self.b @ cp], [bp @ self.c, ap]])
-
-    def stable(self, delay: float) -> bool:
-        """All eigenvalues of :meth:`delayed` in the open left half-plane."""
-        return bool(np.linalg.eigvals(self.delayed(delay)).real.max() < 0)
-
-
-def delay_loop(loop: ClosedLoop, q0: np.ndarray) -> DelayLoop:
-    """Linearise the paper's loop (static target, ideal law) at its equilibrium with the
-    ``e_e`` the law and observer use as an input ``e_m`` and the true ``e_e`` as the output."""
-    q_eq = equilibrium_configuration(loop, q0)
-    n = loop.robot.n
-    model = replace(loop, target=TargetMotion(loop.target.start), disturbances=[], sampled=True, plant=None)
-    e = cs.SX.sym("e_m", model.task_dim)
-    tau = cs.substitute(model.tau, model.hold, cs.vertcat(cs.DM.zeros(n), e))
-    dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
-    z = cs.vertcat(dq, dqd, dp, dth)
-    s_eq = np.concatenate([q_eq, np.zeros(n), loop.reference.position_quaternion()])
-    state = cs.vertcat(
-        s_eq[: 2 * n] + cs.vertcat(dq, dqd),
-        s_eq[2 * n : 2 * n + 3] + dp,
-        _quaternion_product(s_eq[2 * n + 3 :], cs.vertcat(1, dth / 2)),
-    )
-    rate = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6])
-    rate = cs.substitute(cs.substitute(rate, model.hold, cs.vertcat(tau, e)), model.state, state)
-    output = cs.substitute(model.e_e, model.state, state)
-    f = cs.Function("delay_loop", [z, e, model.t], [cs.jacobian(rate, z), cs.jacobian(rate, e), cs.jacobian(output, z)])
-    a, b, c = (np.asarray(m) for m in f(np.zeros(z.shape[0]), np.zeros(e.shape[0]), 0.0))
-    return DelayLoop(a, b, c, q_eq)
-
-
-@dataclass(frozen=True)
-class DelayMargin:
-    """The linearised loop's delay margin and what the search found.
-
-    ``status`` is ``"found"`` (``value``: the smallest destabilising delay, s),
-    ``"stable_over_range"`` (stable for every delay up to ``upper``: no margin inside the
-    searched range) or ``"unstable_at_zero_delay"`` (no margin: unstable without delay)."""
-
-    value: float | None
-    status: str
-    upper: float
-
-
-def delay_margin(system: DelayLoop, upper: float = 1.0, tol: float = 1e-5) -> DelayMargin:
-    """The smallest delay ``L`` of the ``e_e`` measurement that destabilises the linearised
-    loop (eigenvalues of the Pade-approximated loop), by a geometric scan from 0.1 ms then
-    bisection to ``tol`` s; the status says when there is none (unstable without delay, or
-    stable up to ``upper``)."""
-    if not system.stable(0.0):
-        return DelayMargin(None, "unstable_at_zero_delay", upper)
-    grid = np.geomspace(1e-4, upper, 60)
-    unstable = [d for d in grid if not system.stable(d)]
-    if not unstable:
-        return DelayMargin(None, "stable_over_range", upper)
-    hi = unstable[0]
-    i = int(np.searchsorted(grid, hi))
-    lo = 0.0 if i == 0 else grid[i - 1]
-    while hi - lo > tol:
-        mid = (lo + hi) / 2
-        lo, hi = (mid, hi) if system.stable(mid) else (lo, mid)
-    return DelayMargin(float(hi), "found", upper)

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from dvfc.analysis.case import Case
-from dvfc.analysis.linearize import PADE_ORDER, delay_loop, delay_margin
+from dvfc.analysis.multirate import implemented_record, implemented_text
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
@@ -296,13 +296,9 @@ def run_tasks(
 
 
 def linear_margin_text(result: dict) -> str:
-    """The linearised loop's delay margin in words: the value, or why there is none."""
-    status = result["linear_delay_margin_status"]
-    if status == "found":
-        return f"{result['linear_delay_margin']:.4g} s"
-    if status == "stable_over_range":
-        return "none: stable for every delay searched"
-    return "none: the linearised loop is unstable without delay"
+    """The linear margins of the loop as implemented (docs/math.md, fact 14) in words, or why
+    the statement does not apply."""
+    return implemented_text(result["linear_margins"])
 
 
 def margins(
@@ -314,11 +310,12 @@ def margins(
     envelope: dict | None = None,
     own_run: Trajectory | None = None,
 ) -> dict:
-    """Every margin of :data:`PARAMETERS` of the case and the linearised loop's delay margin
-    (JSON-ready, without provenance). ``map_tasks(function, argument_tuples)`` runs the
-    searches (each task receives the case) and returns their results in order; ``envelope``
-    (the case's envelope record) and ``own_run`` (the case run as implemented): when already
-    computed."""
+    """Every margin of :data:`PARAMETERS` of the case and, beside them, the linear margins of the
+    sampled loop linearised at rest (``linear_margins``: docs/math.md, fact 14,
+    :func:`dvfc.analysis.multirate.implemented_record`) (JSON-ready, without provenance).
+    ``map_tasks(function, argument_tuples)`` runs the searches (each task receives the case) and
+    returns their results in order; ``envelope`` (the case's envelope record) and ``own_run``
+    (the case run as implemented): when already computed."""
     spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     if settings.implementation is None:
         raise ScenarioError("implementation: margins are of the loop as implemented; add an [implementation] section")
@@ -343,17 +340,11 @@ def margins(
         reason = applicable(name, settings, loop)
         out[name] = found.get(name) or {"value": None, "unit": p.unit, "holds_at": None, "breaks_at": None,
                                         "reason": reason}  # fmt: skip
-    linear = delay_margin(delay_loop(loop, s0[: loop.robot.n]))
     return {
         "scenario": spec.name,
         "margins": out,
         "criterion": CRITERION.format(bound=bound.text),
         "tracking_bound": bound.as_dict(),
-        "linear_delay_margin": linear.value,
-        "linear_delay_margin_status": linear.status,
-        "linear_delay_margin_method": (
-            f"the paper's loop linearised at rest with the e_e measurement delayed (Pade order {PADE_ORDER}, "
-            f"eigenvalues, bisection to 10 us) over delays up to {linear.upper:g} s"
-        ),
+        "linear_margins": implemented_record(loop, s0, settings),
         "scenario_run": own,
     }

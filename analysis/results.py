@@ -32,6 +32,7 @@ from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPT
 from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.linearize import linearize, worst_case_disturbance
+from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Settings, Trajectory
@@ -232,7 +233,9 @@ def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, 
 
 def certificate_result(case: Case, provenance: dict, *, lower_bounds: bool = True) -> tuple[dict, Certificate]:
     """Theorem 2 at the case's gains: the paper's gamma, the fact-4 gamma, and (optionally)
-    lower bounds on the true gain, over the ``[certify]`` region; the operating envelope."""
+    lower bounds on the true gain, over the ``[certify]`` region; the operating envelope; with an
+    implementation, the local certificate of the loop as implemented (``implemented``,
+    docs/math.md, fact 14: :func:`dvfc.analysis.multirate.implemented_record`)."""
     start = time.perf_counter()
     spec, point, planar = case.scenario, case.point, case.planar
     cert = certificate_for(spec, point)
@@ -241,6 +244,8 @@ def certificate_result(case: Case, provenance: dict, *, lower_bounds: bool = Tru
     if lower_bounds:
         record.update(lower_bound_record(case.loop, case.s0, record))
     record["envelope"] = envelope_record(case)
+    if case.settings.implementation is not None:
+        record["implemented"] = implemented_record(case.loop, case.s0, case.settings)
     result = {
         "scenario": spec.name,
         "loop": spec.loop,

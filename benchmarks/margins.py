@@ -1,7 +1,8 @@
 """Benchmark: ``margins()`` on the default scenario, against one continuous run.
 
 Times, in one process: one 10 s run of the continuous loop (compiled, the baseline), one
-run of the loop as implemented, one run with a payload made in CasADi's virtual machine
+run of the loop as implemented, fact 14's linearisation at rest and its monodromy with the
+three linear margins (also against the run as implemented), one run with a payload made in CasADi's virtual machine
 and the same run compiled for its new plant (C code built into an empty cache: what every
 new payload mass costs when compiled), then the whole margin search of
 :func:`dvfc.analysis.margins.margins` with ``--workers`` local processes (default 2). Prints the
@@ -19,10 +20,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from timing import seconds
+from timing import best_of, seconds
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.margins import margins, run_tasks, with_value
+from dvfc.analysis.multirate import linear_margins, multirate_loop, spectral_radius
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
 
@@ -39,6 +41,16 @@ def main() -> None:
     sampled = as_implemented(loop, settings)
     sampled.run(s0)
     t_sampled = seconds(lambda: sampled.run(s0))[0]
+    imp = settings.implementation
+    t_linearise = best_of(lambda: multirate_loop(loop, s0[: loop.robot.n], imp), 3)
+    linear = multirate_loop(loop, s0[: loop.robot.n], imp)
+
+    def fact14() -> None:
+        system = replace(linear, _maps={})  # the period maps (matrix exponentials) computed anew
+        spectral_radius(system.monodromy(imp)[0])
+        linear_margins(system)
+
+    t_fact14 = best_of(fact14, 3)
     payload = with_value(loop, settings, "payload_mass", 1.0)
     t_vm = seconds(lambda: as_implemented(loop, payload).run(s0))[0]
     with tempfile.TemporaryDirectory() as cache:
@@ -58,16 +70,21 @@ def main() -> None:
     rows = (
         ("continuous run, compiled (baseline)", t_continuous),
         ("run as implemented, compiled", t_sampled),
+        ("fact 14: linearisation at rest", t_linearise),
+        ("fact 14: monodromy and its 3 margins", t_fact14),
         ("payload run, virtual machine", t_vm),
         ("payload run, compiled for its plant", t_jit),
         (f"margins(), {runs} runs + 2", t_margins),
     )
     for label, wall in rows:
         print(f"  {label:40s} {wall:8.2f} s   {wall / t_continuous:8.1f}x the baseline")
+    print(f"  fact 14's monodromy and margins: {t_fact14 / t_sampled:.3g}x one run as implemented")
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result["margins"].items():
         print(f"  {name:14s} holds at {fmt(m['holds_at']):>8}  breaks at {fmt(m['breaks_at']):>8}  {m['unit']}")
-    print(f"  linear delay margin {fmt(result['linear_delay_margin'])} s ({result['linear_delay_margin_status']})")
+    for name, m in result["linear_margins"]["margins"].items():
+        print(f"  linear {name:12s} stable at {fmt(m['stable_at']):>8}  unstable at {fmt(m['unstable_at']):>8}  "
+              f"{m['unit']}")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
-"""Margins of the loop as implemented (measured on the nonlinear loop by bisection) and the
-linearised loop's delay margin (eigenvalues of its Pade approximation) against a time-domain
-simulation of the delayed linear loop."""
+"""Margins of the loop as implemented, measured on the nonlinear loop by bisection, and the
+linear margins of the sampled loop linearised at rest beside them (docs/math.md, fact 14;
+tested in tests/test_multirate.py)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,12 @@ import json
 import tomllib
 from dataclasses import replace
 
-import numpy as np
 import pytest
 import tomli_w
 from typer.testing import CliRunner
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.cli import app
-from dvfc.analysis.linearize import DelayLoop, delay_loop, delay_margin
 from dvfc.analysis.margins import PARAMETERS, linear_margin_text, search, tracking_bound, tracking_error, trial
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
@@ -63,78 +61,10 @@ def test_without_a_certified_envelope_the_criterion_is_twice_the_continuous_loop
     assert (bound.position, bound.angle_deg) == (2 * position, 2 * angle)
 
 
-def delayed_linear_run(system, delay: float, horizon: float, steps_per_delay: int = 100) -> np.ndarray:
-    """``dz/dt = A z(t) + B C z(t - L)`` by the classical Runge-Kutta method with step
-    ``h = L / steps_per_delay`` (the delayed value at the half step: the mean of its two
-    neighbours, second order), from ``z = z0`` on ``[-L, 0]``; returns ``|z|`` per step."""
-    a, bc = system.a, system.b @ system.c
-    h = delay / steps_per_delay
-    rng = np.random.default_rng(3)
-    z0 = 1e-3 * rng.standard_normal(a.shape[0])
-    history = [z0] * (steps_per_delay + 1)  # z at t - L ... t
-    norms = []
-    for _ in range(int(horizon / h)):
-        z = history[-1]
-        d0, d1 = history[-steps_per_delay - 1], history[-steps_per_delay]
-        dh = (d0 + d1) / 2
-        k1 = a @ z + bc @ d0
-        k2 = a @ (z + h / 2 * k1) + bc @ dh
-        k3 = a @ (z + h / 2 * k2) + bc @ dh
-        k4 = a @ (z + h * k3) + bc @ d1
-        history.append(z + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4))
-        history.pop(0)
-        norms.append(np.linalg.norm(history[-1]))
-    return np.array(norms)
-
-
-def test_linear_delay_margin_matches_a_simulation_of_the_delayed_loop():
-    """The delay margin from the eigenvalues of the Pade-approximated loop is where the
-    delayed linear loop itself turns unstable: integrated with the exact delay (method of
-    steps, RK4 with 100 steps per delay: h |lambda| < 0.14 for the loop's fastest mode), at
-    0.95x the margin the response decays and at 1.05x it grows (the last tenth of a 20 s run
-    against the second tenth, after the initial transient; at 0.9x and 1.1x the ratios are
-    4e-4 and 3e2)."""
-    spec, base = load(DEFAULT_SCENARIO)
-    loop, s0, _ = build(spec, base)
-    system = delay_loop(loop, s0[: loop.robot.n])
-    found = delay_margin(system)
-    assert found.status == "found" and 0 < found.value < 1
-    margin = found.value
-    for factor, grows in ((0.95, False), (1.05, True)):
-        norms = delayed_linear_run(system, factor * margin, 20.0)
-        tenth = len(norms) // 10
-        ratio = norms[-tenth:].max() / norms[tenth : 2 * tenth].max()
-        assert (ratio > 1) == grows, (factor, ratio)
-
-
-@pytest.mark.parametrize(
-    ("a", "bc", "status", "value", "words"),
-    [
-        (0.0, -2.0, "found", np.pi / 4, "0.7854 s"),
-        (-1.0, 0.0, "stable_over_range", None, "none: stable for every delay searched"),
-        (1.0, 0.0, "unstable_at_zero_delay", None, "none: the linearised loop is unstable without delay"),
-    ],
-)
-def test_delay_margin_says_why_there_is_none(a, bc, status, value, words):
-    """The linearised delay margin is unambiguous: on scalar loops ``dz/dt = a z + bc z(t - L)``
-    whose margins are known in closed form, ``-2 z(t - L)`` has ``L = pi/4`` (crossover at
-    ``omega = 2``, where the delay's phase ``-omega L`` reaches ``-pi/2``; Pade order 8 matches
-    that phase to round-off at ``omega L = pi/2``, so the bisection's 1e-5 s sets the
-    tolerance), ``-z`` without delayed feedback is stable for every delay searched (to 1 s),
-    and ``+z`` is unstable with none. The human output says the same in words."""
-    margin = delay_margin(DelayLoop(np.array([[a]]), np.array([[bc]]), np.array([[1.0]]), np.zeros(0)))
-    assert margin.status == status
-    record = {"linear_delay_margin": margin.value, "linear_delay_margin_status": margin.status}
-    assert linear_margin_text(record) == words
-    if value is None:
-        assert margin.value is None
-    else:
-        assert margin.value == pytest.approx(value, abs=2e-5)
-
-
 def test_margins_command_writes_the_contract(tmp_path):
     """``dvfc margins --json -`` with two worker processes: every parameter with value,
-    unit, holds_at, breaks_at; the criterion; the linear delay margin; provenance."""
+    unit, holds_at, breaks_at; the criterion; the linear margins of fact 14 (latency, camera
+    and control rate) in words; provenance."""
     data = tomllib.loads(DEFAULT_SCENARIO.read_text())
     data["simulation"].update(duration=0.2, jit=False)  # the payload's runs would compile a plant each
     path = tmp_path / "tiny.toml"
@@ -148,8 +78,10 @@ def test_margins_command_writes_the_contract(tmp_path):
         assert {"value", "unit", "holds_at", "breaks_at"} <= set(m)
         assert m["value"] is not None or m["holds_at"] is not None or m["reason"]
     assert "holds" in record["criterion"] and "certified ultimate bound" in record["criterion"]
-    assert record["tracking_bound"]["source"] == "envelope" and record["linear_delay_margin"] > 0
-    assert record["linear_delay_margin_status"] == "found"
+    assert record["tracking_bound"]["source"] == "envelope"
+    linear = record["linear_margins"]
+    assert linear["certified"] and set(linear["margins"]) == {"latency", "camera_rate", "control_rate"}
+    assert f"latency <= {linear['margins']['latency']['value'] * 1e3:.4g} ms" in linear_margin_text(record)
     assert "provenance" in record and (tmp_path / "m" / "margins.json").exists()
 
 

@@ -252,7 +252,8 @@ def test_as_implemented_section_states_the_limits(report):
 def test_as_implemented_section_embeds_the_measured_margins(report):
     """Section "As implemented" shows the margins measured for the report (its cached stage):
     a row per parameter with the scenario's value, holds-at and breaks-at values and unit as
-    measured, the criterion they were judged by, and the linearised loop's delay margin, each
+    measured, the criterion they were judged by, and the linear margins of the sampled loop
+    linearised at rest (fact 14), each
     labelled as what it is (measured, or computed from eigenvalues)."""
     html = report[0].read_text()
     section = html[html.index("<h2>6. As implemented</h2>") : html.index("<h2>7.")]
@@ -267,6 +268,7 @@ def test_as_implemented_section_embeds_the_measured_margins(report):
         expected = [m["range"][0], m["holds_at"], m["breaks_at"], m["range"][1]]
         assert cells == ["-" if v is None else f"{v:.4g}" for v in expected], row
         assert f"<td>{m['unit']}</td>" in row
-    linear = section[section.index('<p id="linear-delay-margin">') :].split("</p>")[0]
-    assert stored["linear_delay_margin_status"] == "found"
-    assert f"{stored['linear_delay_margin']:.4g} s" in linear and "not measured" in linear
+    linear = unescape(section[section.index('<p id="linear-margins">') :].split("</p>")[0])
+    assert stored["linear_margins"]["certified"]
+    assert f"latency <= {stored['linear_margins']['margins']['latency']['value'] * 1e3:.4g} ms" in linear
+    assert "not measured" in linear

@@ -218,6 +218,35 @@ MUTATIONS = (
         (("if stops else steps)", "if stops else steps - lag)"),),
         ("tests/test_sampled.py::test_a_feature_lost_in_an_image_arriving_after_the_horizon_still_ends_the_run",),
     ),
+    # --- the local certificate of the loop as implemented (fact 14) ------------------------
+    Mutation(
+        "multirate-hold-euler",
+        "the zero-order-hold flow over a control period replaced by one explicit Euler step",
+        "analysis/multirate.py",
+        (("flow = scipy.linalg.expm(generator * h)[:nz]", "flow = (np.eye(len(generator)) + generator * h)[:nz]"),),
+        ("tests/test_multirate.py::test_monodromy_equals_a_sample_by_sample_simulation_of_the_linearised_loop",),
+    ),
+    Mutation(
+        "multirate-latency-one-short",
+        "the delay line of the monodromy one control period shorter than the latency",
+        "analysis/multirate.py",
+        (("steps, lag = fraction.numerator, round(periods)\n", "steps, lag = fraction.numerator, round(periods) - 1\n"),),  # noqa: E501
+        ("tests/test_multirate.py::test_monodromy_equals_a_sample_by_sample_simulation_of_the_linearised_loop",),
+    ),
+    Mutation(
+        "multirate-lyapunov-wrong-matrix",
+        "the Lyapunov decrease checked as P - Pi P Pi^T instead of P - Pi^T P Pi",
+        "analysis/multirate.py",
+        (("decrease = p - pi.T @ p @ pi\n", "decrease = p - pi @ p @ pi.T\n"),),
+        ("tests/test_multirate.py::test_lyapunov_check_certifies_only_a_decreasing_positive_definite_form",),
+    ),
+    Mutation(
+        "multirate-p-definiteness-unchecked",
+        "the Lyapunov check certifies without P > 0 (an unstable monodromy passes)",
+        "analysis/multirate.py",
+        (("bool(p_min > 0 and margin >= LYAPUNOV_MARGIN)", "bool(margin >= LYAPUNOV_MARGIN)"),),
+        ("tests/test_multirate.py::test_lyapunov_check_certifies_only_a_decreasing_positive_definite_form",),
+    ),
     Mutation(
         "margins-torque-unchecked",
         "the margins' criterion ignores the torque limits when saturate is off",

@@ -1,0 +1,417 @@
+"""A local certificate of the loop as implemented (docs/math.md, fact 14): the exact
+discretisation of the sampled multirate loop, linearised at its static-target equilibrium.
+
+The loop is :class:`dvfc.analysis.sampled.SampledSimulator`'s: the torque computed at each
+control sample and held over the period, the observer integrated continuously from the
+joint velocities between samples, an image captured at the first control sample at or after
+each camera tick and used ``latency`` later, ``e_e`` held from one image to the next. Its
+exogenous inputs are set to zero: the target at rest at its start pose, no torque
+disturbance, no pixel noise. Linearised at the equilibrium (``q = q_eq``, ``qd = 0``,
+``gbar = g_d``, ``e = 0``, held torque ``g(q_eq)``) in ``z = [dq; dqd; dpbar; dthetabar]``
+(``Rbar = Rbar* exp(dthetabar)``):
+
+    dz/dt = A z + B_tau (tau - g(q_eq)) + B_e e,    tau_k = g(q_eq) + F z_k + F_e e_k,    e_e = C z.
+
+One control period is ``z_(k+1) = A_z z_k + A_e e_k`` with ``[Phi, G_tau, G_e]`` the first
+block row of ``expm([[A, B_tau, B_e], [0, 0, 0]] h)``, ``A_z = Phi + G_tau F``,
+``A_e = G_tau F_e + G_e`` (exact: no integration error). The images in flight are extra
+discrete states; over one common period of the control and camera schedules (``P`` control
+periods, the control/camera ratio rational) the product of the step maps is the monodromy
+``Pi``. If ``rho(Pi) < 1`` the equilibrium of the nonlinear sampled loop is locally
+exponentially stable with every rate below ``-ln(rho) / (P h)``; the certificate is the
+strict discrete Lyapunov inequality for ``P_L = dlyap(Pi^T, I)``, checked a posteriori.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from fractions import Fraction
+
+import casadi as cs
+import numpy as np
+import scipy.linalg
+
+from dvfc.analysis.implementation import Implementation
+from dvfc.analysis.linearize import _quaternion_product, equilibrium_configuration
+from dvfc.analysis.simulate import Settings
+from dvfc.models.loop import ClosedLoop
+from dvfc.models.planar import PlanarLoop
+from dvfc.models.target import TargetMotion
+
+LYAPUNOV_MARGIN = 0.5
+"""Smallest ``lambda_min(P_L - Pi^T P_L Pi)`` accepted (1 in exact arithmetic)."""
+
+RHO_MARGIN = 1e-9
+"""``rho(Pi)`` must be below ``1 - RHO_MARGIN``: a spectral radius of 1 to rounding (a
+continuum of equilibria) is never certified."""
+
+RATIO_DENOMINATOR = 10_000
+"""Largest denominator of the control/camera rate ratio read as a rational number."""
+
+RANGES = {"latency": 0.25, "camera_rate": 1.0, "control_rate": 10.0}
+"""End of each margin's searched range: latency (s), camera rate (Hz), control rate (Hz)."""
+
+UNITS = {"latency": "s", "camera_rate": "Hz", "control_rate": "Hz"}
+
+SCOPE = (
+    "local exponential stability of the equilibrium of the sampled multirate loop as implemented (torque held at "
+    "the control rate, observer integrated continuously from the joint velocities between samples, images "
+    "captured at the first control sample at or after each camera tick and used the latency later), "
+    "linearised: the target at rest at its start pose, no torque disturbance, no pixel noise, near the "
+    "equilibrium configuration q_eq (no radius is computed); for e_e exact (15) and from the image (21), whose "
+    "linearisations at the equilibrium coincide (gap {gap:.2g}); every rate below -ln(rho)/period"
+)
+
+
+@dataclass(frozen=True)
+class HeldLinearization:
+    """The sampled loop linearised at its equilibrium with the held torque ``tau`` and the
+    held ``e`` as inputs (see the module's description).
+
+    Parameters
+    ----------
+    a, b_tau, b_e
+        ``dz/dt = a z + b_tau (tau - tau_eq) + b_e e``.
+    f, f_e
+        The law (35), (42) evaluated with ``e``: ``tau = tau_eq + f z + f_e e``.
+    c, c_image
+        ``e_e`` (15) and its image estimate (21) from the true features: ``c z``, ``c_image z``.
+    q_eq, tau_eq
+        The equilibrium configuration and torque ``g(q_eq)``.
+    """
+
+    a: np.ndarray
+    b_tau: np.ndarray
+    b_e: np.ndarray
+    f: np.ndarray
+    f_e: np.ndarray
+    c: np.ndarray
+    c_image: np.ndarray
+    q_eq: np.ndarray
+    tau_eq: np.ndarray
+
+    def period_map(self, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(A_z, A_e)`` of one control period ``h``: the zero-order-hold flow, exactly."""
+        nz, nt, ne = self.a.shape[0], self.b_tau.shape[1], self.b_e.shape[1]
+        generator = np.zeros((nz + nt + ne, nz + nt + ne))
+        generator[:nz] = np.hstack([self.a, self.b_tau, self.b_e])
+        flow = scipy.linalg.expm(generator * h)[:nz]
+        phi, g_tau, g_e = flow[:, :nz], flow[:, nz : nz + nt], flow[:, nz + nt :]
+        return phi + g_tau @ self.f, g_tau @ self.f_e + g_e
+
+
+def rest_model(loop: ClosedLoop) -> ClosedLoop:
+    """The sampled loop with its exogenous inputs at zero: target at rest at its start
+    pose, no torque disturbance, the plant the law's model."""
+    return replace(loop, target=TargetMotion(loop.target.start), disturbances=[], sampled=True, plant=None)
+
+
+def rest_state(loop: ClosedLoop, q_eq: np.ndarray) -> np.ndarray:
+    """The state ``[q; qd; pbar; quat]`` at the equilibrium: ``q = q_eq``, ``qd = 0``, ``gbar = g_d``."""
+    return np.concatenate([q_eq, np.zeros(loop.robot.n), loop.reference.position_quaternion()])
+
+
+def held_linearization(loop: ClosedLoop, q0: np.ndarray) -> HeldLinearization:
+    """Linearise the sampled loop at its equilibrium (configuration by Newton from ``q0``),
+    by CasADi's automatic differentiation."""
+    q_eq = equilibrium_configuration(loop, q0)
+    n = loop.robot.n
+    model = rest_model(loop)
+    tau, e = model.hold[:n], model.hold[n:]
+    dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
+    z = cs.vertcat(dq, dqd, dp, dth)
+    s_eq = rest_state(loop, q_eq)
+    state = cs.vertcat(
+        s_eq[: 2 * n] + cs.vertcat(dq, dqd),
+        s_eq[2 * n : 2 * n + 3] + dp,
+        _quaternion_product(s_eq[2 * n + 3 :], cs.vertcat(1, dth / 2)),
+    )
+    rate = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6])
+    law = cs.substitute(model.tau, tau, cs.DM.zeros(n))  # the law does not read the held torque
+    exprs = [rate, law, model.e_e, model.e_e_image]
+    rate, law, e_exact, e_image = cs.substitute(exprs, [model.state], [state])
+    jac = cs.Function("held", [z, tau, e, model.t], [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau),
+                                                       cs.jacobian(rate, e), cs.jacobian(law, z), cs.jacobian(law, e),
+                                                       cs.jacobian(e_exact, z), cs.jacobian(e_image, z)])  # fmt: skip
+    zero_z, zero_e = np.zeros(z.shape[0]), np.zeros(loop.task_dim)
+    tau_eq = np.asarray(jac(zero_z, np.zeros(n), zero_e, 0.0)[0]).ravel()
+    values = [np.asarray(m) for m in jac(zero_z, tau_eq, zero_e, 0.0)]
+    residual = np.abs(values[1]).max()
+    if residual > 1e-8:
+        raise ValueError(f"the linearisation point is not an equilibrium (|dz/dt| = {residual:.2e})")
+    return HeldLinearization(*values[2:], q_eq=q_eq, tau_eq=tau_eq)
+
+
+class NotApplicableError(ValueError):
+    """The statement of fact 14 does not apply to this loop (the message says why)."""
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """One common period of the control and camera schedules.
+
+    Parameters
+    ----------
+    steps
+        Control periods in the common period.
+    captures
+        The control samples of the common period (``0 <= k < steps``) at which images are captured.
+    lag
+        Control periods from the capture of an image to its use (the latency).
+    pending
+        The captures of earlier periods (negative samples, ``-lag <= c < 0``) whose images are in
+        flight at the start of a period, in the order of their states in the monodromy.
+    """
+
+    steps: int
+    captures: tuple[int, ...]
+    lag: int
+    pending: tuple[int, ...]
+
+
+def schedule(imp: Implementation) -> Schedule:
+    """The common period of ``imp``'s control and camera schedules, with the capture rule of
+    :meth:`Implementation.capture_steps`; :class:`NotApplicableError` when the latency is not a
+    whole number of control periods or the rate ratio is not rational (denominator at most
+    :data:`RATIO_DENOMINATOR`)."""
+    periods = imp.latency * imp.control_rate
+    if abs(periods - round(periods)) > 1e-6:
+        raise NotApplicableError(f"the latency {imp.latency:g} s is not a whole number of control periods")
+    ratio = imp.control_rate / imp.camera_rate
+    fraction = Fraction(ratio).limit_denominator(RATIO_DENOMINATOR)
+    if abs(float(fraction) - ratio) > 1e-12 * ratio:
+        raise NotApplicableError(f"the control/camera rate ratio {ratio:.17g} is not rational (denominator <= "
+                            f"{RATIO_DENOMINATOR}): the schedule has no common period")  # fmt: skip
+    steps, lag = fraction.numerator, round(periods)
+    every = imp.capture_steps(2 * steps)
+    captures = tuple(int(c) for c in every[every < steps])
+    if tuple(int(c) - steps for c in every[(every >= steps) & (every < 2 * steps)]) != captures:
+        raise NotApplicableError(f"the capture schedule does not repeat after {steps} control periods")
+    pending = tuple(c - m * steps for m in range(1, lag // steps + 2) for c in captures if -lag <= c - m * steps)
+    return Schedule(steps, captures, lag, tuple(sorted(pending)))
+
+
+def monodromy(a_z: np.ndarray, a_e: np.ndarray, c: np.ndarray, sched: Schedule) -> np.ndarray:
+    """The map of one common period on ``[z; e held; images in flight (sched.pending)]``.
+
+    At each control sample ``k``: an image captured now stores ``c z_k``; an image captured
+    ``lag`` samples ago replaces the held ``e``; then one control period ``z <- a_z z + a_e e``.
+    The step maps are applied to the identity block by block (the images are copied, not
+    multiplied)."""
+    nz, ne = a_e.shape
+    eye = np.eye(nz + ne * (1 + len(sched.pending)))
+    z, e = eye[:nz], eye[nz : nz + ne]
+    flight = {p: eye[nz + ne * (i + 1) : nz + ne * (i + 2)] for i, p in enumerate(sched.pending)}
+    captures = set(sched.captures)
+    for k in range(sched.steps):
+        if k in captures:
+            flight[k] = c @ z
+        if k - sched.lag in flight:
+            e = flight.pop(k - sched.lag)
+        z = a_z @ z + a_e @ e
+    return np.vstack([z, e, *(flight.pop(p + sched.steps) for p in sched.pending)])
+
+
+@dataclass(frozen=True)
+class LyapunovCheck:
+    """The strict discrete Lyapunov inequality for a computed monodromy ``Pi``.
+
+    ``P = dlyap(Pi^T, I)`` solves ``Pi^T P Pi - P = -I`` (scipy); ``margin`` is
+    ``lambda_min(P - Pi^T P Pi)`` recomputed from ``P`` and ``Pi``, ``p_min`` is
+    ``lambda_min(P)``. ``certified`` when ``p_min > 0`` and ``margin >= LYAPUNOV_MARGIN``.
+    ``tolerance`` is how far the true monodromy may be from the computed one (spectral
+    norm) with the inequality still strict: the ``eps`` with
+    ``2 eps ||P|| ||Pi|| + eps^2 ||P|| = margin`` (about ``margin / (2 ||P|| ||Pi||)``)."""
+
+    margin: float
+    p_min: float
+    p_norm: float
+    tolerance: float
+    certified: bool
+
+
+def lyapunov_check(pi: np.ndarray) -> LyapunovCheck:
+    """:class:`LyapunovCheck` of ``pi``."""
+    p = scipy.linalg.solve_discrete_lyapunov(pi.T, np.eye(pi.shape[0]))
+    p = (p + p.T) / 2
+    decrease = p - pi.T @ p @ pi
+    margin = float(np.linalg.eigvalsh((decrease + decrease.T) / 2)[0])
+    eig_p = np.linalg.eigvalsh(p)
+    p_min, p_norm, pi_norm = float(eig_p[0]), float(np.abs(eig_p).max()), float(np.linalg.norm(pi, 2))
+    tolerance = math.sqrt(pi_norm**2 + max(margin, 0.0) / p_norm) - pi_norm
+    return LyapunovCheck(margin, p_min, p_norm, tolerance, bool(p_min > 0 and margin >= LYAPUNOV_MARGIN))
+
+
+def spectral_radius(pi: np.ndarray) -> float:
+    """``max |lambda(Pi)|``."""
+    return float(np.abs(np.linalg.eigvals(pi)).max())
+
+
+@dataclass
+class MultirateLoop:
+    """The linearised sampled loop of one scenario and its schedules (rates and latency
+    changed one at a time for the margins)."""
+
+    lin: HeldLinearization
+    implementation: Implementation
+    mode: str
+    _maps: dict[float, tuple[np.ndarray, np.ndarray]]
+
+    @property
+    def output(self) -> np.ndarray:
+        """The ``e_e`` the law and observer use, linearised: (15), or (21) in image mode."""
+        return self.lin.c_image if self.mode == "image" else self.lin.c
+
+    def monodromy(self, imp: Implementation) -> tuple[np.ndarray, Schedule]:
+        """``Pi`` and the schedule of ``imp``."""
+        sched = schedule(imp)
+        if imp.period not in self._maps:
+            self._maps[imp.period] = self.lin.period_map(imp.period)
+        return monodromy(*self._maps[imp.period], self.output, sched), sched
+
+    def rho(self, **change: float) -> float:
+        """``rho(Pi)`` with the implementation's fields changed by ``change``; ``inf`` when the
+        product of the step maps overflows (never counted stable)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            pi = self.monodromy(replace(self.implementation, **change))[0]
+        return spectral_radius(pi) if np.isfinite(pi).all() else math.inf
+
+
+def multirate_loop(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> MultirateLoop:
+    """The linearised sampled loop of a scenario's loop and implementation."""
+    return MultirateLoop(held_linearization(loop, q0), imp, loop.mode, {})
+
+
+def applicability(loop: ClosedLoop, settings: Settings) -> str | None:
+    """Why the statement does not apply to the scenario's loop as implemented, or None:
+    it needs an isolated equilibrium (``n = 6``), which exists only with zero quantization
+    and the plant equal to the model (the latency and the rates are checked by
+    :func:`schedule`, saturation by :func:`implemented_record`)."""
+    imp = settings.implementation
+    if imp is None:
+        return "the scenario has no [implementation]: the loop is the paper's continuous one"
+    if isinstance(loop, PlanarLoop):
+        return "the reduced planar loop: the statement is derived for the paper's loop (36)"
+    if loop.robot.n != 6:
+        return (f"the arm has {loop.robot.n} joints: the equilibrium is isolated only for n = 6 (with n > 6 the "
+                "self-motion gives rho = 1, with n < 6 J_b is not invertible)")  # fmt: skip
+    if imp.quantization > 0:
+        return f"quantization {imp.quantization:g} px: the image estimate is not 0 at the equilibrium (no fixed point)"
+    if settings.plant is not None:
+        return "the plant differs from the model (payload or mass scale): the equilibrium moves"
+    return None
+
+
+def _bisect(stable: Callable[[int], bool], good: int, bad: int) -> tuple[int, int | None]:
+    """The last stable and first unstable integer between ``good`` (stable) and ``bad``
+    (``bad`` unstable, else ``(bad, None)``), by bisection (either direction)."""
+    if stable(bad):
+        return bad, None
+    while abs(bad - good) > 1:
+        mid = (good + bad) // 2
+        good, bad = (mid, bad) if stable(mid) else (good, mid)
+    return good, bad
+
+
+def linear_margins(system: MultirateLoop) -> dict:
+    """Margins of the linearised sampled loop, each parameter alone on exact schedules,
+    by bisection between the scenario's value and the end of :data:`RANGES`: the largest
+    latency (whole control periods), the smallest camera rate (``control_rate / N``, an image
+    every ``N`` control periods) and the smallest control rate (whole Hz; the latency held
+    at the whole number of periods the sampled simulator uses). Each a record ``{"value",
+    "unit", "stable_at", "unstable_at", "range"}``; ``value`` None (with ``stable_at`` the
+    range end) when stable over the whole range. A bisection finds one boundary between
+    a stable and an unstable schedule: stability between is not checked value by value."""
+    imp = system.implementation
+    r, cam = imp.control_rate, imp.camera_rate
+    stable = lambda **change: system.rho(**change) < 1 - RHO_MARGIN  # noqa: E731
+    lag = imp.latency_steps
+    good, bad = _bisect(lambda k: stable(latency=k / r), lag, round(RANGES["latency"] * r))
+    latency = (good / r, None if bad is None else bad / r)
+    ratio = math.floor(r / cam + 1e-9)
+    good, bad = _bisect(lambda k: stable(camera_rate=r / k), ratio, math.floor(r / RANGES["camera_rate"]))
+    camera = (r / good if good > ratio else cam, None if bad is None else r / bad)
+    good, bad = _bisect(lambda k: stable(control_rate=float(k), latency=round(imp.latency * k) / k),
+                        math.floor(r), math.ceil(RANGES["control_rate"]))  # fmt: skip
+    control = (float(good) if good < math.floor(r) else r, None if bad is None else float(bad))
+    out = {}
+    for name, (at, beyond) in (("latency", latency), ("camera_rate", camera), ("control_rate", control)):
+        start = {"latency": imp.latency, "camera_rate": cam, "control_rate": r}[name]
+        out[name] = {"value": None if beyond is None else at, "unit": UNITS[name], "stable_at": at,
+                     "unstable_at": beyond, "range": [start, RANGES[name]]}  # fmt: skip
+    return out
+
+
+def not_applicable(reason: str) -> dict:
+    """The record of a loop the statement does not apply to."""
+    return {"applies": False, "certified": False, "reason": f"does not apply: {reason}", "rho": None, "rate": None,
+            "period": None, "lyapunov_margin": None, "scope": None, "margins": None}  # fmt: skip
+
+
+def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> dict:
+    """Fact 14 for the scenario's loop as implemented (JSON-ready): the monodromy's spectral
+    radius, the certified local rate, the common period, the Lyapunov check, the scope and
+    the linear margins; or why the statement does not apply."""
+    start = time.perf_counter()
+    reason = applicability(loop, settings)
+    if reason is not None:
+        return not_applicable(reason)
+    imp = settings.implementation
+    try:
+        system = multirate_loop(loop, s0[: loop.robot.n], imp)
+        with np.errstate(over="ignore", invalid="ignore"):
+            pi, sched = system.monodromy(imp)
+    except ValueError as exc:  # NotApplicableError, or no equilibrium configuration
+        return not_applicable(str(exc))
+    lin = system.lin
+    effort = imp.limits(loop.robot.limits).effort
+    if imp.saturate and not np.all(np.abs(lin.tau_eq) < effort):
+        return not_applicable("saturation is active at the equilibrium (|g(q_eq)| not strictly inside the efforts)")
+    if not np.isfinite(pi).all():
+        return {**not_applicable(""), "applies": True, "reason": "the period map overflows: far from stable"}
+    rho = spectral_radius(pi)
+    check = lyapunov_check(pi)
+    period = sched.steps * imp.period
+    certified = rho < 1 - RHO_MARGIN and check.certified
+    gap = float(np.abs(lin.c_image - lin.c).max())
+    return {
+        "applies": True,
+        "certified": certified,
+        "reason": None if certified else f"rho = {rho:.6g} or the Lyapunov check (margin {check.margin:.3g}) fails",
+        "rho": rho,
+        "rate": -math.log(rho) / period if rho < 1 else None,
+        "period": period,
+        "steps": sched.steps,
+        "states": pi.shape[0],
+        "lyapunov_margin": check.margin,
+        "lyapunov_p_min": check.p_min,
+        "lyapunov_p_norm": check.p_norm,
+        "pi_error_tolerance": check.tolerance,
+        "floating_point": (
+            "P certifies the computed Pi; it certifies the true monodromy if ||Pi_true - Pi||_2 < pi_error_tolerance "
+            "(about lyapunov_margin / (2 ||P|| ||Pi||))"
+        ),
+        "image_linearisation_gap": gap,
+        "q_eq": lin.q_eq.tolist(),
+        "scope": SCOPE.format(gap=gap),
+        "margins": linear_margins(system),
+        "seconds": time.perf_counter() - start,
+    }
+
+
+def implemented_text(record: dict) -> str:
+    """Fact 14's record in one line of words."""
+    if record["rho"] is None:  # does not apply, or the period map overflows
+        return f"local certificate of the loop as implemented (fact 14): {record['reason']}"
+    m = record["margins"]
+    fmt = lambda r, scale=1.0: "none in range" if r["value"] is None else f"{r['value'] * scale:.4g}"  # noqa: E731
+    margins = (f"latency <= {fmt(m['latency'], 1e3)} ms, camera >= {fmt(m['camera_rate'])} Hz, "
+               f"control >= {fmt(m['control_rate'])} Hz")  # fmt: skip
+    verdict = "CERTIFIED" if record["certified"] else f"NOT CERTIFIED ({record['reason']})"
+    rate = "-" if record["rate"] is None else f"{record['rate']:.4g}"
+    return (f"loop as implemented, linearised at rest (fact 14, local): {verdict}: rho = {record['rho']:.6g} over "
+            f"{record['period'] * 1e3:.4g} ms, rate {rate} 1/s, Lyapunov margin "
+            f"{record['lyapunov_margin']:.3g}; linear margins {margins}")  # fmt: skip
