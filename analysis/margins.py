@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from dvfc.analysis.linearize import PADE_ORDER, delay_loop, delay_margin
-from dvfc.analysis.output import interrupted
+from dvfc.analysis.output import interrupted, json_text
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, ScenarioError, build, gain_point, load
@@ -222,7 +222,7 @@ def search(path: str, name: str, bound: TrackingBound, log: str | None = None) -
                 raise KeyboardInterrupt
             if log is not None:
                 with open(log, "a") as handle:
-                    handle.write(json.dumps(done[value]) + "\n")
+                    handle.write(json_text(done[value], indent=None))
         return done[value]["holds"]
 
     start = base_value(name, settings)

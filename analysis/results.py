@@ -31,6 +31,7 @@ from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPT
 from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.linearize import linearize, worst_case_disturbance
+from dvfc.analysis.output import json_text
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, build, gain_point, load
 from dvfc.analysis.simulate import Settings
@@ -75,7 +76,7 @@ def logged_runs(run: Callable[[GainPoint], dict], log: Path, *, resume: bool) ->
         if design not in done:
             done[design] = run(point)
             with open(log, "a") as handle:
-                handle.write(json.dumps({"design": design, "run": done[design]}) + "\n")
+                handle.write(json_text({"design": design, "run": done[design]}, indent=None))
         return done[design]
 
     return logged
