@@ -263,6 +263,7 @@ def show(result: dict) -> None:
         ("max |tau|", f"{s['max_torque']:.4g} N m"),
         ("peak |tau| / effort limit", _worst(result["limits"]["torque_commanded_ratio"])),
         ("peak |qd| / velocity limit", _worst(result["limits"]["speed_ratio"])),
+        ("joint range / position limits", _worst(result["limits"]["position_ratio"])),
         ("Lemma 2 identity residual", f"{r['passivity']:.2e}"),
         ("(43) identity residual", f"{r['dissipation']:.2e}"),
         ("max |e_e(image) - e_e|", f"{s['image_estimate_gap_max']:.3e}"),

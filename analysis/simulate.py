@@ -90,7 +90,11 @@ class Trajectory:
     wall_time: float = 0.0
     stats: dict[str, float] = field(default_factory=dict)
     peaks: dict[str, np.ndarray] = field(default_factory=dict)
-    """Per-joint peaks ``|tau|``, ``|tau_applied|``, ``|qd|`` over every control sample (sampled runs)."""
+    """Per-joint peaks ``|tau|``, ``|tau_applied|``, ``|qd|`` and range ``q_min``, ``q_max`` over
+    every control sample (sampled runs; :func:`joint_peaks` for any run)."""
+    stopped_at: float | None = None
+    """Where a run that did not complete stopped (s), when that is after its last output sample;
+    None: at its last output sample."""
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]
@@ -323,6 +327,22 @@ class Simulator:
             wall_time=time.perf_counter() - start,
             stats={"steps": n_steps},
         )
+
+
+def joint_peaks(traj: Trajectory) -> dict[str, np.ndarray]:
+    """Per joint: the peaks ``|tau|`` (commanded), ``|tau_applied|``, ``|qd|`` and the range
+    ``q_min``, ``q_max`` up to the end or the stop of a run: over every control sample of a
+    sampled run (:attr:`Trajectory.peaks`), else over the output grid."""
+    if traj.peaks:
+        return traj.peaks
+    q = traj["q"]
+    return {
+        "tau": np.abs(traj["tau"]).max(axis=0),
+        "tau_applied": np.abs(traj["tau_applied"]).max(axis=0),
+        "qd": np.abs(traj["qd"]).max(axis=0),
+        "q_min": q.min(axis=0),
+        "q_max": q.max(axis=0),
+    }
 
 
 def rotation_angle(r: np.ndarray) -> np.ndarray:

@@ -4,13 +4,22 @@ arms with fewer than six joints, and consistent figures of runs that stop."""
 from __future__ import annotations
 
 import json
+import math
+import tomllib
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from dvfc.analysis.cli import app
+from dvfc.analysis.margins import TrackingBound, judge
+from dvfc.analysis.sampled import as_implemented
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build
+from dvfc.analysis.verify import implemented
+from dvfc.models.robot import builtin_urdf
 
+from conftest import scenario_dict
 from test_cli import setter, write
 
 runner = CliRunner()
@@ -36,3 +45,81 @@ def test_every_output_file_is_strict_json(command, tmp_path):
     assert len(files) > 1
     for path in files:
         strict_load(path)
+
+
+def ur5_with_limits(tmp_path: Path, joint: str, **limit: float) -> Path:
+    """The UR5's URDF with some attributes of one joint's ``<limit>`` changed."""
+    root = ET.parse(builtin_urdf("ur5")).getroot()
+    element = next(j for j in root.iter("joint") if j.get("name") == joint).find("limit")
+    for key, value in limit.items():
+        element.set(key, repr(value))
+    path = tmp_path / f"ur5_{joint}.urdf"
+    path.write_text(ET.tostring(root, encoding="unicode"))
+    return path
+
+
+def on_urdf(urdf: Path):
+    """An edit running the scenario on ``urdf`` (the UR5's camera frame)."""
+
+    def edit(data: dict) -> None:
+        data["robot"].pop("model")
+        data["robot"].update(urdf=str(urdf), camera_frame="tool0")
+
+    return edit
+
+
+def as_a_ur5_runs_it(data: dict) -> None:
+    """An edit giving the idealised scenario the default example's gains and implementation."""
+    default = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["gains"], data["implementation"] = default["gains"], default["implementation"]
+
+
+Q0 = scenario_dict()["robot"]["q0"]
+
+
+def test_q0_outside_its_position_limits_is_one_line_exit_2(tmp_path):
+    urdf = ur5_with_limits(tmp_path, "shoulder_lift_joint", lower=-1.0, upper=1.0)
+    out = tmp_path / "out"
+    for command in ("pose", "simulate", "verify", "certify"):
+        result = runner.invoke(app, [command, str(write(tmp_path, on_urdf(urdf))),
+                                     *(["--out", str(out)] if command != "pose" else [])])  # fmt: skip
+        assert result.exit_code == 2, (command, result.output)
+        assert result.stderr.strip() == (
+            f"error: robot.q0[1]: {Q0[1]:g} is outside the limits [-1, 1] of joint 2 (shoulder_lift_joint) in the URDF"
+        ), (command, result.stderr)
+        assert not out.exists()
+
+
+def test_a_run_records_its_joint_range_against_the_position_limits(tmp_path):
+    """The elbow may move 1 mrad from q0: the run leaves that range, summary.json says by how
+    much (the ratio of the range's reach to the limits' half-width), verify's claim FAILs."""
+    urdf = ur5_with_limits(tmp_path, "elbow_joint", lower=Q0[2] - 1e-3, upper=Q0[2] + 1e-3)
+    out = tmp_path / "out"
+    scenario = write(tmp_path, on_urdf(urdf))
+    result = runner.invoke(app, ["simulate", str(scenario), "--out", str(out)], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    limits = strict_load(out / "summary.json")["limits"]
+    low, high = limits["position_range"][2]
+    assert limits["position_limit"][2] == pytest.approx([Q0[2] - 1e-3, Q0[2] + 1e-3])
+    assert limits["position_limit"][0] == pytest.approx([-2 * math.pi, 2 * math.pi])
+    assert limits["position_ratio"][2] == pytest.approx(max(high - Q0[2], Q0[2] - low) / 1e-3)
+    assert limits["position_ratio"][2] > 1 and not limits["within_position"]
+    assert "joint range / position limits" in result.stdout and "joint 3, EXCEEDS" in result.stdout
+    loop, s0, settings = build(Scenario.model_validate(tomllib.loads(scenario.read_text())), tmp_path)
+    claim = next(c for c in implemented(loop, s0, settings) if c.name == "joint position limits")
+    assert claim.status == "FAIL" and claim.value == pytest.approx(limits["position_ratio"][2])
+    assert claim.detail.startswith("joint 3: range [")
+
+
+@pytest.mark.parametrize(("limit", "reason"), [
+    ({"velocity": 0.01}, "peak joint speed"),
+    ({"lower": Q0[2] - 1e-3, "upper": Q0[2] + 1e-3}, "joint range"),
+])  # fmt: skip
+def test_a_margins_run_over_a_velocity_or_position_limit_does_not_hold(limit, reason, tmp_path):
+    urdf = ur5_with_limits(tmp_path, "elbow_joint", **limit)
+    scenario = write(tmp_path, lambda data: (on_urdf(urdf)(data), as_a_ur5_runs_it(data)))
+    loop, s0, settings = build(Scenario.model_validate(tomllib.loads(scenario.read_text())), tmp_path)
+    traj = as_implemented(loop, settings).run(s0)
+    assert traj.status == "ok", traj.message
+    holds, detail = judge(traj, loop, settings, TrackingBound(math.inf, 180.0, "continuous", ""))
+    assert not holds and detail.startswith(reason), detail
