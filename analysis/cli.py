@@ -706,16 +706,22 @@ def _show_limit_search(record: dict) -> None:
 
 
 def show_claims(result: dict, claims: list) -> None:
-    """Human output of ``verify``: each claim with its equation and PASS/FAIL, a verdict."""
+    """Human output of ``verify``: a table of the claims (each with its place in the paper, its
+    status, value and bound) narrow enough for 80 columns, each FAIL or INCONCLUSIVE reason in
+    full below it, then a verdict."""
     table = Table(title=f"Claims of the paper on {result['scenario']}")
-    for col in ("paper", "claim", "value", "bound", "status", "reason"):
-        table.add_column(col)
+    table.add_column("claim", ratio=1, overflow="fold")
+    table.add_column("status", no_wrap=True, min_width=len("INCONCLUSIVE"))
+    table.add_column("value", no_wrap=True)
+    table.add_column("bound", max_width=24, overflow="fold")
     colours = {"PASS": "green", "FAIL": "red", "INCONCLUSIVE": "yellow", "MEASURED": "default"}
     for c in claims:
-        reason = c.detail if c.status in ("FAIL", "INCONCLUSIVE") else ""
-        status = Text(c.status, style=colours[c.status])
-        table.add_row(Text(c.reference), Text(c.name), f"{c.value:.3e}", Text(c.bound), status, Text(reason))
+        table.add_row(Text(f"{c.name} ({c.reference})"), Text(c.status, style=colours[c.status]), f"{c.value:.3e}",
+                      Text(c.bound))  # fmt: skip
     out.print(table)
+    for c in claims:
+        if c.status in ("FAIL", "INCONCLUSIVE"):
+            out.print(Text(f"{c.status} {c.name}: {c.detail}", style=colours[c.status]))
     summary_ = result["summary"]
     problems = [f"{summary_['failed']} claim(s) FAIL"] if summary_["failed"] else []
     problems += [f"{summary_['inconclusive']} check(s) INCONCLUSIVE"] if summary_["inconclusive"] else []
