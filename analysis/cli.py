@@ -142,6 +142,28 @@ def load_scenario(path: Path, mode: str | None = None, check_view: bool = True):
     return spec, loop, s0, settings, axes
 
 
+def fewer_than_six(spec, loop) -> str | None:
+    """Why Theorems 1-2 do not apply to the scenario's loop (the paper's, on an arm with fewer
+    than six joints), or None."""
+    n = loop.robot.n
+    if spec.loop != "paper" or n >= 6:
+        return None
+    return f"n = {n} < 6 joints: J_b pinv(J_b) != I, so Theorems 1-2 do not apply to the paper's loop on this arm"
+
+
+def warn_fewer_than_six(spec, loop) -> None:
+    """One warning line on standard error when Theorems 1-2 do not apply (:func:`fewer_than_six`)."""
+    if (why := fewer_than_six(spec, loop)) is not None:
+        err.print(f"warning: {why}", markup=False, soft_wrap=True)
+
+
+def require_six(spec, loop, command: str) -> None:
+    """Refuse ``command`` (status 2, before any work) when it rests on Theorems 1-2 and they do
+    not apply (:func:`fewer_than_six`)."""
+    if (why := fewer_than_six(spec, loop)) is not None:
+        raise fail(f"loop: dvfc {command} needs the paper's equilibrium and Theorems 1-2; {why}")
+
+
 ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (default: the built-in UR5 scenario).")]
 OutOpt = Annotated[Path | None, typer.Option("--out", help="Output directory (default: out/<scenario name>).")]
 JsonOpt = Annotated[str | None, typer.Option("--json", help="Write the JSON summary to FILE, or '-' for stdout.")]
@@ -158,6 +180,7 @@ def simulate(
     """Simulate the closed loop (36), (42) and check its energy identities."""
     spec, loop, s0, settings, _ = load_scenario(scenario, mode.value if mode else None)
     check_json_target(json_target)
+    warn_fewer_than_six(spec, loop)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
 
     with Progress(
@@ -209,6 +232,7 @@ def pose(scenario: ScenarioArg = DEFAULT_SCENARIO, json_target: JsonOpt = None) 
     the target in view (see [target] relative_to_camera). Exit 1 when a point is out of view."""
     spec, loop, s0, _, _ = load_scenario(scenario, check_view=False)
     check_json_target(json_target)
+    warn_fewer_than_six(spec, loop)
     result = {"scenario": spec.name, **initial_view(loop, s0)}
     emit(result, None, json_target, show_pose)
     if not all(f["in_view"] for f in result["features"]):
@@ -574,9 +598,10 @@ def margins_command(
     mass, pixel noise and torque-limit scale, each by bisection on the nonlinear loop; and
     the delay margin of the linearised loop. Exit 0 done, 1 no margin (the scenario's own run
     fails), 2 bad input."""
-    spec, _, _, settings, _ = load_scenario(scenario)
+    spec, loop, _, settings, _ = load_scenario(scenario)
     if settings.implementation is None:
         raise fail("implementation: margins are of the loop as implemented; add an [implementation] section")
+    require_six(spec, loop, "margins")
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir or Path("out") / f"{spec.name}-margins")
     if resume and not any(directory.glob("*.jsonl")):
@@ -629,6 +654,7 @@ def verify_command(
     Lyapunov derivative) on simulated trajectories; measure the image loop's gap."""
     spec, loop, s0, settings, _ = load_scenario(scenario)
     check_json_target(json_target)
+    warn_fewer_than_six(spec, loop)
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("simulating and checking the claims"):
         result, claims = verification_result(spec, loop, s0, settings, command_provenance(scenario))

@@ -123,3 +123,50 @@ def test_a_margins_run_over_a_velocity_or_position_limit_does_not_hold(limit, re
     assert traj.status == "ok", traj.message
     holds, detail = judge(traj, loop, settings, TrackingBound(math.inf, 180.0, "continuous", ""))
     assert not holds and detail.startswith(reason), detail
+
+
+FIVE_JOINTS = Path(__file__).parent / "data" / "light_wrist5.urdf"
+
+
+def five_joints(data: dict) -> None:
+    """An edit running the scenario on a 5-joint arm, the target 0.35 m ahead of its camera."""
+    on_urdf(FIVE_JOINTS)(data)
+    as_a_ur5_runs_it(data)
+    data["robot"]["q0"] = Q0[:5]
+    data["gains"] = {"k_xi": 2.0, "k_c": 3.0, "k_e": 10.0}
+    for key in ("xyz", "rpy"):
+        data["target"].pop(key)
+    data["target"]["relative_to_camera"] = {"xyz": [0.0, 0.0, 0.35], "rpy": [0.0, 0.0, 0.0]}
+
+
+WHY = "n = 5 < 6 joints: J_b pinv(J_b) != I, so Theorems 1-2 do not apply to the paper's loop on this arm"
+
+
+@pytest.mark.parametrize(("command", "status", "says"), [
+    ("pose", 0, f"warning: {WHY}"),
+    ("simulate", 0, f"warning: {WHY}"),
+    ("certify", 1, None),
+    ("verify", 1, f"warning: {WHY}"),
+    ("synthesize", 2, "error: loop: gain synthesis is for the paper's loop with n >= 6 joints (this is paper, n = 5)"),
+    ("margins", 2, f"error: loop: dvfc margins needs the paper's equilibrium and Theorems 1-2; {WHY}"),
+    ("report", 2, f"error: loop: dvfc report needs the paper's equilibrium and Theorems 1-2; {WHY}"),
+])  # fmt: skip
+def test_every_command_on_a_five_joint_arm_works_or_says_why_not(command, status, says, tmp_path):
+    """Theorems 1-2 need n >= 6: ``pose``, ``simulate`` and ``verify`` warn in one line before
+    the work, ``certify`` says what is not certified, and the commands that rest on them refuse
+    in one line before any work (nothing written)."""
+    from dvfc.reports.cli import app as full
+
+    out = tmp_path / "out"
+    target = out / "s.toml" if command == "synthesize" else out
+    options = [] if command == "pose" else ["--out", str(target)]
+    result = runner.invoke(full, [command, str(write(tmp_path, five_joints)), *options])
+    assert result.exit_code == status, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    assert "Traceback" not in result.output
+    if says is not None:
+        assert result.stderr.strip().splitlines()[0] == says, result.stderr
+    if status == 2:
+        assert len(result.stderr.strip().splitlines()) == 1 and not out.exists()
+    else:
+        assert "n = 5 < 6" in result.output, result.output
