@@ -378,7 +378,10 @@ def identity_residuals(traj: Trajectory) -> dict[str, float]:
 def summary(traj: Trajectory) -> dict:
     """Headline numbers of a run (JSON-ready). ``final`` starts with the true tracking error
     ``g_d^-1 g`` (position in m, angle in degrees; the planar loop's horizontal ``p - p_d``),
-    then the control error ``e_c`` (of the estimate) and the estimation error ``e_e``."""
+    then the control error ``e_c`` (of the estimate) and the estimation error ``e_e``, at
+    ``final_at``: the end, or for a run that stopped (``stopped``, at ``stopped_at``) its last
+    output sample. ``max_torque`` is the largest applied ``|tau|`` of :func:`joint_peaks`, the
+    samples of the per-joint peaks of :func:`dvfc.analysis.sampled.limit_record`."""
     e_c, e_e = traj["e_c"], traj["e_e"]
     v = traj["V"][:, 0]
     gap = np.linalg.norm(traj["e_e_image"] - e_e, axis=1)
@@ -387,6 +390,9 @@ def summary(traj: Trajectory) -> dict:
         "status": traj.status,
         "message": traj.message,
         "t_final": float(traj.t[-1]),
+        "stopped": traj.status != "ok",
+        "stopped_at": float(traj.t[-1] if traj.stopped_at is None else traj.stopped_at),
+        "final_at": float(traj.t[-1]),
         "final": {
             "tracking_position": float(np.linalg.norm(tracking[:3, 3])),
             "tracking_angle_deg": float(np.degrees(rotation_angle(tracking[:3, :3]))) if e_c.shape[1] == 6 else None,
@@ -396,7 +402,7 @@ def summary(traj: Trajectory) -> dict:
             "e_e_rotation": float(np.linalg.norm(e_e[-1, 3:])) if e_e.shape[1] == 6 else None,
             "x_norm": float(np.linalg.norm(np.hstack([traj["xi"][-1], e_c[-1], e_e[-1]]))),
         },
-        "max_torque": float(np.abs(traj["tau"]).max()),
+        "max_torque": float(joint_peaks(traj)["tau_applied"].max()),
         "V0": float(v[0]),
         "VT": float(v[-1]),
         "V_max_increase": float(np.maximum(np.diff(v), 0.0).max(initial=0.0)),

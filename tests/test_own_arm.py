@@ -170,3 +170,23 @@ def test_every_command_on_a_five_joint_arm_works_or_says_why_not(command, status
         assert len(result.stderr.strip().splitlines()) == 1 and not out.exists()
     else:
         assert "n = 5 < 6" in result.output, result.output
+
+
+def test_a_diverged_run_reports_figures_up_to_its_stop(tmp_path):
+    """A wrist gain far above the sampled loop's stable range diverges within milliseconds: the
+    table's max |tau| and summary.json's per-joint peaks come from the same samples, and the
+    final errors are labelled as those of the last sample before the stop."""
+    def diverging(data: dict) -> None:
+        as_a_ur5_runs_it(data)
+        data["gains"]["k_xi"] = 200.0
+
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["simulate", str(write(tmp_path, diverging)), "--out", str(out)],
+                           env={"COLUMNS": "200"})  # fmt: skip
+    assert result.exit_code == 1 and "run stopped: non-finite state" in result.stderr, result.output
+    record = strict_load(out / "summary.json")
+    s = record["summary"]
+    assert s["max_torque"] == max(record["limits"]["peak_torque"])
+    assert s["stopped"] and s["final_at"] == s["t_final"] < s["stopped_at"]
+    assert f"max |tau| applied {s['max_torque']:.4g} N m" in " ".join(result.stdout.replace("│", " ").split())
+    assert f"final (at {s['final_at']:.4g} s, the last sample before the stop)" in result.stdout
