@@ -274,12 +274,12 @@ def show(result: dict) -> None:
     table = Table(title=f"{result['scenario']} ({result['mode']} e_e)", show_header=False)
     f = s["final"]
     r = s["identity_residuals"]
-    at = f"at {s['final_at']:.4g} s, the last sample before the stop" if s["stopped"] else "at the end"
+    at = f" (at {s['final_at']:.4g} s, the last sample before the stop)" if s["stopped"] else ""
     rows = [
         ("status", s["status"]),
         ("horizon", f"{s['t_final']:.3g} s in {s['wall_time']:.3g} s wall"
          + (f", stopped at {s['stopped_at']:.4g} s" if s["stopped"] else "")),
-        (f"final ({at}) tracking error g_d^-1 g: position, angle", f"{f['tracking_position']:.3e} m, "
+        (f"final{at} tracking error g_d^-1 g: position, angle", f"{f['tracking_position']:.3e} m, "
          + ("-" if f["tracking_angle_deg"] is None else f"{f['tracking_angle_deg']:.3g} deg")),
         ("final control error e_c (estimate vs g_d): |p_ec|, |e_R(R_ec)|",
          f"{f['e_c_position']:.3e} m, {_number(f['e_c_rotation'])}"),
