@@ -96,6 +96,15 @@ class Case:
         """The desired relative pose ``g_d``."""
         return self.scenario.reference.se3()
 
+    @property
+    def theorems_do_not_apply(self) -> str | None:
+        """Why Theorems 1-2 do not apply to the case's loop (the paper's, on an arm with fewer
+        than six joints: ``J_b pinv(J_b) != I``), or None."""
+        n = self.loop.robot.n
+        if self.planar or n >= 6:
+            return None
+        return f"n = {n} < 6 joints: J_b pinv(J_b) != I, so Theorems 1-2 do not apply to the paper's loop on this arm"
+
     @cached_property
     def point(self) -> GainPoint:
         """The scenario's gains and weights as a certifier point."""

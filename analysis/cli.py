@@ -144,6 +144,19 @@ def load_case(path: Path, mode: str | None = None, check_view: bool = True) -> C
     return case
 
 
+def warn_fewer_than_six(case: Case) -> None:
+    """One warning line on standard error when Theorems 1-2 do not apply (:attr:`Case.theorems_do_not_apply`)."""
+    if (why := case.theorems_do_not_apply) is not None:
+        err.print(f"warning: {why}", markup=False, soft_wrap=True)
+
+
+def require_six(case: Case, command: str) -> None:
+    """Refuse ``command`` (status 2, before any work) when it rests on Theorems 1-2 and they do
+    not apply (:attr:`Case.theorems_do_not_apply`)."""
+    if (why := case.theorems_do_not_apply) is not None:
+        raise fail(f"loop: dvfc {command} needs the paper's equilibrium and Theorems 1-2; {why}")
+
+
 ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (default: the built-in UR5 scenario).")]
 OutOpt = Annotated[Path | None, typer.Option("--out", help="Output directory (default: out/<scenario name>).")]
 JsonOpt = Annotated[str | None, typer.Option("--json", help="Write the JSON summary to FILE, or '-' for stdout.")]
@@ -161,6 +174,7 @@ def simulate(
     case = load_case(scenario, mode.value if mode else None)
     spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     check_json_target(json_target)
+    warn_fewer_than_six(case)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
 
     with Progress(
@@ -212,6 +226,7 @@ def pose(scenario: ScenarioArg = DEFAULT_SCENARIO, json_target: JsonOpt = None) 
     the target in view (see [target] relative_to_camera). Exit 1 when a point is out of view."""
     case = load_case(scenario, check_view=False)
     check_json_target(json_target)
+    warn_fewer_than_six(case)
     result = {"scenario": case.name, **initial_view(case.loop, case.s0)}
     emit(result, None, json_target, show_pose)
     if not all(f["in_view"] for f in result["features"]):
@@ -253,19 +268,22 @@ def show(result: dict) -> None:
     table = Table(title=f"{result['scenario']} ({result['mode']} e_e)", show_header=False)
     f = s["final"]
     r = s["identity_residuals"]
+    at = f" (at {s['final_at']:.4g} s, the last sample before the stop)" if s["stopped"] else ""
     rows = [
         ("status", s["status"]),
-        ("horizon", f"{s['t_final']:.3g} s in {s['wall_time']:.3g} s wall"),
-        ("final tracking error g_d^-1 g: position, angle", f"{f['tracking_position']:.3e} m, "
+        ("horizon", f"{s['t_final']:.3g} s in {s['wall_time']:.3g} s wall"
+         + (f", stopped at {s['stopped_at']:.4g} s" if s["stopped"] else "")),
+        (f"final{at} tracking error g_d^-1 g: position, angle", f"{f['tracking_position']:.3e} m, "
          + ("-" if f["tracking_angle_deg"] is None else f"{f['tracking_angle_deg']:.3g} deg")),
         ("final control error e_c (estimate vs g_d): |p_ec|, |e_R(R_ec)|",
          f"{f['e_c_position']:.3e} m, {_number(f['e_c_rotation'])}"),
         ("final estimation error e_e (g vs estimate): |p_ee|, |e_R(R_ee)|",
          f"{f['e_e_position']:.3e} m, {_number(f['e_e_rotation'])}"),
         ("V(0) -> V(T)", f"{s['V0']:.4g} -> {s['VT']:.4g}"),
-        ("max |tau|", f"{s['max_torque']:.4g} N m"),
+        ("max |tau| applied", f"{s['max_torque']:.4g} N m"),
         ("peak |tau| / effort limit", _worst(result["limits"]["torque_commanded_ratio"])),
         ("peak |qd| / velocity limit", _worst(result["limits"]["speed_ratio"])),
+        ("joint range / position limits", _worst(result["limits"]["position_ratio"])),
         ("Lemma 2 identity residual", f"{r['passivity']:.2e}"),
         ("(43) identity residual", f"{r['dissipation']:.2e}"),
         ("max |e_e(image) - e_e|", f"{s['image_estimate_gap_max']:.3e}"),
@@ -584,6 +602,7 @@ def margins_command(
     spec, settings = case.scenario, case.settings
     if settings.implementation is None:
         raise fail("implementation: margins are of the loop as implemented; add an [implementation] section")
+    require_six(case, "margins")
     check_json_target(json_target)
     directory = prepare_out_dir(out_dir or Path("out") / f"{spec.name}-margins")
     if resume and not any(directory.glob("*.jsonl")):
@@ -635,6 +654,7 @@ def verify_command(
     Lyapunov derivative) on simulated trajectories; measure the image loop's gap."""
     case = load_case(scenario)
     check_json_target(json_target)
+    warn_fewer_than_six(case)
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("simulating and checking the claims"):
         result, claims = verification_result(case, command_provenance(scenario))
@@ -712,16 +732,22 @@ def _show_limit_search(record: dict) -> None:
 
 
 def show_claims(result: dict, claims: list) -> None:
-    """Human output of ``verify``: each claim with its equation and PASS/FAIL, a verdict."""
+    """Human output of ``verify``: a table of the claims (each with its place in the paper, its
+    status, value and bound) narrow enough for 80 columns, each FAIL or INCONCLUSIVE reason in
+    full below it, then a verdict."""
     table = Table(title=f"Claims of the paper on {result['scenario']}")
-    for col in ("paper", "claim", "value", "bound", "status", "reason"):
-        table.add_column(col)
+    table.add_column("claim", ratio=1, overflow="fold")
+    table.add_column("status", no_wrap=True, min_width=len("INCONCLUSIVE"))
+    table.add_column("value", no_wrap=True)
+    table.add_column("bound", max_width=24, overflow="fold")
     colours = {"PASS": "green", "FAIL": "red", "INCONCLUSIVE": "yellow", "MEASURED": "default"}
     for c in claims:
-        reason = c.detail if c.status in ("FAIL", "INCONCLUSIVE") else ""
-        status = Text(c.status, style=colours[c.status])
-        table.add_row(Text(c.reference), Text(c.name), f"{c.value:.3e}", Text(c.bound), status, Text(reason))
+        table.add_row(Text(f"{c.name} ({c.reference})"), Text(c.status, style=colours[c.status]), f"{c.value:.3e}",
+                      Text(c.bound))  # fmt: skip
     out.print(table)
+    for c in claims:
+        if c.status in ("FAIL", "INCONCLUSIVE"):
+            out.print(Text(f"{c.status} {c.name}: {c.detail}", style=colours[c.status]))
     summary_ = result["summary"]
     problems = [f"{summary_['failed']} claim(s) FAIL"] if summary_["failed"] else []
     problems += [f"{summary_['inconclusive']} check(s) INCONCLUSIVE"] if summary_["inconclusive"] else []

@@ -4,7 +4,8 @@ For each parameter of :data:`PARAMETERS` (the others at the scenario's values) t
 :func:`dvfc.analysis.sampled.as_implemented` is repeated by bisection between the scenario's
 value and the end of a stated range, and each run is judged by :func:`judge`: the loop
 *holds* when the run completes (no divergence, singularity or stop, every feature in the
-image), the torques stay within the effort limits when ``saturate`` is off, and the
+image), the joints stay within their position and velocity limits and, when ``saturate``
+is off, the torques within the effort limits, and the
 tracking error over the last half of the run stays within the operating envelope's
 certified ultimate bound (MATH fact 7; twice the continuous loop's error where the design
 has no certified envelope) (:data:`CRITERION`). These are measurements on simulated runs,
@@ -30,7 +31,7 @@ import numpy as np
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.multirate import implemented_record, implemented_text
-from dvfc.analysis.output import interrupted
+from dvfc.analysis.output import interrupted, json_text
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
@@ -40,7 +41,8 @@ from dvfc.models.robot import Payload, Robot
 
 CRITERION = (
     "holds: the run as implemented completes (no divergence, singularity or stop, every feature inside the "
-    "image), torques within the effort limits when saturate is off, and the true tracking error g_d^-1 g over "
+    "image), within the URDF's position and velocity limits and, when saturate is off, its effort limits, and "
+    "the true tracking error g_d^-1 g over "
     "the last half of the run within {bound}"
 )
 TRACKING_FACTOR = 2.0
@@ -132,11 +134,14 @@ def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: Trackin
     """Whether a run holds by :data:`CRITERION`, with the reason when it does not."""
     if traj.status != "ok":
         return False, f"{traj.status}: {traj.message}"
-    if not settings.implementation.saturate:
-        record = limit_record(traj, robot_limits(loop, settings))
-        ratio = max(record["torque_commanded_ratio"])
-        if ratio > 1:
-            return False, f"peak torque {ratio:.4g}x the effort limit"
+    record = limit_record(traj, robot_limits(loop, settings))
+    ratio = max(record["torque_commanded_ratio"])
+    if ratio > 1 and not settings.implementation.saturate:
+        return False, f"peak torque {ratio:.4g}x the effort limit"
+    if not record["within_velocity"]:
+        return False, f"peak joint speed {max(record['speed_ratio']):.4g}x the velocity limit"
+    if not record["within_position"]:
+        return False, f"joint range {max(record['position_ratio']):.4g}x the position limits (1: at a limit)"
     position, angle = tracking_error(traj)
     within = position <= bound.position and angle <= bound.angle_deg
     detail = (f"tracking error {position:.3g} m {'<=' if position <= bound.position else '>'} {bound.position:.3g} m, "
@@ -215,7 +220,7 @@ def search(case: Case, name: str, bound: TrackingBound, log: str | None = None) 
                 raise KeyboardInterrupt
             if log is not None:
                 with open(log, "a") as handle:
-                    handle.write(json.dumps(done[value]) + "\n")
+                    handle.write(json_text(done[value], indent=None))
         return done[value]["holds"]
 
     start = base_value(name, settings)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import signal
 import sys
@@ -41,8 +42,23 @@ def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
         raise
 
 
-def json_text(data: Any) -> str:
-    return json.dumps(data, indent=2, sort_keys=False) + "\n"
+def strict(data: Any) -> Any:
+    """``data`` with every non-finite number (NaN, an infinity) replaced by None, in every
+    dictionary, list and tuple it holds: JSON has no such numbers, ``null`` stands for "no
+    number"."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {key: strict(value) for key, value in data.items()}
+    if isinstance(data, list | tuple):
+        return [strict(value) for value in data]
+    return data
+
+
+def json_text(data: Any, indent: int | None = 2) -> str:
+    """``data`` as strict JSON (:func:`strict`; ``allow_nan=False`` guards it), one line when
+    ``indent`` is None, with a final newline."""
+    return json.dumps(strict(data), indent=indent, allow_nan=False) + "\n"
 
 
 def write_json(target: str | Path, data: Any) -> None:

@@ -33,6 +33,7 @@ from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, 
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.linearize import linearize, worst_case_disturbance
 from dvfc.analysis.multirate import implemented_record
+from dvfc.analysis.output import json_text
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Settings, Trajectory
@@ -77,7 +78,7 @@ def logged_runs(run: Callable[[GainPoint], dict], log: Path, *, resume: bool) ->
         if design not in done:
             done[design] = run(point)
             with open(log, "a") as handle:
-                handle.write(json.dumps({"design": design, "run": done[design]}) + "\n")
+                handle.write(json_text({"design": design, "run": done[design]}, indent=None))
         return done[design]
 
     return logged

@@ -40,7 +40,7 @@ import numpy as np
 
 from dvfc.analysis.compile import Buffered, compiled
 from dvfc.analysis.output import interrupted
-from dvfc.analysis.simulate import Settings, Simulator, Trajectory
+from dvfc.analysis.simulate import Settings, Simulator, Trajectory, joint_peaks
 from dvfc.models.loop import QUADRATURES, ClosedLoop
 from dvfc.models.robot import JointLimits
 
@@ -63,27 +63,39 @@ def robot_limits(loop: ClosedLoop, settings: Settings) -> JointLimits:
     return loop.robot.limits if imp is None else imp.limits(loop.robot.limits)
 
 
+def position_ratio(q_min: np.ndarray, q_max: np.ndarray, limits: JointLimits) -> np.ndarray:
+    """Per joint, how far the range ``[q_min, q_max]`` reaches toward the position limits: the
+    largest distance from the middle of ``[lower, upper]`` over half its width (1 at a limit,
+    above 1 beyond it); 0 for a joint without both limits (a continuous joint)."""
+    bounded = np.isfinite(limits.lower) & np.isfinite(limits.upper)
+    lower, upper = np.where(bounded, limits.lower, -1.0), np.where(bounded, limits.upper, 1.0)
+    middle, half = (upper + lower) / 2, np.maximum((upper - lower) / 2, np.finfo(float).tiny)
+    return np.where(bounded, np.maximum(q_max - middle, middle - q_min) / half, 0.0)
+
+
 def limit_record(traj: Trajectory, limits: JointLimits) -> dict:
-    """Per joint: the peak commanded and applied torque and the peak speed along the run
-    (over every control sample of a sampled run, the output grid of a continuous one),
-    against the URDF's effort and velocity limits (JSON-ready; ``inf`` limits as None)."""
-    peaks = traj.peaks or {
-        "tau": np.abs(traj["tau"]).max(axis=0),
-        "tau_applied": np.abs(traj["tau_applied"]).max(axis=0),
-        "qd": np.abs(traj["qd"]).max(axis=0),
-    }
+    """Per joint: the peak commanded and applied torque, the peak speed and the range of
+    positions along the run (:func:`dvfc.analysis.simulate.joint_peaks`: over every control
+    sample of a sampled run, the output grid of a continuous one, up to a stop), against the
+    URDF's effort, velocity and position limits (JSON-ready; ``inf`` limits as None)."""
+    peaks = joint_peaks(traj)
     finite = lambda a: [None if not math.isfinite(v) else float(v) for v in a]  # noqa: E731
+    q_min, q_max = peaks["q_min"], peaks["q_max"]
     return {
         "peak_torque": peaks["tau_applied"].tolist(),
         "peak_torque_commanded": peaks["tau"].tolist(),
         "effort_limit": finite(limits.effort),
         "peak_speed": peaks["qd"].tolist(),
         "velocity_limit": finite(limits.velocity),
+        "position_range": np.column_stack([q_min, q_max]).tolist(),
+        "position_limit": [finite(pair) for pair in zip(limits.lower, limits.upper, strict=True)],
         "torque_ratio": (peaks["tau_applied"] / limits.effort).tolist(),
         "torque_commanded_ratio": (peaks["tau"] / limits.effort).tolist(),
         "speed_ratio": (peaks["qd"] / limits.velocity).tolist(),
+        "position_ratio": position_ratio(q_min, q_max, limits).tolist(),
         "within_effort": bool(np.all(peaks["tau_applied"] <= limits.effort)),
         "within_velocity": bool(np.all(peaks["qd"] <= limits.velocity)),
+        "within_position": bool(np.all(q_min >= limits.lower) and np.all(q_max <= limits.upper)),
     }
 
 
@@ -222,7 +234,7 @@ class SampledSimulator(Simulator):
         kept = {0: s}  # states at capture steps whose image is not measured yet
         measured = 0  # captures measured so far
         rows: list[tuple[int, np.ndarray, np.ndarray]] = []  # (k, s_k, hold_k) on the output grid
-        history: dict[str, list[np.ndarray]] = {"tau": [], "tau_applied": [], "quad": [], "qd": []}  # per step
+        history: dict[str, list[np.ndarray]] = {"tau": [], "tau_applied": [], "quad": [], "q": [], "qd": []}  # per step
         stops: list[_Stop] = []
         start = time.perf_counter()
         signal_chunks: list[dict[str, np.ndarray]] = []
@@ -243,9 +255,12 @@ class SampledSimulator(Simulator):
                     return None
             return e_new
 
-        def check_speeds(first: int, speeds: np.ndarray) -> None:
-            """A stop at the first of the samples ``first, first + 1, ...`` (rows of ``speeds``)
-            whose speed exceeds its limit, when the implementation stops there."""
+        def check_joints(first: int, joints: np.ndarray) -> None:
+            """Record the positions and speeds of the samples ``first, first + 1, ...`` (rows of
+            ``joints``: ``q``, ``qd``); a stop at the first whose speed exceeds its limit, when the
+            implementation stops there."""
+            speeds = np.abs(joints[:, n:])
+            history["q"].append(joints[:, :n])
             history["qd"].append(speeds)
             if imp.velocity_limits == "stop" and np.any(over := speeds > self.limits.velocity):
                 j, joint = (int(i[0]) for i in np.nonzero(over))
@@ -255,7 +270,7 @@ class SampledSimulator(Simulator):
                 )
                 stops.append(_Stop(first + j, 1, "velocity_limit", message, first + j, first + j + 1))
 
-        check_speeds(0, np.abs(s[None, n : 2 * n]))
+        check_joints(0, s[None, : 2 * n])
         k = 0
         while not stops:
             if (e_new := measure_through(k - lag)) is not None:
@@ -284,7 +299,7 @@ class SampledSimulator(Simulator):
                 j = int(np.flatnonzero(~np.isfinite(np.vstack([after, quad])).all(axis=0))[0])
                 message = f"non-finite state after t = {(k + j) * h:.4g} s"
                 stops.append(_Stop(k + j, 3, "diverged", message, k + j + 1, k + j + 1))
-            check_speeds(k + 1, np.abs(after[n : 2 * n].T))
+            check_joints(k + 1, after[: 2 * n].T)
             if stops:
                 break
             s, k = after[:, -1], end
@@ -324,10 +339,11 @@ class SampledSimulator(Simulator):
         signals["state"] = np.array([r[1] for r in rows])
         steps_of_rows = np.array([r[0] for r in rows])
         quad = np.vstack([np.zeros((1, len(QUADRATURES))), *history.pop("quad")]).cumsum(axis=0)[steps_of_rows]
-        ends = {"tau": stop.tau_end, "tau_applied": stop.tau_end, "qd": stop.qd_end}
-        peaks = {
-            key: np.vstack([np.zeros((0, n)), *v])[: ends[key]].max(axis=0, initial=0.0) for key, v in history.items()
-        }
+        ends = {"tau": stop.tau_end, "tau_applied": stop.tau_end, "q": stop.qd_end, "qd": stop.qd_end}
+        samples = {key: np.vstack([np.zeros((0, n)), *v])[: ends[key]] for key, v in history.items()}
+        q = samples.pop("q")  # the start at least
+        peaks = {key: v.max(axis=0, initial=0.0) for key, v in samples.items()}
+        peaks["q_min"], peaks["q_max"] = q.min(axis=0), q.max(axis=0)
         return Trajectory(
             t=steps_of_rows * h,
             signals=signals,
@@ -337,6 +353,7 @@ class SampledSimulator(Simulator):
             wall_time=time.perf_counter() - start,
             stats={"steps": stop.tau_end, "samples": stop.qd_end - 1},
             peaks=peaks,
+            stopped_at=None if stop.status == "ok" else stop.step * h,
         )
 
     def _evaluate(self, rows: list, evaluated: int, chunks: list) -> tuple[str | None, int]:

@@ -569,6 +569,18 @@ def _vector(value: float | list[float], n: int, where: str) -> np.ndarray:
     return np.full(n, float(value))
 
 
+def _check_position_limits(robot: Robot, q0: np.ndarray) -> None:
+    """Refuse a ``q0`` outside a joint's position limits in the URDF (a continuous joint has none)."""
+    lower, upper = robot.limits.lower, robot.limits.upper
+    outside = np.flatnonzero((q0 < lower) | (q0 > upper))
+    if outside.size:
+        i = int(outside[0])
+        raise ScenarioError(
+            f"robot.q0[{i}]: {q0[i]:.6g} is outside the limits [{lower[i]:.6g}, {upper[i]:.6g}] of joint {i + 1} "
+            f"({robot.joints[i]}) in the URDF"
+        )
+
+
 def build_robot(section: RobotSection, base: Path) -> Robot:
     """The arm of a scenario (built-in name or URDF path relative to the scenario file)."""
     try:
@@ -665,6 +677,7 @@ def build(
     robot = build_robot(scenario.robot, base)
     n = robot.n
     q0 = _vector(scenario.robot.q0, n, "robot.q0")
+    _check_position_limits(robot, q0)
     if scenario.loop == "planar":
         _check_planar(scenario, robot, q0)
     qd0 = _vector(scenario.robot.qd0 or 0.0, n, "robot.qd0")

@@ -90,7 +90,11 @@ class Trajectory:
     wall_time: float = 0.0
     stats: dict[str, float] = field(default_factory=dict)
     peaks: dict[str, np.ndarray] = field(default_factory=dict)
-    """Per-joint peaks ``|tau|``, ``|tau_applied|``, ``|qd|`` over every control sample (sampled runs)."""
+    """Per-joint peaks ``|tau|``, ``|tau_applied|``, ``|qd|`` and range ``q_min``, ``q_max`` over
+    every control sample (sampled runs; :func:`joint_peaks` for any run)."""
+    stopped_at: float | None = None
+    """Where a run that did not complete stopped (s), when that is after its last output sample;
+    None: at its last output sample."""
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]
@@ -325,6 +329,22 @@ class Simulator:
         )
 
 
+def joint_peaks(traj: Trajectory) -> dict[str, np.ndarray]:
+    """Per joint: the peaks ``|tau|`` (commanded), ``|tau_applied|``, ``|qd|`` and the range
+    ``q_min``, ``q_max`` up to the end or the stop of a run: over every control sample of a
+    sampled run (:attr:`Trajectory.peaks`), else over the output grid."""
+    if traj.peaks:
+        return traj.peaks
+    q = traj["q"]
+    return {
+        "tau": np.abs(traj["tau"]).max(axis=0),
+        "tau_applied": np.abs(traj["tau_applied"]).max(axis=0),
+        "qd": np.abs(traj["qd"]).max(axis=0),
+        "q_min": q.min(axis=0),
+        "q_max": q.max(axis=0),
+    }
+
+
 def rotation_angle(r: np.ndarray) -> np.ndarray:
     """The angle (rad) of each rotation of a batch ``(..., 3, 3)``, by ``atan2(|sk(R)^vee|,
     (tr R - 1)/2)``: accurate at every angle (``arccos`` of the trace resolves only about
@@ -358,7 +378,10 @@ def identity_residuals(traj: Trajectory) -> dict[str, float]:
 def summary(traj: Trajectory) -> dict:
     """Headline numbers of a run (JSON-ready). ``final`` starts with the true tracking error
     ``g_d^-1 g`` (position in m, angle in degrees; the planar loop's horizontal ``p - p_d``),
-    then the control error ``e_c`` (of the estimate) and the estimation error ``e_e``."""
+    then the control error ``e_c`` (of the estimate) and the estimation error ``e_e``, at
+    ``final_at``: the end, or for a run that stopped (``stopped``, at ``stopped_at``) its last
+    output sample. ``max_torque`` is the largest applied ``|tau|`` of :func:`joint_peaks`, the
+    samples of the per-joint peaks of :func:`dvfc.analysis.sampled.limit_record`."""
     e_c, e_e = traj["e_c"], traj["e_e"]
     v = traj["V"][:, 0]
     gap = np.linalg.norm(traj["e_e_image"] - e_e, axis=1)
@@ -367,6 +390,9 @@ def summary(traj: Trajectory) -> dict:
         "status": traj.status,
         "message": traj.message,
         "t_final": float(traj.t[-1]),
+        "stopped": traj.status != "ok",
+        "stopped_at": float(traj.t[-1] if traj.stopped_at is None else traj.stopped_at),
+        "final_at": float(traj.t[-1]),
         "final": {
             "tracking_position": float(np.linalg.norm(tracking[:3, 3])),
             "tracking_angle_deg": float(np.degrees(rotation_angle(tracking[:3, :3]))) if e_c.shape[1] == 6 else None,
@@ -376,7 +402,7 @@ def summary(traj: Trajectory) -> dict:
             "e_e_rotation": float(np.linalg.norm(e_e[-1, 3:])) if e_e.shape[1] == 6 else None,
             "x_norm": float(np.linalg.norm(np.hstack([traj["xi"][-1], e_c[-1], e_e[-1]]))),
         },
-        "max_torque": float(np.abs(traj["tau"]).max()),
+        "max_torque": float(joint_peaks(traj)["tau_applied"].max()),
         "V0": float(v[0]),
         "VT": float(v[-1]),
         "V_max_increase": float(np.maximum(np.diff(v), 0.0).max(initial=0.0)),

@@ -484,8 +484,10 @@ def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Traje
     how = "sampled" if settings.implementation is not None else "continuous"
     torque = np.asarray(record["torque_commanded_ratio"])
     speed = np.asarray(record["speed_ratio"])
-    j, i = int(np.argmax(torque)), int(np.argmax(speed))
+    position = np.asarray(record["position_ratio"])
+    j, i, p = int(np.argmax(torque)), int(np.argmax(speed)), int(np.argmax(position))
     clipped = settings.implementation is not None and settings.implementation.saturate
+    low, high = record["position_range"][p]
     torque_detail = (
         f"joint {j + 1}: peak |tau| {record['peak_torque_commanded'][j]:.4g} N m, limit {limits.effort[j]:.4g} N m"
         + ("; clipped at the limit (saturate)" if clipped else "")
@@ -498,6 +500,9 @@ def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Traje
         Claim("joint speeds within velocity limits", "URDF <limit velocity>", speed.max(),
               "max peak |qd| / velocity <= 1", None if speed.max() <= 1 else False,
               f"joint {i + 1}: peak |qd| {record['peak_speed'][i]:.4g} rad/s, limit {limits.velocity[i]:.4g} rad/s"),
+        Claim("joint position limits", "URDF <limit lower upper>", position.max(),
+              "max range / position limits <= 1", record["within_position"],
+              f"joint {p + 1}: range [{low:.4g}, {high:.4g}], limits [{limits.lower[p]:.4g}, {limits.upper[p]:.4g}]"),
     ]  # fmt: skip
 
 

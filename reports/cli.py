@@ -18,6 +18,7 @@ from dvfc.analysis.cli import (
     load_case,
     out,
     prepare_out_dir,
+    require_six,
     resumable,
 )
 from dvfc.analysis.results import verdict
@@ -33,6 +34,7 @@ def report(
     """Write the design-review report of a scenario: report.html (self-contained) and report.pdf.
     Exit 0: certified and every check passes; 1: not certified, or a check fails or is inconclusive."""
     case = load_case(scenario)
+    require_six(case, "report")
     directory = prepare_out_dir(out_dir or Path("out") / case.name)
     provenance_ = command_provenance(scenario)
     key = f"{provenance_['scenario_sha256']} dvfc {provenance_['toolkit']['dvfc']}"

@@ -1,0 +1,192 @@
+"""A user's own arm: strict JSON outputs, joint position limits, a readable verify table,
+arms with fewer than six joints, and consistent figures of runs that stop."""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from dvfc.analysis.cli import app
+from dvfc.analysis.margins import TrackingBound, judge
+from dvfc.analysis.sampled import as_implemented
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build
+from dvfc.analysis.verify import implemented
+from dvfc.models.robot import builtin_urdf
+
+from conftest import scenario_dict
+from test_cli import setter, write
+
+runner = CliRunner()
+
+
+def strict_load(path: Path) -> object:
+    """``path`` parsed by a strict JSON parser: NaN and infinities are errors."""
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"{path.name}: {constant} is not JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+@pytest.mark.parametrize("command", ["simulate", "certify", "verify"])
+def test_every_output_file_is_strict_json(command, tmp_path):
+    """An uncertified design (k_xi <= 1/2): its claims without a number are null, not NaN."""
+    out = tmp_path / "out"
+    scenario = write(tmp_path, setter("gains.k_xi", 0.5))
+    result = runner.invoke(app, [command, str(scenario), "--out", str(out), "--json", str(tmp_path / "o.json")])
+    assert result.exit_code in (0, 1), result.output
+    files = [tmp_path / "o.json", *out.glob("*.json")]
+    assert len(files) > 1
+    for path in files:
+        strict_load(path)
+
+
+def ur5_with_limits(tmp_path: Path, joint: str, **limit: float) -> Path:
+    """The UR5's URDF with some attributes of one joint's ``<limit>`` changed."""
+    root = ET.parse(builtin_urdf("ur5")).getroot()
+    element = next(j for j in root.iter("joint") if j.get("name") == joint).find("limit")
+    for key, value in limit.items():
+        element.set(key, repr(value))
+    path = tmp_path / f"ur5_{joint}.urdf"
+    path.write_text(ET.tostring(root, encoding="unicode"))
+    return path
+
+
+def on_urdf(urdf: Path):
+    """An edit running the scenario on ``urdf`` (the UR5's camera frame)."""
+
+    def edit(data: dict) -> None:
+        data["robot"].pop("model")
+        data["robot"].update(urdf=str(urdf), camera_frame="tool0")
+
+    return edit
+
+
+def as_a_ur5_runs_it(data: dict) -> None:
+    """An edit giving the idealised scenario the default example's gains and implementation."""
+    default = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["gains"], data["implementation"] = default["gains"], default["implementation"]
+
+
+Q0 = scenario_dict()["robot"]["q0"]
+
+
+def test_q0_outside_its_position_limits_is_one_line_exit_2(tmp_path):
+    urdf = ur5_with_limits(tmp_path, "shoulder_lift_joint", lower=-1.0, upper=1.0)
+    out = tmp_path / "out"
+    for command in ("pose", "simulate", "verify", "certify"):
+        result = runner.invoke(app, [command, str(write(tmp_path, on_urdf(urdf))),
+                                     *(["--out", str(out)] if command != "pose" else [])])  # fmt: skip
+        assert result.exit_code == 2, (command, result.output)
+        assert result.stderr.strip() == (
+            f"error: robot.q0[1]: {Q0[1]:g} is outside the limits [-1, 1] of joint 2 (shoulder_lift_joint) in the URDF"
+        ), (command, result.stderr)
+        assert not out.exists()
+
+
+def test_a_run_records_its_joint_range_against_the_position_limits(tmp_path):
+    """The elbow may move 1 mrad from q0: the run leaves that range, summary.json says by how
+    much (the ratio of the range's reach to the limits' half-width), verify's claim FAILs."""
+    urdf = ur5_with_limits(tmp_path, "elbow_joint", lower=Q0[2] - 1e-3, upper=Q0[2] + 1e-3)
+    out = tmp_path / "out"
+    scenario = write(tmp_path, on_urdf(urdf))
+    result = runner.invoke(app, ["simulate", str(scenario), "--out", str(out)], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    limits = strict_load(out / "summary.json")["limits"]
+    low, high = limits["position_range"][2]
+    assert limits["position_limit"][2] == pytest.approx([Q0[2] - 1e-3, Q0[2] + 1e-3])
+    assert limits["position_limit"][0] == pytest.approx([-2 * math.pi, 2 * math.pi])
+    assert limits["position_ratio"][2] == pytest.approx(max(high - Q0[2], Q0[2] - low) / 1e-3)
+    assert limits["position_ratio"][2] > 1 and not limits["within_position"]
+    assert "joint range / position limits" in result.stdout and "joint 3, EXCEEDS" in result.stdout
+    loop, s0, settings = build(Scenario.model_validate(tomllib.loads(scenario.read_text())), tmp_path)
+    claim = next(c for c in implemented(loop, s0, settings) if c.name == "joint position limits")
+    assert claim.status == "FAIL" and claim.value == pytest.approx(limits["position_ratio"][2])
+    assert claim.detail.startswith("joint 3: range [")
+
+
+@pytest.mark.parametrize(("limit", "reason"), [
+    ({"velocity": 0.01}, "peak joint speed"),
+    ({"lower": Q0[2] - 1e-3, "upper": Q0[2] + 1e-3}, "joint range"),
+])  # fmt: skip
+def test_a_margins_run_over_a_velocity_or_position_limit_does_not_hold(limit, reason, tmp_path):
+    urdf = ur5_with_limits(tmp_path, "elbow_joint", **limit)
+    scenario = write(tmp_path, lambda data: (on_urdf(urdf)(data), as_a_ur5_runs_it(data)))
+    loop, s0, settings = build(Scenario.model_validate(tomllib.loads(scenario.read_text())), tmp_path)
+    traj = as_implemented(loop, settings).run(s0)
+    assert traj.status == "ok", traj.message
+    holds, detail = judge(traj, loop, settings, TrackingBound(math.inf, 180.0, "continuous", ""))
+    assert not holds and detail.startswith(reason), detail
+
+
+FIVE_JOINTS = Path(__file__).parent / "data" / "light_wrist5.urdf"
+
+
+def five_joints(data: dict) -> None:
+    """An edit running the scenario on a 5-joint arm, the target 0.35 m ahead of its camera."""
+    on_urdf(FIVE_JOINTS)(data)
+    as_a_ur5_runs_it(data)
+    data["robot"]["q0"] = Q0[:5]
+    data["gains"] = {"k_xi": 2.0, "k_c": 3.0, "k_e": 10.0}
+    for key in ("xyz", "rpy"):
+        data["target"].pop(key)
+    data["target"]["relative_to_camera"] = {"xyz": [0.0, 0.0, 0.35], "rpy": [0.0, 0.0, 0.0]}
+
+
+WHY = "n = 5 < 6 joints: J_b pinv(J_b) != I, so Theorems 1-2 do not apply to the paper's loop on this arm"
+
+
+@pytest.mark.parametrize(("command", "status", "says"), [
+    ("pose", 0, f"warning: {WHY}"),
+    ("simulate", 0, f"warning: {WHY}"),
+    ("certify", 1, None),
+    ("verify", 1, f"warning: {WHY}"),
+    ("synthesize", 2, "error: loop: gain synthesis is for the paper's loop with n >= 6 joints (this is paper, n = 5)"),
+    ("margins", 2, f"error: loop: dvfc margins needs the paper's equilibrium and Theorems 1-2; {WHY}"),
+    ("report", 2, f"error: loop: dvfc report needs the paper's equilibrium and Theorems 1-2; {WHY}"),
+])  # fmt: skip
+def test_every_command_on_a_five_joint_arm_works_or_says_why_not(command, status, says, tmp_path):
+    """Theorems 1-2 need n >= 6: ``pose``, ``simulate`` and ``verify`` warn in one line before
+    the work, ``certify`` says what is not certified, and the commands that rest on them refuse
+    in one line before any work (nothing written)."""
+    from dvfc.reports.cli import app as full
+
+    out = tmp_path / "out"
+    target = out / "s.toml" if command == "synthesize" else out
+    options = [] if command == "pose" else ["--out", str(target)]
+    result = runner.invoke(full, [command, str(write(tmp_path, five_joints)), *options])
+    assert result.exit_code == status, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    assert "Traceback" not in result.output
+    if says is not None:
+        assert result.stderr.strip().splitlines()[0] == says, result.stderr
+    if status == 2:
+        assert len(result.stderr.strip().splitlines()) == 1 and not out.exists()
+    else:
+        assert "n = 5 < 6" in result.output, result.output
+
+
+def test_a_diverged_run_reports_figures_up_to_its_stop(tmp_path):
+    """A wrist gain far above the sampled loop's stable range diverges within milliseconds: the
+    table's max |tau| and summary.json's per-joint peaks come from the same samples, and the
+    final errors are labelled as those of the last sample before the stop."""
+    def diverging(data: dict) -> None:
+        as_a_ur5_runs_it(data)
+        data["gains"]["k_xi"] = 200.0
+
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["simulate", str(write(tmp_path, diverging)), "--out", str(out)],
+                           env={"COLUMNS": "200"})  # fmt: skip
+    assert result.exit_code == 1 and "run stopped: non-finite state" in result.stderr, result.output
+    record = strict_load(out / "summary.json")
+    s = record["summary"]
+    assert s["max_torque"] == max(record["limits"]["peak_torque"])
+    assert s["stopped"] and s["final_at"] == s["t_final"] < s["stopped_at"]
+    assert f"max |tau| applied {s['max_torque']:.4g} N m" in " ".join(result.stdout.replace("│", " ").split())
+    assert f"final (at {s['final_at']:.4g} s, the last sample before the stop)" in result.stdout
