@@ -1,0 +1,423 @@
+"""The scenario file's schema: one strict pydantic model a section (no unknown keys, no coercion).
+
+A scenario names the arm, the camera, the target and its motion, the reference ``g_d``, the
+weights and gains of (35)/(42), the disturbances, the simulation, the implementation, the
+plant, and the settings of each job. The wording of a validation error is
+:mod:`dvfc.analysis.messages`; building the models is :mod:`dvfc.analysis.scenario`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from typing import Annotated, Literal
+
+import casadi as cs
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from dvfc.analysis.implementation import Implementation
+from dvfc.analysis.messages import one_line
+from dvfc.models.camera import Camera
+from dvfc.models.lie import SE3
+
+
+class ScenarioError(ValueError):
+    """Invalid scenario: the message is one line that names the field."""
+
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Vector3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+
+
+class _Strict(BaseModel):
+    """No unknown keys, no coercion (a string or a boolean is never a number)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+
+class Pose(_Strict):
+    xyz: Vector3 = [0.0, 0.0, 0.0]
+    rpy: Vector3 = [0.0, 0.0, 0.0]
+
+    def se3(self) -> SE3:
+        return SE3.from_xyz_rpy(self.xyz, self.rpy)
+
+
+class RobotSection(_Strict):
+    model: str | None = None
+    urdf: str | None = None
+    camera_frame: str | None = None
+    q0: list[Finite]
+    qd0: list[Finite] | None = None
+    mount: Pose = Pose()
+    armature: list[Annotated[float, Field(ge=0, allow_inf_nan=False)]] | None = None
+
+    @model_validator(mode="after")
+    def _one_source(self) -> RobotSection:
+        if (self.model is None) == (self.urdf is None):
+            raise ValueError("give exactly one of 'model' (a built-in arm) or 'urdf' (a path)")
+        return self
+
+
+class CameraSection(_Strict):
+    """Pinhole camera: focal length and, optionally, the sensor's size and principal point
+    (pixels, from the top-left corner; the centre unless given)."""
+
+    focal_length: Positive
+    width: Positive | None = None
+    height: Positive | None = None
+    principal_point: Annotated[list[Finite], Field(min_length=2, max_length=2)] | None = None
+
+    @model_validator(mode="after")
+    def _image(self) -> CameraSection:
+        if (self.width is None) != (self.height is None):
+            raise ValueError("give both width and height (pixels), or neither")
+        if self.principal_point is not None:
+            if self.width is None:
+                raise ValueError("principal_point needs the image size (width, height)")
+            u0, v0 = self.principal_point
+            if not (0 <= u0 <= self.width and 0 <= v0 <= self.height):
+                raise ValueError("principal_point must lie inside the image")
+        return self
+
+    def camera(self, points: np.ndarray) -> Camera:
+        pp = None if self.principal_point is None else tuple(self.principal_point)
+        return Camera(self.focal_length, points, self.width, self.height, pp)
+
+
+class MotionSection(_Strict):
+    kind: Literal["static", "circle", "circle_spin"] = "static"
+    radius: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    period: Positive = 1.0
+    normal: Vector3 = [0.0, 0.0, 1.0]
+    spin_axis: Vector3 = [0.0, 0.0, 1.0]
+    spin_rate: Finite = 0.0
+
+    @model_validator(mode="after")
+    def _consistent(self) -> MotionSection:
+        if self.kind == "static" and (self.radius != 0 or self.spin_rate != 0):
+            raise ValueError("a static target has no radius or spin_rate")
+        if self.kind == "circle" and self.spin_rate != 0:
+            raise ValueError("kind 'circle' does not spin; use kind 'circle_spin'")
+        if np.linalg.norm(self.normal) == 0 or np.linalg.norm(self.spin_axis) == 0:
+            raise ValueError("normal and spin_axis must be non-zero vectors")
+        return self
+
+
+class TargetSection(_Strict):
+    """The object: feature points in its frame, its pose ``g_wo(0)`` in the world (``xyz``,
+    ``rpy``) or relative to the camera at ``q0`` (``relative_to_camera``: ``g_wo(0) =
+    g_wc(q0) g_co``, so ``xyz = [0, 0, d]`` puts it on the optical axis at depth ``d``), and
+    its motion."""
+
+    points: Annotated[list[Vector3], Field(min_length=4)]
+    xyz: Vector3 | None = None
+    rpy: Vector3 = [0.0, 0.0, 0.0]
+    relative_to_camera: Pose | None = None
+    motion: MotionSection = MotionSection()
+
+    @model_validator(mode="after")
+    def _one_placement(self) -> TargetSection:
+        if self.relative_to_camera is not None and {"xyz", "rpy"} & self.model_fields_set:
+            raise ValueError("give either xyz/rpy (world frame) or relative_to_camera, not both")
+        if self.relative_to_camera is None and self.xyz is None:
+            raise ValueError("give xyz (the target's position in the world) or relative_to_camera = {xyz, rpy}")
+        return self
+
+    def start(self, camera_at_q0: SE3) -> SE3:
+        """``g_wo(0)``, given the camera's pose ``g_wc(q0)``."""
+        if self.relative_to_camera is not None:
+            return camera_at_q0 @ self.relative_to_camera.se3()
+        return SE3.from_xyz_rpy(self.xyz, self.rpy)
+
+    @field_validator("points")
+    @classmethod
+    def _not_collinear(cls, points: list[list[float]]) -> list[list[float]]:
+        p = np.asarray(points)
+        if np.linalg.matrix_rank(p - p.mean(axis=0), tol=1e-9) < 2:
+            raise ValueError("the feature points are collinear: J(gbar) cannot have rank 6")
+        return points
+
+
+class ReferenceSection(Pose):
+    @field_validator("rpy")
+    @classmethod
+    def _below_pi(cls, rpy: list[float]) -> list[float]:
+        r = np.asarray(cs.DM(SE3.from_xyz_rpy([0, 0, 0], rpy).rotation.matrix))
+        theta = math.acos(max(-1.0, min(1.0, (np.trace(r) - 1) / 2)))
+        if theta >= math.pi - 1e-6:
+            raise ValueError("the reference rotation angle must be below pi (e_R vanishes at pi)")
+        return rpy
+
+
+class ObserverSection(_Strict):
+    """Initial estimation error ``g_ee(0)``: ``gbar(0) = g(0) g_ee(0)^-1``."""
+
+    error_xyz: Vector3 = [0.0, 0.0, 0.0]
+    error_rpy: Vector3 = [0.0, 0.0, 0.0]
+
+
+class WeightsSection(_Strict):
+    w_pc: Positive
+    w_rc: Positive
+    w_pe: Positive
+    w_re: Positive
+
+
+GainValue = Positive | Annotated[list[Positive], Field(min_length=1)]
+
+
+class GainsSection(_Strict):
+    k_xi: GainValue
+    k_c: GainValue
+    k_e: GainValue
+
+
+class DisturbanceSection(_Strict):
+    kind: Literal["step", "sine", "noise"]
+    amplitude: Finite | list[Finite] | None = None
+    start: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    frequency: Positive | None = None
+    phase: Finite = 0.0
+    rms: Annotated[float, Field(ge=0, allow_inf_nan=False)] | list[Finite] | None = None
+    bandwidth: Positive | None = None
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _fields_of_kind(self) -> DisturbanceSection:
+        needed = {"step": ("amplitude",), "sine": ("amplitude", "frequency"), "noise": ("rms", "bandwidth")}
+        for name in needed[self.kind]:
+            if getattr(self, name) is None:
+                raise ValueError(f"kind {self.kind!r} needs '{name}'")
+        return self
+
+
+class DisturbancesSection(_Strict):
+    torque: list[DisturbanceSection] = []
+
+
+class SimulationSection(_Strict):
+    duration: Positive = 10.0
+    dt: Positive = 0.01
+    mode: Literal["ideal", "image"] = "ideal"
+    rtol: Annotated[float, Field(gt=0, lt=1)] = 1e-10
+    atol: Annotated[float, Field(gt=0, lt=1)] = 1e-10
+    jit: bool = False
+    time_budget: Positive = 600.0
+    sigma_min: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.02
+
+    @model_validator(mode="after")
+    def _grid(self) -> SimulationSection:
+        if self.dt > self.duration:
+            raise ValueError("dt must not exceed duration")
+        if self.duration / self.dt > 1e6:
+            raise ValueError("more than 1e6 output steps: raise dt")
+        return self
+
+
+class ImplementationSection(_Strict):
+    """The digital controller (:class:`dvfc.analysis.implementation.Implementation`); absent: the
+    paper's continuous loop."""
+
+    control_rate: Positive
+    camera_rate: Positive | None = None
+    latency: NonNegative = 0.0
+    pixel_noise: NonNegative = 0.0
+    quantization: NonNegative = 0.0
+    e_e: Literal["ideal", "image"] | None = None
+    saturate: bool = False
+    torque_scale: Positive = 1.0
+    velocity_limits: Literal["report", "stop"] = "report"
+    seed: int = 0
+    integrator: Literal["rk4", "cvodes"] = "rk4"
+    substeps: Annotated[int, Field(ge=1, le=1000)] = 1
+
+    @model_validator(mode="after")
+    def _samples(self) -> ImplementationSection:
+        periods = self.latency * self.control_rate
+        if abs(periods - round(periods)) > 1e-6:
+            raise ValueError(
+                f"latency {self.latency:g} s is not a whole number of control periods "
+                f"({1 / self.control_rate:g} s): images are used at control samples"
+            )
+        if self.camera_rate is not None and self.camera_rate > self.control_rate:
+            raise ValueError(f"camera_rate {self.camera_rate:g} Hz exceeds control_rate {self.control_rate:g} Hz")
+        return self
+
+    def implementation(self) -> Implementation:
+        return Implementation(
+            self.control_rate,
+            self.camera_rate or self.control_rate,
+            self.latency,
+            self.pixel_noise,
+            self.quantization,
+            self.saturate,
+            self.torque_scale,
+            self.velocity_limits,
+            self.seed,
+            self.integrator,
+            self.substeps,
+        )
+
+
+class PayloadSection(_Strict):
+    """A body on the camera link that the controller does not know: mass (kg), centre of mass
+    (m, link frame), inertia about it ``[ixx, ixy, ixz, iyy, iyz, izz]`` (kg m^2)."""
+
+    mass: NonNegative
+    com: Vector3 = [0.0, 0.0, 0.0]
+    inertia: Annotated[list[Finite], Field(min_length=6, max_length=6)] = [0.0] * 6
+
+
+class PlantSection(_Strict):
+    """The arm as it is, when it differs from the URDF the controller uses."""
+
+    payload: PayloadSection | None = None
+    mass_scale: Positive = 1.0
+
+
+class CertifySection(_Strict):
+    """Region and requirement of the Theorem 2 certificate."""
+
+    theta_max_deg: Annotated[float, Field(gt=0, le=180, allow_inf_nan=False)] = 180.0
+    gamma: Positive | None = None
+
+
+class EnvelopeSection(_Strict):
+    """Bounds on the disturbance for the operating envelope (docs/math.md, facts 7-9): the target's
+    speed (m/s) and angular rate (rad/s), the joint-torque disturbance ``|tau_d|`` (N m,
+    Euclidean norm), and optionally ``theta_bar`` (degrees). Each one absent is derived
+    from the scenario's own target motion and disturbances."""
+
+    target_speed: NonNegative | None = None
+    target_rate: NonNegative | None = None
+    torque: NonNegative | None = None
+    theta_bar_deg: Annotated[float, Field(gt=0, lt=180, allow_inf_nan=False)] | None = None
+
+
+class ReportSection(_Strict):
+    """What the report's gain map shows: the certified gamma, or (with an ``[envelope]``) the
+    certified decay rate or the largest certified target speed."""
+
+    map: Literal["gamma", "rate", "max_target_speed"] = "gamma"
+
+
+Interval = Annotated[list[Positive], Field(min_length=2, max_length=2)]
+
+
+class SynthesizeSection(_Strict):
+    """Gain bounds ``[lower, upper]`` for ``synthesize``, the objective (the certified gamma, or
+    the envelope's certified target speed), an optional gamma target, whether to search the
+    weights on a log grid around the scenario's, and whether the design must run within the
+    arm's effort and velocity limits (``respect_limits``: a search over shrunken gain boxes)."""
+
+    k_xi: Interval = [1.0, 100.0]
+    k_c: Interval = [0.1, 20.0]
+    k_e: Interval = [0.1, 50.0]
+    objective: Literal["gamma", "target_speed"] = "gamma"
+    gamma: Positive | None = None
+    search_weights: bool = False
+    respect_limits: bool = False
+
+    @model_validator(mode="after")
+    def _ordered(self) -> SynthesizeSection:
+        for name in ("k_xi", "k_c", "k_e"):
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise ValueError(f"{name}: lower bound {lo} exceeds upper bound {hi}")
+        if self.objective == "target_speed" and self.gamma is not None:
+            raise ValueError('gamma: a gamma target applies to objective = "gamma" only')
+        if self.objective == "target_speed" and self.search_weights:
+            raise ValueError('search_weights: not available with objective = "target_speed"')
+        if self.respect_limits and self.gamma is not None:
+            raise ValueError(
+                "respect_limits: not available with a gamma target (synthesize.gamma): the smallest gains "
+                "reaching it are not made smaller by shrinking the gain box"
+            )
+        return self
+
+
+class RangeSpec(_Strict):
+    """``num`` values from ``start`` to ``stop``, linearly or logarithmically spaced."""
+
+    start: Positive
+    stop: Positive
+    num: Annotated[int, Field(ge=1, le=10**7)]
+    spacing: Literal["linear", "log"] = "linear"
+
+    def values(self) -> np.ndarray:
+        space = np.geomspace if self.spacing == "log" else np.linspace
+        return space(self.start, self.stop, self.num)
+
+
+class GridSection(_Strict):
+    """Axes swept by ``certify``: any of :data:`dvfc.analysis.grid.AXES`."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _axes(cls, data: dict) -> dict:
+        from dvfc.analysis.grid import AXES
+
+        if not isinstance(data, dict) or not data:
+            raise ValueError("the grid is empty: give at least one axis, e.g. k_c = [1, 2, 4]")
+        for name in data:
+            if name not in AXES:
+                close = difflib.get_close_matches(name, AXES, n=1, cutoff=0.6)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise ValueError(f"unknown axis {name!r}; {hint}sweepable: {', '.join(AXES)}")
+        return data
+
+    def axes(self) -> list[tuple[str, np.ndarray]]:
+        """The swept values per axis, validated (field-level errors)."""
+        out = []
+        for name, value in (self.model_extra or {}).items():
+            if isinstance(value, dict):
+                try:
+                    values = RangeSpec.model_validate(value).values()
+                except ValidationError as exc:
+                    raise ScenarioError(f"grid.{name}.{one_line(exc, RangeSpec)}") from exc
+            else:
+                values = np.asarray(value if isinstance(value, list) else [None], dtype=object)
+                if not len(values) or not all(
+                    isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+                    for v in values
+                ):
+                    raise ScenarioError(f"grid.{name}: expected a list of positive finite numbers or a range table")
+                values = values.astype(float)
+            out.append((name, values))
+        return out
+
+
+class Scenario(_Strict):
+    """The whole scenario file. ``loop`` selects the paper's 6-D loop or the reduced planar
+    loop of :mod:`dvfc.models.planar` (arms with fewer than six joints moving in a horizontal plane)."""
+
+    name: str = "scenario"
+    loop: Literal["paper", "planar"] = "paper"
+    robot: RobotSection
+    camera: CameraSection
+    target: TargetSection
+    reference: ReferenceSection
+    observer: ObserverSection = ObserverSection()
+    weights: WeightsSection
+    gains: GainsSection
+    disturbance: DisturbancesSection = DisturbancesSection()
+    simulation: SimulationSection = SimulationSection()
+    implementation: ImplementationSection | None = None
+    plant: PlantSection = PlantSection()
+    certify: CertifySection = CertifySection()
+    envelope: EnvelopeSection | None = None
+    report: ReportSection = ReportSection()
+    grid: GridSection | None = None
+    synthesize: SynthesizeSection = SynthesizeSection()
+
+    @model_validator(mode="after")
+    def _map_needs_envelope(self) -> Scenario:
+        if self.report.map != "gamma" and self.envelope is None:
+            raise ValueError(f"report.map = {self.report.map!r} needs an [envelope] section")
+        return self
