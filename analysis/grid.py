@@ -27,7 +27,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from dvfc.analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
+from dvfc.analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks, sound_k_e
 from dvfc.analysis.envelope import GridEnvelope, envelope_columns
 from dvfc.analysis.output import atomic_write, interrupted, json_text
 from dvfc.models.lie import SE3, SO3
@@ -134,7 +134,7 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
         k_e_sound, w_e = d["k_e"], np.repeat(d["w"][:, 2:3], TASK, axis=1)
         n_ce = np.stack([planar_output_matrix(w[0], w[2], 0) for w in weights])[which.ravel()]
     else:
-        k_e_sound = np.repeat(np.stack([d["k_e"][:, :3].min(1), d["k_e"][:, 3:].min(1)], axis=1), 3, axis=1)
+        k_e_sound = sound_k_e(d["k_e"])
         w_e = np.repeat(d["w"][:, 2:], 3, axis=1)
         reference = SE3(spec.p_d, SO3(spec.r_d))
         n_ce = output_blocks(weights, reference, np.tile(np.eye(3), (len(weights), 1, 1)))[which.ravel()]
@@ -155,7 +155,7 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     extra = {}
     if spec.envelope is not None:
         nkn = a + 0.5 * np.eye(2 * t)
-        extra["rate"], extra["max_target_speed"] = envelope_columns(spec.envelope, nkn, w_ce, k_xi_min, d["w"])
+        extra["rate"], extra["max_target_speed"] = envelope_columns(spec.envelope, nkn, w_ce, d["k_xi"], d["w"])
     return {
         **extra,
         "index": np.arange(start, stop),
