@@ -67,6 +67,10 @@ SHRINK = 1e-6
 the computed ``kappa`` that matrix is singular; shrunk, its smallest eigenvalue is positive
 by far more than the eigenvalue solver's error (~1e-14 ||Q||)."""
 
+PERRON_FLOOR = 1e-12
+"""Smallest entry of the Perron vector, relative to its largest, used for ``D_M(v)`` (only a
+reducible inertia bound ``B`` has smaller ones: ``D_M(v)`` is a bound for every ``v > 0``)."""
+
 THETA_GRID = np.radians(np.arange(1.0, 180.0, 1.0))
 """Candidates for ``theta_bar`` when the scenario does not fix it (1-degree steps)."""
 
@@ -190,10 +194,12 @@ def kinetic_diagonal(mass: MassBounds, k_xi: np.ndarray, s: np.ndarray) -> np.nd
     """``D_M(v) = diag(B v / v) >= M(q)`` (10.2) at the Perron vector ``v`` of
     ``diag(k_xi - s)^-1 B``, ``v = (K_xi - s)^-1/2 u`` with ``u`` the top eigenvector of
     ``(K_xi - s)^-1/2 B (K_xi - s)^-1/2``: then ``D_M = rho (K_xi - s)`` and the ``xi`` rate is
-    :func:`xi_rates`. Batched as :func:`xi_rates`, for ``s < min k_xi``: (S, n)."""
+    :func:`xi_rates`. Batched as :func:`xi_rates`, for ``s < min k_xi``: (S, n). A reducible ``B``
+    (say diagonal) has a Perron vector with zeros: they are raised to :data:`PERRON_FLOOR` of its
+    largest entry (every ``v > 0`` gives a bound; the a posteriori check decides the rate)."""
     scale, _ = _xi_scale(k_xi, s)
-    top = np.linalg.eigh(scale[:, :, None] * mass.upper * scale[:, None, :])[1][:, :, -1]
-    return mass.upper_diagonal(scale * np.abs(top))
+    top = np.abs(np.linalg.eigh(scale[:, :, None] * mass.upper * scale[:, None, :])[1][:, :, -1])
+    return mass.upper_diagonal(scale * np.maximum(top, PERRON_FLOOR * top.max(axis=1, keepdims=True)))
 
 
 def storage_diagonal(design: Design, s: float, theta_bar: float) -> np.ndarray:

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -88,12 +89,12 @@ class MassBounds:
     method_lo: str = LOWER_METHOD
     method_hi: str = UPPER_METHOD
 
-    @property
+    @cached_property
     def m_hi(self) -> float:
         """``lambda_max(B) >= lambda_max(M(q))`` (the scalar bound)."""
         return float(np.linalg.eigvalsh(self.upper)[-1])
 
-    @property
+    @cached_property
     def m_lo(self) -> float:
         """``lambda_min`` of :meth:`lower` with ``P = I``: ``<= lambda_min(M(q))``."""
         return float(np.min(np.diag(self.lower())))
