@@ -264,6 +264,14 @@ MUTATIONS = (
         (("rotation, translation = r @ rotation, r @ translation + _vector", "rotation, translation = r @ rotation, translation + _vector"),),  # noqa: E501
         ("tests/test_inertia.py::test_entries_are_bounded_and_the_carrier_entries_attained",),
     ),
+    Mutation(
+        "synthesis-xi-block-diagonal",
+        "the target-speed SDP's joint block with diag(B) in place of B (the inertia coupling dropped)",
+        "analysis/synthesize.py",
+        (("    q_xi = cp.diag(k_xi) - s * np.eye(n) - kappa * (mass.upper / 2)\n",
+          "    q_xi = cp.diag(k_xi) - s * np.eye(n) - kappa * (np.diag(np.diag(mass.upper)) / 2)\n"),),
+        ("tests/test_envelope.py::test_target_speed_sdp_rate_is_the_envelope_rate",),
+    ),
     # --- the loop as implemented ---------------------------------------------------------
     Mutation(
         "rk4-weights",

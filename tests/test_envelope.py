@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from dvfc.analysis.adversary import worst_disturbance
-from dvfc.analysis.certify import output_blocks, random_rotations
+from dvfc.analysis.certify import GainPoint, output_blocks, random_rotations, solve
 from dvfc.analysis.cli import app
 from dvfc.analysis.envelope import (
     DisturbanceBounds,
@@ -36,10 +36,12 @@ from dvfc.analysis.linearize import driven, driven_at_rest, equilibrium_configur
 from dvfc.analysis.results import grid_envelope_for
 from dvfc.analysis.scenario import Scenario, build, gain_point, load
 from dvfc.analysis.simulate import Settings, Simulator
+from dvfc.analysis.synthesize import Bounds, _speed_problem
 from dvfc.analysis.verify import envelope_claims, rotation_angles
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import Sine
 from dvfc.models.lie import SO3
+from dvfc.models.loop import Weights
 from dvfc.models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, builtin_urdf
 
 from conftest import build_loop, run, scenario_dict
@@ -443,3 +445,26 @@ def test_certify_reports_the_inertia_matrices_of_the_rate():
     loop, s0, _ = build(spec, base)
     m = np.asarray(cs.Function("M", [loop.robot.q], [loop.robot.mass_matrix])(s0[:6]))
     assert np.linalg.eigvalsh(upper - m)[0] > 0 and np.linalg.eigvalsh(m - lower)[0] > 0
+
+
+@pytest.mark.parametrize("k_xi", [0.8, 20.0])
+def test_target_speed_sdp_rate_is_the_envelope_rate(default_loop, k_xi):
+    """The target-speed synthesis's SDP at fixed ``s`` has, as its optimum, the envelope's rate
+    (10.4) at the upper gains (the rate grows with every gain): its joint-block constraint
+    ``diag(k_xi - s) - (kappa/2) B >= 0`` is ``kappa <= 2 / rho(diag(k_xi - s)^-1 B)`` (binding for
+    ``k_xi = 0.8``), its pose block the same ``D_ce`` (binding for ``k_xi = 20``). 1e-6 relative:
+    Clarabel's accuracy (2e-8 measured); the gain boxes have width (a box of zero width is
+    degenerate for the interior-point solver)."""
+    loop, _, _ = default_loop
+    weights = Weights(4.0, 1.0, 4.0, 1.0)
+    bounds = Bounds((k_xi / 2, k_xi), (1.5, 3.0), (5.0, 10.0))
+    theta_bar, s_value = math.radians(20.0), 0.4
+    problem, s, kappa, _ = _speed_problem(weights, loop.reference, 6, bounds, loop.robot.mass_bounds, theta_bar)
+    s.value = s_value
+    assert solve(problem)[0] is not None
+    point = GainPoint(np.full(6, k_xi), np.full(6, 3.0), np.full(6, 10.0), weights)
+    design = design_of(point, loop.reference, loop.robot.mass_bounds)
+    expected = rates(design, np.array([s_value]), np.array([theta_bar]))[0]
+    assert float(kappa.value) == pytest.approx(expected, rel=1e-6)
+    xi = xi_rates(design.mass, design.k_xi, np.array([s_value]))[0]
+    assert (expected == pytest.approx(xi, rel=1e-12)) == (k_xi < 1)
