@@ -135,6 +135,7 @@ class Design:
 
     @property
     def k_xi_min(self) -> float:
+        """The smallest ``k_xi``: the ``xi`` block has a positive rate only for ``s < k_xi_min``."""
         return float(self.k_xi.min())
 
     def d_diagonal(self, theta_bar: np.ndarray) -> np.ndarray:
@@ -450,7 +451,8 @@ class Envelope:
     reason: str | None = None
     inertia: dict | None = None
     """The inertia matrices the rate was computed with (docs/math.md, fact 10): ``upper`` ``diag(D_M)``
-    at the optimum (None without a rate), ``lower`` ``m_lo I`` (+ armature) of the ``|xi|`` bound."""
+    at the optimum (None without a rate), ``lower`` the lower bound with ``P = I`` (``m_lo`` its
+    smallest entry, used by the ``|xi|`` bound)."""
 
     def as_dict(self) -> dict:
         d = self.disturbance
