@@ -220,7 +220,9 @@ def _carried(name: str, by_child: dict[str, ET.Element], index: dict[str, int]) 
 
 def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[float, ...] = ()) -> MassBounds:
     """The bounds of the module text for the arm whose chain joints are ``joints`` (root first;
-    every other movable joint frozen at zero, as in :func:`dvfc.models.robot.frozen_urdf`).
+    every other movable joint frozen at zero, and a ``mimic`` joint of the chain moving on its
+    own, as in :func:`dvfc.models.robot.frozen_urdf`, which strips the tag: the bounds and the
+    dynamics are both those of that arm, not of the coupled one the URDF describes).
 
     Raises
     ------
