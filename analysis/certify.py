@@ -74,6 +74,14 @@ class GainPoint:
         return GainPoint(self.k_xi, self.k_c, np.asarray(k_e, dtype=float), self.weights)
 
 
+def sound_k_e(k_e: np.ndarray) -> np.ndarray:
+    """The blockwise-minimum gains ``K_min = diag(min(k_e1..3) I3, min(k_e4..6) I3)`` (fact 5), for
+    one ``K_e`` (6,) or a batch (B, 6): ``Q`` grows with ``K_e``, so a bound certified with
+    ``K_min`` at ``R_ec = I`` holds for every ``R_ec`` (equal to ``K_e`` when block-isotropic)."""
+    k_e = np.asarray(k_e, dtype=float)
+    return np.repeat(np.stack([k_e[..., :3].min(axis=-1), k_e[..., 3:].min(axis=-1)], axis=-1), 3, axis=-1)
+
+
 @dataclass
 class Certificate:
     """What was certified, at which gamma, over which region, and why not if not."""
@@ -314,7 +322,7 @@ def tight_gamma(point: GainPoint, reference: SE3, solver_options: dict | None = 
     to the one at ``I`` for block-isotropic ``K_e``; otherwise the blockwise-minimum
     ``K_e`` gives a bound sound for every rotation (the LMI is monotone in ``K``).
     """
-    sound = point if point.isotropic else point.with_k_e(np.repeat([point.k_e[:3].min(), point.k_e[3:].min()], 3))
+    sound = point.with_k_e(sound_k_e(point.k_e))
     return tight_gamma_of(*_tight_blocks(sound, reference), solver_options)
 
 
@@ -481,8 +489,8 @@ def certify(
     if point.isotropic:
         sound_point, method = point, "exact (isotropic K_e: R_ec = I decides, fact 2)"
     else:
-        k_min = np.repeat([point.k_e[:3].min(), point.k_e[3:].min()], 3)
-        sound_point, method = point.with_k_e(k_min), "exact (anisotropic K_e: blockwise-minimum bound, fact 5)"
+        sound_point = point.with_k_e(sound_k_e(point.k_e))
+        method = "exact (anisotropic K_e: blockwise-minimum bound, fact 5)"
     gamma_exact, code = exact_gamma(sound_point, reference, identity)
     if code:
         return Certificate(False, None, method, None, REASONS[code], region)

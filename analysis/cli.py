@@ -385,6 +385,11 @@ def show_certificate(result: dict) -> None:
         show_envelope(p["envelope"])
 
 
+def inertia_text(e: dict) -> str:
+    """The diagonal of the envelope's ``D_M`` (docs/math.md, fact 10), 4 significant figures."""
+    return ", ".join(f"{row[i]:.4g}" for i, row in enumerate(e["inertia"]["upper"]))
+
+
 def show_envelope(e: dict) -> None:
     """Human output of the operating envelope (docs/math.md, facts 7-9)."""
     if e.get("rate") is None:
@@ -398,7 +403,8 @@ def show_envelope(e: dict) -> None:
                                f"|tau_d| {fmt(d['torque'], ' N m')} (wbar = {fmt(e['wbar'])})"),
         ("decay rate kappa", f"{fmt(e['rate'], ' 1/s')} (gamma' = {fmt(e['gamma_prime'])}, "
                              f"theta_bar = {fmt(e['theta_bar_deg'], ' deg')})"),
-        ("m_lo, m_hi (from the URDF, rigorous)", f"{fmt(e['m_lo'])}, {fmt(e['m_hi'])} kg m^2"),
+        ("inertia (from the URDF, every q)", f"m_lo I <= M(q) <= D_M = diag({inertia_text(e)}) kg m^2 "
+                                             f"(lambda_max(B) = {fmt(e['m_hi'])}; fact 10)"),
         ("ultimate V (c_inf)", fmt(e["ultimate_V"])),
         ("ultimate |p_ec|, theta_ec", f"{fmt(b['p_ec'], ' m')}, {fmt(b['theta_ec_deg'], ' deg')}"),
         ("ultimate |p_ee|, theta_ee", f"{fmt(b['p_ee'], ' m')}, {fmt(b['theta_ee_deg'], ' deg')}"),

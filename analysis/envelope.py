@@ -1,14 +1,19 @@
-"""The certified operating envelope of one design (MATH facts 7-9).
+"""The certified operating envelope of one design (MATH facts 7-9; the rate of docs/math.md, fact 10).
 
 The L2 gain of Theorem 2 says nothing uniform in time about a target that keeps moving
 (its energy is infinite). This module answers the review's questions instead, from the
 same storage ``V`` (38):
 
-- Rate (fact 7). With ``s = 1/(2 gamma'^2)``, ``Q(s) = N^T K N - s W`` and
-  ``V <= x^T D x`` while ``|theta_ec|, |theta_ee| <= theta_bar``,
-  ``D = diag(m_hi/2 I_n, w_pc/2 I3, w_rc/(1+cos theta_bar) I3, w_pe/2 I3, w_re/(1+cos theta_bar) I3)``,
-  ``kappa = lambda_min(D^-1/2 Q D^-1/2)`` gives ``dV/dt <= -kappa V + |w|^2 / (4 s)``. The
-  ``xi`` block decouples: ``(min k_xi - s) / (m_hi/2)``. ``Q`` is taken at ``R_ec = I``:
+- Rate (fact 7 with docs/math.md, fact 10; the ideal continuous loop). With
+  ``s = 1/(2 gamma'^2)``, ``Q(s) = N^T K N - s W`` and ``V <= x^T D x`` while
+  ``|theta_ec|, |theta_ee| <= theta_bar``, ``D = diag(D_M/2, D_ce)``,
+  ``D_ce = diag(w_pc/2 I3, w_rc/(1+cos theta_bar) I3, w_pe/2 I3, w_re/(1+cos theta_bar) I3)`` and
+  ``D_M = diag(B v / v) >= M(q)`` for every ``q`` (``B`` the entrywise bound of
+  :mod:`dvfc.models.inertia`), ``kappa = lambda_min(D^-1/2 Q D^-1/2)`` gives
+  ``dV/dt <= -kappa V + |w|^2 / (4 s)``. The ``xi`` block decouples; with ``v`` the Perron vector of
+  ``diag(k_xi - s)^-1 B`` (the best ``v``, Collatz-Wielandt) it gives
+  ``kappa = min(2 / rho(diag(k_xi - s)^-1 B), lambda_min(D_ce^-1/2 Q_ce D_ce^-1/2))`` (10.4),
+  still concave in ``s``. ``Q`` is taken at ``R_ec = I``:
   exact for block-isotropic ``K_e`` (``D`` is block-isotropic, so fact 2's congruence
   leaves it alone), and with the blockwise-minimum gains ``K_min`` otherwise (fact 5:
   ``Q`` grows with ``K_e``), sound for every ``R_ec``.
@@ -21,7 +26,7 @@ same storage ``V`` (38):
   grid, with the smallest ``c_inf`` that is self-consistent and, when possible, covers the
   start (``V(0) <= c_max``).
 - Error bounds from ``V <= c``: ``|p_ec| <= sqrt(2c/w_pc)``, ``theta_ec <= arccos(1 - c/w_rc)``,
-  the same for ``e_e``, ``|xi| <= sqrt(2c/m_lo)``.
+  the same for ``e_e``, ``|xi| <= sqrt(2c/m_lo)`` (``m_lo I <= M(q)``, the lower bound of fact 10).
 - Visibility (fact 8). ``p_ci - g_d p_oi = R_d [(R_ec R_ee - I) p_oi + R_ec p_ee + p_ec]`` has
   length at most ``rho_i = 2 sin(min(pi, theta_ec + theta_ee)/2) |p_oi| + |p_ee| + |p_ec|``:
   each feature lies in the image box spanned by the corners ``x in [x_i +- rho_i]``,
@@ -33,11 +38,12 @@ same storage ``V`` (38):
 
 Every rate is re-checked a posteriori: the reported ``kappa`` is the computed one shrunk by
 :data:`SHRINK`, certified only when ``lambda_min(Q - kappa D) >= 0`` on the literal ``Q``
-and ``D`` of size ``n + 12``.
+and ``D`` (with ``D_M`` built from the Perron vector) of size ``n + 12``.
 
 Where this stops (fact 9): the ideal loop (exact ``e_e``); ``J_b`` and ``J(gbar)`` away from
-singular (not implied by ``V <= c``); ``m_hi``, ``m_lo`` over every configuration
-(revolute arms); ``|theta| < pi``.
+singular (not implied by ``V <= c``); the inertia bounds over every configuration, for a chain
+of revolute joints with unit axes and positive semidefinite link inertias (others are refused
+by :mod:`dvfc.models.inertia`); ``|theta| < pi``.
 """
 
 from __future__ import annotations
@@ -49,7 +55,7 @@ from dataclasses import dataclass, field
 import casadi as cs
 import numpy as np
 
-from dvfc.analysis.certify import GainPoint, theorem2_matrices
+from dvfc.analysis.certify import GainPoint, sound_k_e, theorem2_matrices
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import torque_bound
 from dvfc.models.inertia import MassBounds
@@ -60,6 +66,10 @@ SHRINK = 1e-6
 """Relative shrink of a computed rate before the a posteriori check ``Q - kappa D >= 0``: at
 the computed ``kappa`` that matrix is singular; shrunk, its smallest eigenvalue is positive
 by far more than the eigenvalue solver's error (~1e-14 ||Q||)."""
+
+PERRON_FLOOR = 1e-12
+"""Smallest entry of the Perron vector, relative to its largest, used for ``D_M(v)`` (only a
+reducible inertia bound ``B`` has smaller ones: ``D_M(v)`` is a bound for every ``v > 0``)."""
 
 THETA_GRID = np.radians(np.arange(1.0, 180.0, 1.0))
 """Candidates for ``theta_bar`` when the scenario does not fix it (1-degree steps)."""
@@ -72,7 +82,8 @@ optimum only affects tightness, never soundness)."""
 ASSUMPTIONS = (
     "ideal loop: the law uses the exact estimation error e_e (the image estimate (21) is first order)",
     "J_b of full row rank and J(gbar) of full column rank along the run (not implied by V <= c)",
-    "m_lo <= lambda(M(q)) <= m_hi for every configuration (rigorous for revolute joints, from the URDF)",
+    "m_lo I <= M(q) <= D_M for every configuration (docs/math.md, fact 10: from the URDF, revolute joints with "
+    "unit axes and positive semidefinite link inertias)",
     "target speed, target rate and joint-torque disturbance within the stated bounds at all times",
 )
 
@@ -80,7 +91,8 @@ PLANAR_ASSUMPTIONS = (
     "the reduced planar loop (dvfc.models.planar): horizontal motion, camera looking straight down, "
     "target not rotating, every feature at a constant depth",
     "J_p of full row rank along the run (not implied by V <= c)",
-    "m_lo <= lambda(M(q)) <= m_hi for every configuration (rigorous for revolute joints, from the URDF)",
+    "m_lo I <= M(q) <= D_M for every configuration (docs/math.md, fact 10: from the URDF, revolute joints with "
+    "unit axes and positive semidefinite link inertias)",
     "target speed and joint-torque disturbance within the stated bounds at all times",
 )
 
@@ -103,41 +115,107 @@ class DisturbanceBounds:
 @dataclass(frozen=True)
 class Design:
     """What the envelope of one design needs: ``N^T K N`` on ``(e_c, e_e)`` (at ``R_ec = I``,
-    with ``K_min`` for anisotropic ``K_e``), the diagonal of ``W`` there, ``min k_xi``, the
+    with ``K_min`` for anisotropic ``K_e``), the diagonal of ``W`` there, ``k_xi``, the
     mass bounds and the weights; ``rotational`` is False for the planar loop."""
 
     nkn: np.ndarray
     w: np.ndarray
-    k_xi_min: float
+    k_xi: np.ndarray
     mass: MassBounds
     weights: tuple[float, float, float, float]  # w_pc, w_rc, w_pe, w_re (w_rc, w_re unused when planar)
     rotational: bool
     point: GainPoint
     reference: SE3 | None
     full: tuple[np.ndarray, np.ndarray]
-    """``N^T K N`` and ``W`` of size ``n + 2t``, literally (for the a posteriori check)."""
+    """``N^T K N`` of size ``n + 2t`` and the diagonal of ``W``, literally (for the a posteriori check)."""
 
     @property
     def task(self) -> int:
         return self.nkn.shape[0] // 2
 
+    @property
+    def k_xi_min(self) -> float:
+        """The smallest ``k_xi``: the ``xi`` block has a positive rate only for ``s < k_xi_min``."""
+        return float(self.k_xi.min())
+
     def d_diagonal(self, theta_bar: np.ndarray) -> np.ndarray:
-        """``D`` on ``(e_c, e_e)`` for each ``theta_bar`` (B,): (B, 2t)."""
-        w_pc, w_rc, w_pe, w_re = self.weights
-        theta_bar = np.atleast_1d(theta_bar)
-        if not self.rotational:
-            return np.tile(np.repeat([w_pc / 2, w_pe / 2], self.task), (len(theta_bar), 1))
-        rot = 1.0 / (1.0 + np.cos(theta_bar))
-        ones = np.ones_like(theta_bar)
-        blocks = [w_pc / 2 * ones, w_rc * rot, w_pe / 2 * ones, w_re * rot]
-        return np.repeat(np.stack(blocks, axis=1), 3, axis=1)
+        """``D_ce``, ``D`` on ``(e_c, e_e)``, for each ``theta_bar`` (B,): (B, 2t)."""
+        return pose_diagonal(np.asarray(self.weights), theta_bar, self.rotational, self.task)
 
     def c_max(self, theta_bar: np.ndarray) -> np.ndarray:
-        """Largest self-consistent level ``min(w_rc, w_re) (1 - cos theta_bar)`` (infinite for
-        the planar loop: no rotation to keep below pi)."""
+        """Largest self-consistent level (:func:`self_consistent_level`; infinite for the planar
+        loop: no rotation to keep below pi)."""
         if not self.rotational:
             return np.full(np.shape(theta_bar), np.inf)
-        return min(self.weights[1], self.weights[3]) * (1.0 - np.cos(theta_bar))
+        return self_consistent_level(np.asarray(self.weights), theta_bar)
+
+
+def pose_diagonal(weights: np.ndarray, theta_bar: np.ndarray | float, rotational: bool, task: int) -> np.ndarray:
+    """The pose part ``D_ce`` of fact 7's ``D`` (``V <= x^T D x`` while ``|theta| <= theta_bar``):
+    ``diag(w_pc/2 I3, w_rc/(1+cos theta_bar) I3, w_pe/2 I3, w_re/(1+cos theta_bar) I3)``, or
+    ``diag(w_pc/2 I_t, w_pe/2 I_t)`` for the planar loop (P13; ``task`` = ``t``). ``weights``
+    (4,) or (B, 4) as ``w_pc, w_rc, w_pe, w_re``; ``theta_bar`` scalar or (B,). Returns (B, 2 task)."""
+    theta = np.atleast_1d(np.asarray(theta_bar, dtype=float))
+    w = np.atleast_2d(weights)
+    rows = max(len(theta), len(w))
+    if not rotational:
+        return np.broadcast_to(np.repeat(w[:, [0, 2]] / 2, task, axis=1), (rows, 2 * task)).copy()
+    rot = 1.0 / (1.0 + np.cos(theta))
+    half = np.full_like(rot, 0.5)
+    return np.repeat(w * np.stack([half, rot, half, rot], axis=1), task // 2, axis=1)
+
+
+def self_consistent_level(weights: np.ndarray, theta_bar: np.ndarray | float) -> np.ndarray:
+    """The largest level ``c`` whose set ``{V <= c}`` keeps both rotation errors within
+    ``theta_bar`` (``w_r phi(R) <= V``, ``phi = 1 - cos theta``): ``min(w_rc, w_re) (1 - cos theta_bar)``,
+    the smaller weight (the rotation it weighs the less can turn the further). ``weights`` (4,)
+    or (B, 4)."""
+    return np.minimum(weights[..., 1], weights[..., 3]) * (1.0 - np.cos(theta_bar))
+
+
+def _xi_scale(k_xi: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(K_xi - s)^-1/2`` (S, n) for ``k_xi`` (n,) or (S, n) and ``s`` (S,), and where it exists
+    (``s < min k_xi``; elsewhere the scale is that of ``K_xi - s`` replaced by ``I``)."""
+    slack = np.asarray(k_xi, dtype=float) - np.asarray(s, dtype=float)[:, None]
+    ok = np.all(slack > 0, axis=1)
+    return 1.0 / np.sqrt(np.where(ok[:, None], slack, 1.0)), ok
+
+
+def xi_rates(mass: MassBounds, k_xi: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The ``xi``-block rate ``2 / rho(diag(k_xi - s)^-1 B)`` of (10.4) (docs/math.md, fact 10),
+    ``rho`` the spectral radius, computed as ``lambda_max`` of the symmetric
+    ``(K_xi - s)^-1/2 B (K_xi - s)^-1/2``; 0 where ``s >= min k_xi`` (no positive rate). Batched:
+    ``k_xi`` (n,) or (S, n), ``s`` (S,)."""
+    scale, ok = _xi_scale(k_xi, s)
+    rho = np.linalg.eigvalsh(scale[:, :, None] * mass.upper * scale[:, None, :])[:, -1]
+    return np.where(ok, 2.0 / rho, 0.0)
+
+
+def kinetic_diagonal(mass: MassBounds, k_xi: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """``D_M(v) = diag(B v / v) >= M(q)`` (10.2) at the Perron vector ``v`` of
+    ``diag(k_xi - s)^-1 B``, ``v = (K_xi - s)^-1/2 u`` with ``u`` the top eigenvector of
+    ``(K_xi - s)^-1/2 B (K_xi - s)^-1/2``: then ``D_M = rho (K_xi - s)`` and the ``xi`` rate is
+    :func:`xi_rates`. Batched as :func:`xi_rates`, for ``s < min k_xi``: (S, n). A reducible ``B``
+    (say diagonal) has a Perron vector with zeros: they are raised to :data:`PERRON_FLOOR` of its
+    largest entry (every ``v > 0`` gives a bound; the a posteriori check decides the rate)."""
+    scale, _ = _xi_scale(k_xi, s)
+    top = np.abs(np.linalg.eigh(scale[:, :, None] * mass.upper * scale[:, None, :])[1][:, :, -1])
+    return mass.upper_diagonal(scale * np.maximum(top, PERRON_FLOOR * top.max(axis=1, keepdims=True)))
+
+
+def storage_diagonal(design: Design, s: float, theta_bar: float) -> np.ndarray:
+    """The diagonal of ``D = diag(D_M/2, D_ce)`` (``V <= x^T D x`` while ``|theta| <= theta_bar``),
+    ``D_M`` at the Perron vector for ``s`` (:func:`kinetic_diagonal`): (n + 2t,)."""
+    d_m = kinetic_diagonal(design.mass, design.k_xi, np.array([s]))[0]
+    return np.concatenate([d_m / 2, design.d_diagonal(np.array([theta_bar]))[0]])
+
+
+def rate_margin(nkn: np.ndarray, w: np.ndarray, d: np.ndarray, s: np.ndarray, kappa: np.ndarray) -> np.ndarray:
+    """The a posteriori check of a rate: ``lambda_min(N^T K N - s W - kappa D)`` with ``W``, ``D``
+    diagonal; batched: ``nkn`` (B, m, m), ``w``, ``d`` (B, m), ``s``, ``kappa`` (B,)."""
+    eye = np.eye(nkn.shape[1])
+    return np.linalg.eigvalsh(nkn - s[:, None, None] * (w[:, :, None] * eye)
+                              - kappa[:, None, None] * (d[:, :, None] * eye))[:, 0]  # fmt: skip
 
 
 def design_of(point: GainPoint, reference: SE3 | None, mass: MassBounds) -> Design:
@@ -151,17 +229,17 @@ def design_of(point: GainPoint, reference: SE3 | None, mass: MassBounds) -> Desi
         wdiag = np.concatenate([np.ones(n), np.zeros(len(point.k_c)), np.full(len(point.k_e), w.w_pe**2)])
         sound, weights, rotational = point, (w.w_pc, 0.0, w.w_pe, 0.0), False
     else:
-        sound = point if point.isotropic else point.with_k_e(np.repeat([point.k_e[:3].min(), point.k_e[3:].min()], 3))
+        sound = point.with_k_e(sound_k_e(point.k_e))
         a, wmat = theorem2_matrices(sound, reference, np.eye(3))
         nkn, wdiag = a + 0.5 * np.eye(len(a)), np.diag(wmat).copy()
         weights, rotational = (w.w_pc, w.w_rc, w.w_pe, w.w_re), True
-    return Design(nkn[n:, n:], wdiag[n:], float(point.k_xi.min()), mass, weights, rotational, sound, reference,
-                  (nkn, np.diag(wdiag)))  # fmt: skip
+    return Design(nkn[n:, n:], wdiag[n:], np.asarray(point.k_xi, dtype=float), mass, weights, rotational, sound,
+                  reference, (nkn, wdiag))  # fmt: skip
 
 
 def rates(design: Design, s: np.ndarray, theta_bar: np.ndarray) -> np.ndarray:
-    """``kappa(s, theta_bar) = min((k_xi_min - s) / (m_hi/2), lambda_min(D^-1/2 (N^T K N - s W) D^-1/2))``
-    for batches ``s``, ``theta_bar`` (B,)."""
+    """``kappa(s, theta_bar) = min(2 / rho(diag(k_xi - s)^-1 B), lambda_min(D_ce^-1/2 Q_ce(s) D_ce^-1/2))``
+    (10.4, docs/math.md, fact 10) for batches ``s``, ``theta_bar`` (B,)."""
     return _rates(design, _scaled(design, theta_bar), np.atleast_1d(s))
 
 
@@ -174,7 +252,7 @@ def _scaled(design: Design, theta_bar: np.ndarray) -> tuple[np.ndarray, np.ndarr
 def _rates(design: Design, scaled: tuple[np.ndarray, np.ndarray], s: np.ndarray) -> np.ndarray:
     a, w = scaled
     ce = np.linalg.eigvalsh(a - s[:, None, None] * (w[:, :, None] * np.eye(a.shape[1])))[:, 0]
-    return np.minimum((design.k_xi_min - s) / (design.mass.m_hi / 2), ce)
+    return np.minimum(xi_rates(design.mass, design.k_xi, s), ce)
 
 
 def s_limit(design: Design) -> float:
@@ -190,7 +268,8 @@ def best_s(design: Design, theta_bar: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
     ``kappa`` is concave in ``s`` (a smallest eigenvalue of a matrix affine in ``s``, and an
     affine function) and vanishes at ``s_lim`` (:func:`s_limit`), so ``log(s kappa)`` is
-    concave (one maximum) and, by the tangent inequality ``-kappa'/kappa <= 1/(s_lim - s)``,
+    concave (one maximum; the ``xi`` rate of fact 10, ``1/rho`` a minimum of functions affine in
+    ``s``, is concave too) and, by the tangent inequality ``-kappa'/kappa <= 1/(s_lim - s)``,
     increasing below ``s_lim / 2``: the maximum lies in ``[s_lim/2, s_lim]``.
     """
     theta_bar = np.atleast_1d(theta_bar)
@@ -219,12 +298,11 @@ def golden_max(value: Callable[[np.ndarray], np.ndarray], top: np.ndarray, steps
 
 
 def recheck(design: Design, s: float, theta_bar: float, kappa: float) -> float:
-    """``lambda_min(Q - kappa D)`` on the literal matrices of size ``n + 2t``: the a posteriori
-    check of a rate."""
+    """``lambda_min(Q(s) - kappa D)`` on the literal matrices of size ``n + 2t``, ``D`` of
+    :func:`storage_diagonal`: the a posteriori check of a rate."""
     nkn, w = design.full
-    n = len(design.point.k_xi)
-    d = np.concatenate([np.full(n, design.mass.m_hi / 2), design.d_diagonal(np.array([theta_bar]))[0]])
-    return float(np.linalg.eigvalsh(nkn - s * w - kappa * np.diag(d))[0])
+    d = storage_diagonal(design, s, theta_bar)
+    return float(rate_margin(nkn[None], w[None], d[None], np.array([s]), np.array([kappa]))[0])
 
 
 @dataclass(frozen=True)
@@ -371,6 +449,10 @@ class Envelope:
     margin: float | None = None
     statement: str = ""
     reason: str | None = None
+    inertia: dict | None = None
+    """The inertia matrices the rate was computed with (docs/math.md, fact 10): ``upper`` ``diag(D_M)``
+    at the optimum (None without a rate), ``lower`` the lower bound with ``P = I`` (``m_lo`` its
+    smallest entry, used by the ``|xi|`` bound)."""
 
     def as_dict(self) -> dict:
         d = self.disturbance
@@ -398,6 +480,7 @@ class Envelope:
             "recheck_margin": self.margin,
             "statement": self.statement,
             "reason": self.reason,
+            "inertia": self.inertia,
         }  # fmt: skip
 
 
@@ -438,7 +521,8 @@ def envelope(
     wbar2 = disturbance.wbar**2
     mass = design.mass
     empty = Envelope(None, None, None, mass.m_hi, mass.m_lo, None, None, None, None, None, None,
-                     {**start, "inside": False}, None, None, disturbance.wbar, disturbance)  # fmt: skip
+                     {**start, "inside": False}, None, None, disturbance.wbar, disturbance,
+                     inertia=inertia_record(mass, None))  # fmt: skip
     if s_limit(design) <= 0:
         empty.reason = "no positive decay rate: Q(gamma') = N^T K N - W/(2 gamma'^2) is not positive definite"
         return empty
@@ -494,6 +578,7 @@ def _build(design: Design, camera: Camera, disturbance: DisturbanceBounds, start
         disturbance=disturbance,
         margin=margin,
         invariant_v=chosen.c_max,
+        inertia=inertia_record(mass, kinetic_diagonal(mass, design.k_xi, np.array([chosen.s]))[0]),
     )
     if desired is not None:
         boxes = feature_boxes(design, camera, desired, level)
@@ -501,6 +586,13 @@ def _build(design: Design, camera: Camera, disturbance: DisturbanceBounds, start
             boxes.visible, boxes.margin_px, boxes.depth_min, boxes.boxes)  # fmt: skip
         env.ultimate_boxes = feature_boxes(design, camera, desired, c_inf).boxes
     return env
+
+
+def inertia_record(mass: MassBounds, d_m: np.ndarray | None) -> dict:
+    """``{"upper": diag(D_M) or None, "lower": L_M, "method": ...}`` (n x n lists; docs/math.md, fact 10)."""
+    return {"upper": None if d_m is None else np.diag(d_m).tolist(), "lower": mass.lower().tolist(),
+            "method": f"upper: {mass.method_hi}, at the Perron vector of diag(k_xi - s)^-1 B; "
+                      f"lower (P = I): {mass.method_lo}"}  # fmt: skip
 
 
 def _largest_bounds(env: Envelope, design: Design, camera: Camera, desired: np.ndarray,
@@ -619,43 +711,44 @@ def grid_envelope(
                         disturbance.torque**2 + disturbance.target_rate**2)  # fmt: skip
 
 
-def envelope_columns(ctx: GridEnvelope, nkn: np.ndarray, wdiag: np.ndarray, k_xi_min: np.ndarray,
+def envelope_columns(ctx: GridEnvelope, nkn: np.ndarray, wdiag: np.ndarray, k_xi: np.ndarray,
                      weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched fact 7-8 for grid points at ``ctx.theta_bar``: the certified rate (NaN where none,
     re-checked a posteriori on ``Q - kappa D``) and the largest target speed keeping every
     feature in view ultimately (NaN without an image or a visible level). ``nkn`` (B, 2t, 2t)
     is ``N^T K N`` on ``(e_c, e_e)`` (sound ``K_e``), ``wdiag`` (B, 2t) the diagonal of ``W``
-    there, ``weights`` (B, 4)."""  # fmt: skip
+    there, ``k_xi`` (B, n), ``weights`` (B, 4). The rate is (10.4) (docs/math.md, fact 10), re-checked
+    on ``Q(s) - kappa diag(D_M/2, D_ce)`` of size ``n + 2t`` with ``D_M`` from the Perron vector."""  # fmt: skip
     b, t2 = nkn.shape[:2]
+    n = k_xi.shape[1]
     rotational = ctx.desired is not None
-    if rotational:  # D of fact 7 on (e_c, e_e)
-        r = 1.0 / (1.0 + math.cos(ctx.theta_bar))
-        scales = weights * np.array([0.5, r, 0.5, r])
-        d = np.repeat(scales, 3, axis=1)
-    else:  # D of (P13)
-        d = np.repeat(weights[:, [0, 2]] / 2, t2 // 2, axis=1)
+    d = pose_diagonal(weights, ctx.theta_bar, rotational, t2 // 2)
     inv = 1.0 / np.sqrt(d)
     a = inv[:, :, None] * nkn * inv[:, None, :]
     w = wdiag * inv**2
     eye = np.eye(t2)
     root = np.sqrt(wdiag)
     lim = 1.0 / np.linalg.eigvalsh(root[:, :, None] * np.linalg.inv(nkn) * root[:, None, :])[:, -1]
-    lim = np.minimum(lim, k_xi_min)
-    half_mass = ctx.mass.m_hi / 2
+    lim = np.minimum(lim, k_xi.min(axis=1))
 
     def value(s: np.ndarray) -> np.ndarray:
         ce = np.linalg.eigvalsh(a - s[:, None, None] * (w[:, :, None] * eye))[:, 0]
-        return np.minimum((k_xi_min - s) / half_mass, ce)
+        return np.minimum(xi_rates(ctx.mass, k_xi, s), ce)
 
     s = golden_max(lambda x: x * value(x), lim, GRID_GOLDEN_STEPS)
     kappa = value(s) * (1 - SHRINK)
-    check = np.linalg.eigvalsh(nkn - s[:, None, None] * (wdiag[:, :, None] * eye) - kappa[:, None, None]
-                               * (d[:, :, None] * eye))[:, 0]  # fmt: skip
-    ok = (kappa > 0) & (check >= 0) & (k_xi_min - s - kappa * half_mass >= 0) & (lim > 0)
+    full = np.zeros((b, n + t2, n + t2))
+    full[:, :n, :n] = k_xi[:, :, None] * np.eye(n)
+    full[:, n:, n:] = nkn
+    ok = (kappa > 0) & (lim > 0)
+    d_m = kinetic_diagonal(ctx.mass, k_xi, np.where(ok, s, 0.0))
+    check = rate_margin(full, np.concatenate([np.ones((b, n)), wdiag], axis=1),
+                        np.concatenate([d_m / 2, d], axis=1), s, kappa)  # fmt: skip
+    ok &= check >= 0
     rate = np.where(ok, kappa, np.nan)
     speed = np.full(b, np.nan)
     if rotational and ctx.camera.has_image:
-        c_max = np.minimum(weights[:, 1], weights[:, 3]) * (1 - math.cos(ctx.theta_bar))
+        c_max = self_consistent_level(weights, ctx.theta_bar)
         unique, which = np.unique(weights, axis=0, return_inverse=True)
         c_vis = np.array([_visible_level_of(ctx, row) for row in unique])[which.ravel()]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -666,6 +759,6 @@ def envelope_columns(ctx: GridEnvelope, nkn: np.ndarray, wdiag: np.ndarray, k_xi
 
 def _visible_level_of(ctx: GridEnvelope, weights: np.ndarray) -> float:
     """:func:`visible_level` for one row of weights (boxes depend on the weights, not the gains)."""
-    stub = Design(np.zeros((12, 12)), np.zeros(12), 0.0, ctx.mass, tuple(float(v) for v in weights), True,
-                  None, None, (np.zeros((1, 1)), np.zeros((1, 1))))  # fmt: skip
+    stub = Design(np.zeros((12, 12)), np.zeros(12), np.zeros(0), ctx.mass, tuple(float(v) for v in weights), True,
+                  None, None, (np.zeros((1, 1)), np.zeros(1)))  # fmt: skip
     return visible_level(stub, ctx.camera, ctx.desired)

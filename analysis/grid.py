@@ -16,6 +16,7 @@ nothing repeated. :func:`export_csv` writes the same rows as one CSV file.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -27,7 +28,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from dvfc.analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks
+from dvfc.analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks, sound_k_e
 from dvfc.analysis.envelope import GridEnvelope, envelope_columns
 from dvfc.analysis.output import atomic_write, interrupted, json_text
 from dvfc.models.lie import SE3, SO3
@@ -134,7 +135,7 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
         k_e_sound, w_e = d["k_e"], np.repeat(d["w"][:, 2:3], TASK, axis=1)
         n_ce = np.stack([planar_output_matrix(w[0], w[2], 0) for w in weights])[which.ravel()]
     else:
-        k_e_sound = np.repeat(np.stack([d["k_e"][:, :3].min(1), d["k_e"][:, 3:].min(1)], axis=1), 3, axis=1)
+        k_e_sound = sound_k_e(d["k_e"])
         w_e = np.repeat(d["w"][:, 2:], 3, axis=1)
         reference = SE3(spec.p_d, SO3(spec.r_d))
         n_ce = output_blocks(weights, reference, np.tile(np.eye(3), (len(weights), 1, 1)))[which.ravel()]
@@ -155,7 +156,7 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     extra = {}
     if spec.envelope is not None:
         nkn = a + 0.5 * np.eye(2 * t)
-        extra["rate"], extra["max_target_speed"] = envelope_columns(spec.envelope, nkn, w_ce, k_xi_min, d["w"])
+        extra["rate"], extra["max_target_speed"] = envelope_columns(spec.envelope, nkn, w_ce, d["k_xi"], d["w"])
     return {
         **extra,
         "index": np.arange(start, stop),
@@ -260,8 +261,8 @@ def run_sweep(
         saved = json.loads(state_path.read_text())
         if saved["scenario_sha256"] != scenario_sha256 or saved["total"] != spec.size:
             raise ValueError("--resume: the sweep in this directory belongs to another scenario or grid")
-        state = SweepState(saved["done"], saved["certified"],
-                           *(tuple(saved[k]) if saved[k] else None for k in ("best", "worst", "cheapest")))  # fmt: skip
+        named = (_named(saved[k]) for k in ("best", "worst", "cheapest"))
+        state = SweepState(saved["done"], saved["certified"], *named)
     else:
         state = SweepState(0, 0, None, None, None)
     for part in folder.glob("part-*.parquet"):  # batches past the recorded point (or of an old sweep)
@@ -292,6 +293,15 @@ def run_sweep(
             if progress is not None:
                 progress(state.done)
     return state
+
+
+def _named(saved: list | None) -> tuple[float, int] | None:
+    """A named point of ``sweep.json`` as :class:`SweepState` holds it: ``(value, index)``, the value
+    infinite where the strict JSON has null (the worst point when no gamma is certified)."""
+    if not saved:
+        return None
+    value, index = saved
+    return (math.inf if value is None else float(value), int(index))
 
 
 def _record(state: SweepState, result: dict[str, np.ndarray]) -> None:

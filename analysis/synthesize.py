@@ -38,7 +38,7 @@ import numpy as np
 import tomlkit
 
 from dvfc.analysis.certify import Certificate, GainPoint, certify, output_blocks, solve
-from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, s_limit
+from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, pose_diagonal, s_limit
 from dvfc.models.inertia import MassBounds
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
@@ -153,10 +153,12 @@ def synthesize(
     return best
 
 
-def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, m_hi: float, theta_bar: float):
+def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, mass: MassBounds, theta_bar: float):
     """The fact-7 SDP at a parameter ``s``: ``maximize kappa`` subject to
-    ``N^T K N - s W - kappa D >= 0`` on ``(e_c, e_e)``, ``k_xi - s - kappa m_hi/2 >= 0`` (the
-    decoupled ``xi`` block) and the gain bounds. Returns ``(problem, s, kappa, gains)``."""
+    ``N^T K N - s W - kappa D_ce >= 0`` on ``(e_c, e_e)``, ``diag(k_xi - s) - (kappa/2) B >= 0`` (the
+    decoupled ``xi`` block: equivalent, for ``k_xi > s``, to ``kappa <= 2 / rho(diag(k_xi - s)^-1 B)``,
+    the rate of (10.4), docs/math.md, fact 10, since ``rho`` is ``lambda_max`` of the symmetric
+    ``(K_xi - s)^-1/2 B (K_xi - s)^-1/2``) and the gain bounds. Returns ``(problem, s, kappa, gains)``."""
     w = np.array([[weights.w_pc, weights.w_rc, weights.w_pe, weights.w_re]], dtype=float)
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
@@ -164,12 +166,12 @@ def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, m_h
     kappa, s = cp.Variable(), cp.Parameter(nonneg=True)
     k_ce = cp.hstack([k_c, k_ep, k_ep, k_ep, k_er, k_er, k_er])
     w_ce = np.diag(np.r_[np.zeros(6), np.repeat([weights.w_pe**2, weights.w_re**2], 3)])
-    rot = 1.0 / (1.0 + math.cos(theta_bar))  # D of fact 7 on (e_c, e_e)
-    d_ce = np.diag(np.repeat([weights.w_pc / 2, weights.w_rc * rot, weights.w_pe / 2, weights.w_re * rot], 3))
+    d_ce = np.diag(pose_diagonal(w[0], theta_bar, True, 6)[0])
     q_ce = n_ce.T @ cp.diag(k_ce) @ n_ce - s * w_ce - kappa * d_ce
+    q_xi = cp.diag(k_xi) - s * np.eye(n) - kappa * (mass.upper / 2)
     constraints = [
         (q_ce + q_ce.T) / 2 >> 0,
-        k_xi - s - kappa * (m_hi / 2) >= 0,
+        (q_xi + q_xi.T) / 2 >> 0,
         k_xi >= bounds.k_xi[0], k_xi <= bounds.k_xi[1],
         k_c >= bounds.k_c[0], k_c <= bounds.k_c[1],
         cp.hstack([k_ep, k_er]) >= bounds.k_e[0], cp.hstack([k_ep, k_er]) <= bounds.k_e[1],
@@ -202,7 +204,7 @@ def synthesize_speed(
     failed = Synthesis(None, None, "infeasible: no gains within the bounds give a positive decay rate")
     if top <= 0:
         return failed
-    problem, s, kappa, (k_xi, k_c, k_ep, k_er) = _speed_problem(weights, reference, n, bounds, mass.m_hi, theta_bar)
+    problem, s, kappa, (k_xi, k_c, k_ep, k_er) = _speed_problem(weights, reference, n, bounds, mass, theta_bar)
 
     def value(x: float) -> float:
         s.value = x

@@ -6,15 +6,18 @@ atomically, with the resumable state) and its bytes a point on disk, the per-poi
 Clarabel SDP on a sample of the same points, and raw batched ``numpy.linalg.eigvalsh`` of
 as many 12x12 matrices (the ceiling); then the time of one anisotropic sound certificate
 with its worst-rotation search; then the operating envelope of one design (MATH facts
-7-9) with and without the searches for the largest target speed and torque, against one
-exact gamma of the same design. Prints points/s and ratios (goal for the grid: end to end
->= 0.8 of in memory, <= 30 bytes a point).
+7-9, the rate of docs/math.md, fact 10) with and without the searches for the largest target
+speed and torque, against one exact gamma of the same design, and with the UR5's matrix inertia
+bound against the scalar one (``D_M = lambda_max(B) I``, the rate before fact 10). Prints
+points/s and ratios (goal for the grid: end to end >= 0.8 of in memory, <= 30 bytes a point;
+for the envelope with the matrix bound: within 2x of the scalar route).
 """
 
 from __future__ import annotations
 
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,25 +27,36 @@ from dvfc.analysis.certify import GainPoint, certify, exact_gamma, sdp_gamma
 from dvfc.analysis.envelope import DisturbanceBounds, design_of, envelope, grid_envelope
 from dvfc.analysis.grid import POINTS, GridSpec, certify_batch, run_sweep
 from dvfc.models.camera import Camera
-from dvfc.models.inertia import MassBounds
+from dvfc.models.inertia import MassBounds, mass_matrix_bounds
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
+from dvfc.models.robot import BUILTIN_CAMERA_FRAME, builtin_urdf, chain_joints
 
 SQUARE = np.array([[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [-0.05, -0.05, 0.0], [0.05, -0.05, 0.0]])
 
 
-def envelope_timings(design: GainPoint, reference: SE3) -> None:
-    """One design's envelope (the model built: mass bounds and V(0) given) against one exact gamma."""
+def ur5_mass_bounds() -> MassBounds:
+    """The UR5's inertia bounds from its URDF (:mod:`dvfc.models.inertia`)."""
+    urdf = builtin_urdf("ur5")
+    return mass_matrix_bounds(urdf, chain_joints(urdf, BUILTIN_CAMERA_FRAME["ur5"]))
+
+
+def envelope_timings(design: GainPoint, reference: SE3, mass: MassBounds) -> None:
+    """One design's envelope (the model built: mass bounds and V(0) given) against one exact gamma,
+    and with the matrix inertia bound of fact 10 against the scalar ``lambda_max(B) I`` (for every
+    ``v``, ``D_M(v) = lambda_max(B) I`` then: the rate of the scalar route, by the same code)."""
     camera = Camera(800.0, SQUARE, 1280.0, 1024.0)
-    mass = MassBounds(0.0019, 12.0)  # the UR5's bounds (dvfc.models.inertia)
+    scalar = replace(mass, upper=np.diag(np.full(len(mass.mu), mass.m_hi)))
     bounds = DisturbanceBounds(0.0785, 0.0, 0.05)
     start = {"V0": 0.002}
     gamma = median_of(lambda: exact_gamma(design, reference, np.eye(3)))
     plain = median_of(lambda: envelope(design_of(design, reference, mass), camera, bounds, start, search=False))
+    old = median_of(lambda: envelope(design_of(design, reference, scalar), camera, bounds, start, search=False))
     full = median_of(lambda: envelope(design_of(design, reference, mass), camera, bounds, start))
     print("operating envelope of one design (median of 20)")
     print(f"  one exact gamma (baseline)                {gamma * 1e3:12,.2f} ms")
     print(f"  envelope: rate, bounds, boxes, start      {plain * 1e3:12,.2f} ms  ({plain / gamma:,.1f}x the baseline)")
+    print(f"  same, scalar inertia bound lambda_max(B)  {old * 1e3:12,.2f} ms  (matrix / scalar {plain / old:,.2f})")
     print(f"  envelope with largest speed and torque    {full * 1e3:12,.2f} ms  ({full / gamma:,.1f}x the baseline)")
 
 
@@ -93,14 +107,15 @@ def main() -> None:
     print(f"  exact / SDP                               {exact / sdp:12,.0f}x")
     print(f"  ceiling / exact                           {ceiling / exact:12,.2f}x")
     print(f"  anisotropic sound certificate + search    {anisotropic * 1e3:12,.1f} ms  (gap {cert.gap:.2%})")
-    envelope_timings(design, reference)
-    envelope_grid(design, reference, axes, exact)
+    mass = ur5_mass_bounds()
+    envelope_timings(design, reference, mass)
+    envelope_grid(design, reference, axes, exact, mass)
 
 
-def envelope_grid(design: GainPoint, reference: SE3, axes, plain: float) -> None:
+def envelope_grid(design: GainPoint, reference: SE3, axes, plain: float, mass: MassBounds) -> None:
     """The same grid with the envelope columns (rate, max_target_speed) against the plain rate."""
     camera = Camera(800.0, SQUARE, 1280.0, 1024.0)
-    context = grid_envelope(design_of(design, reference, MassBounds(0.0019, 12.0)), camera,
+    context = grid_envelope(design_of(design, reference, mass), camera,
                             DisturbanceBounds(0.0785, 0.0, 0.05), None)  # fmt: skip
     spec = GridSpec.around(design, reference, axes, None, context)
     certify_batch(spec, 0, 100)

@@ -1,61 +1,121 @@
-"""Rigorous bounds on the eigenvalues of the mass matrix ``M(q)`` of (33), from the URDF.
+"""Constant bounds on the mass matrix ``M(q)`` of (33), from the URDF (docs/math.md, fact 10).
 
-MATH fact 7 needs ``m_hi >= lambda_max(M(q))`` and ``m_lo <= lambda_min(M(q))`` for
-every configuration the run can reach; a maximum over sampled configurations is not a
-bound. Both numbers here hold for every ``q`` of an arm of revolute joints (no joint
-range enters) and come from the URDF's masses, inertias and joint offsets alone.
+Every bound here holds for every ``q`` of a serial arm of revolute (or continuous) joints with
+unit axes and positive semidefinite link inertias: no joint range enters, and a maximum over
+sampled configurations is never used. A file outside these assumptions is refused
+(:class:`InertiaModelError`): a prismatic joint in the chain, a joint axis not of unit length
+(the dynamics would not be those of a rigid arm), a negative principal inertia on a moved link.
 
-Upper bound. ``M = sum_L m_L Jv_L^T Jv_L + Jw_L^T R_L I_L R_L^T Jw_L`` over the links
-``L``. For a revolute joint ``i`` that moves ``L``, ``Jw_L`` column ``i`` is the unit axis
-``a_i`` and ``Jv_L`` column ``i`` is ``a_i x (c_L - o_i)``, of length at most
-``r_iL >= |c_L - o_i|``: the sum of the lengths of the fixed offsets from joint ``i``'s
-origin to ``L``'s centre of mass (triangle inequality). By Cauchy-Schwarz
-``|M_ij| <= B_ij = sum_L (m_L r_iL r_jL + lambda_max(I_L))`` (the sum over links moved by
-both joints), plus the armature on the diagonal. Since ``|M| <= B`` entrywise and ``B``
-is symmetric and nonnegative, ``lambda_max(M) <= rho(M) <= rho(B) = lambda_max(B)``
-(Perron-Frobenius; Horn and Johnson, Theorem 8.1.18). A prismatic joint ``i`` has
-``|Jv| = 1`` and lengthens the offsets of the links after it by at most its largest
-``|limit|``.
+Entrywise upper bound (10.1). ``M = sum_L m_L Jv_L^T Jv_L + Jw_L^T S_L Jw_L`` over the links
+``L`` (``S_L`` the link's inertia in the world). Column ``i`` of ``Jw_L`` is the unit axis ``a_i``
+and column ``i`` of ``Jv_L`` is ``a_i x (c_L - o_i)``. Let the carrier ``c`` of ``L`` be the last
+chain joint above it; frame ``i`` is joint ``i``'s child frame (``o_i`` on the axis, ``a_i`` fixed
+in it); ``i'`` is the next chain joint below ``i``. By Cauchy-Schwarz,
+``|M_ij| <= B_ij = sum over links moved by i and j of m_L beta_iL beta_jL + alpha_ijL`` with
 
-Lower bound. Group the links into the bodies ``b_k`` carried by joint ``k`` (rigid to
-one another); ``mu_k = lambda_min`` of ``b_k``'s inertia about its centre of mass. The
-kinetic energy is at least the rotational part, ``qd^T M qd >= sum_k mu_k |w_k|^2`` with
-the angular velocities ``w_k = w_{k-1} + a_k qd_k``, so ``|qd_k| = |w_k - w_{k-1}|`` and,
-over all ``w`` (a relaxation), ``qd^T M qd >= |qd|^2 / lambda_max(mu^-1/2 D^T D mu^-1/2)``
-with ``D`` the first-difference matrix. The armature adds its smallest entry. Zero when a
-body has a zero principal inertia or a joint is prismatic (no rotation to count).
+- ``beta_cL = |a_c x c_L^(c)|`` (exact: the centre of mass is constant in frame ``c``);
+- ``beta_iL = |a_i x o_i'^(i)| + l_i'L`` above ``c`` (``o_i'^(i)`` the origin of frame ``i'`` in
+  frame ``i``, composed through every fixed joint between them), with the lengths
+  ``l_cL = |c_L^(c)|``, ``l_iL = |o_i'^(i)| + l_i'L`` (triangle inequality);
+- ``alpha = a_c^T S_L^(c) a_c`` (exact) for ``i = j = c``, ``|S_L^(c) a_c|`` when exactly one of
+  ``i, j`` is ``c``, ``lambda_max(I_L)`` otherwise;
+
+plus the armature on the diagonal. The same terms give lower bounds of the diagonal,
+``M_ii >= sum_L m_L max(0, |a_i x o_i'^(i)| - l_i'L)^2 + alpha^lo_iiL`` (``beta_cL`` and the
+carrier's ``alpha`` exact, ``lambda_min(I_L)`` otherwise).
+
+Matrix upper bound (10.2). For every ``v > 0``, ``x^T M x <= |x|^T B |x| <= x^T D_M(v) x`` with
+``D_M(v) = diag((B v)_i / v_i)`` (AM-GM on each product ``|x_i||x_j|``); the scalar bound is
+``m_hi = lambda_max(B)`` (Perron-Frobenius: ``rho(M) <= rho(B)``).
+
+Lower bound (10.3). Group the links into the bodies carried by each joint; ``mu_k`` is the
+smallest principal inertia of body ``k`` about its centre of mass. The kinetic energy is at
+least the rotational part, ``qd^T M qd >= sum_k mu_k |w_k|^2`` with ``w_k - w_(k-1) = a_k qd_k``;
+relaxing over every ``w``, for every diagonal ``P >= 0``,
+``M(q) >= P / lambda_max(mu^-1/2 Delta^T P Delta mu^-1/2)`` (``Delta`` the first-difference
+matrix), plus the armature; 0 when some ``mu_k = 0``. ``P = I`` gives ``m_lo``.
 """
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 from dvfc.models.lie import rpy_to_matrix
 
-HI_METHOD = (
-    "rigorous upper bound for every q: lambda_max(B) with |M_ij(q)| <= B_ij = sum over links of "
-    "m r_i r_j + lambda_max(I) (Cauchy-Schwarz; r from the URDF's offsets by the triangle inequality; "
-    "rho(M) <= rho(B), Perron-Frobenius) plus armature"
+UPPER_METHOD = (
+    "rigorous for every q (docs/math.md, fact 10): |M_ij(q)| <= B_ij from the URDF (Cauchy-Schwarz; "
+    "the carrier joint's terms exact, the others by the triangle inequality) plus armature; "
+    "M(q) <= D_M(v) = diag(B v / v) for every v > 0"
 )
-LO_METHOD = (
-    "rigorous lower bound for every q: rotational kinetic energy of the bodies carried by each joint, "
-    "sum mu_k |w_k|^2 with w_k - w_{k-1} = a_k qd_k (mu_k = smallest principal inertia), plus the "
-    "smallest armature"
+LOWER_METHOD = (
+    "rigorous for every q (docs/math.md, fact 10): rotational kinetic energy of the bodies carried by "
+    "each joint, sum mu_k |w_k|^2 with w_k - w_(k-1) = a_k qd_k (mu_k the smallest principal inertia): "
+    "M(q) >= P / lambda_max(mu^-1/2 Delta^T P Delta mu^-1/2) plus armature"
 )
+AXIS_TOLERANCE = 1e-12
+"""Largest ``| |a| - 1 |`` of a joint axis accepted as a unit axis: a written ``0 0 1`` is exact, and
+rounding in a written unit vector is ~1e-16; the bounds then err by at most ~2e-12 relative."""
 
 
-@dataclass(frozen=True)
+class InertiaModelError(ValueError):
+    """The URDF lies outside the assumptions of the bounds (the message says which, in one line)."""
+
+
+@dataclass(frozen=True, eq=False)
 class MassBounds:
-    """``m_lo <= lambda_min(M(q))`` and ``lambda_max(M(q)) <= m_hi`` for every ``q``."""
+    """Bounds on ``M(q)`` for every ``q`` (module text), all in kg m^2.
 
-    m_lo: float
-    m_hi: float
-    method_lo: str = LO_METHOD
-    method_hi: str = HI_METHOD
+    Parameters
+    ----------
+    upper
+        ``B`` (n, n): ``|M_ij(q)| <= B_ij``, symmetric and nonnegative (armature included).
+    diagonal_lower
+        ``d`` (n,): ``M_ii(q) >= d_i`` (armature included).
+    mu
+        ``mu_k`` (n,): the smallest principal inertia of the body carried by joint ``k``.
+    armature
+        The armature added to the diagonal of ``M`` (n,), zeros when none.
+    """
+
+    upper: np.ndarray
+    diagonal_lower: np.ndarray
+    mu: np.ndarray
+    armature: np.ndarray
+    method_lo: str = LOWER_METHOD
+    method_hi: str = UPPER_METHOD
+
+    @cached_property
+    def m_hi(self) -> float:
+        """``lambda_max(B) >= lambda_max(M(q))`` (the scalar bound)."""
+        return float(np.linalg.eigvalsh(self.upper)[-1])
+
+    @cached_property
+    def m_lo(self) -> float:
+        """``lambda_min`` of :meth:`lower` with ``P = I``: ``<= lambda_min(M(q))``."""
+        return float(np.min(np.diag(self.lower())))
+
+    def upper_diagonal(self, v: np.ndarray) -> np.ndarray:
+        """``D_M(v) = diag(B v / v)`` for ``v > 0`` (..., n): ``M(q) <= diag(D_M(v))`` (10.2)."""
+        v = np.asarray(v, dtype=float)
+        return (v @ self.upper) / v  # B is symmetric: (B v)_i = (v B)_i
+
+    def lower(self, p: np.ndarray | None = None) -> np.ndarray:
+        """``L_M = P / lambda_max(mu^-1/2 Delta^T P Delta mu^-1/2) + diag(armature) <= M(q)`` (n, n)
+        for the diagonal ``P = diag(p) >= 0`` (default ``I``); the rigid part is 0 when some
+        ``mu_k = 0`` (a body with no inertia about some axis: no rotation energy to count)."""
+        n = len(self.mu)
+        p = np.ones(n) if p is None else np.asarray(p, dtype=float)
+        rigid = np.zeros(n)
+        if np.all(self.mu > 0):
+            delta = np.eye(n) - np.eye(n, k=-1)
+            scale = 1.0 / np.sqrt(self.mu)
+            rigid = p / np.linalg.eigvalsh(scale[:, None] * (delta.T @ (p[:, None] * delta)) * scale[None, :])[-1]
+        return np.diag(rigid + self.armature)
 
 
 @dataclass(frozen=True)
@@ -63,6 +123,9 @@ class _Link:
     mass: float
     com: np.ndarray  # centre of mass in the link frame
     inertia: np.ndarray  # about the centre of mass, in the link frame
+
+
+_EMPTY = _Link(0.0, np.zeros(3), np.zeros((3, 3)))
 
 
 def _vector(element: ET.Element | None, key: str) -> np.ndarray:
@@ -79,7 +142,7 @@ def _links(root: ET.Element) -> dict[str, _Link]:
     for link in root.findall("link"):
         inertial = link.find("inertial")
         if inertial is None:
-            out[link.get("name")] = _Link(0.0, np.zeros(3), np.zeros((3, 3)))
+            out[link.get("name")] = _EMPTY
             continue
         origin = inertial.find("origin")
         i = {k: float(v) for k, v in inertial.find("inertia").attrib.items()}
@@ -94,55 +157,117 @@ def _links(root: ET.Element) -> dict[str, _Link]:
     return out
 
 
+def _axes(root: ET.Element, joints: list[str]) -> np.ndarray:
+    """The unit axes of the chain's joints (n, 3), each in its child frame; a joint that is not
+    revolute or continuous, or an axis not of unit length, is refused."""
+    by_name = {j.get("name"): j for j in root.findall("joint")}
+    axes = []
+    for name in joints:
+        joint = by_name[name]
+        if joint.get("type") not in ("revolute", "continuous"):
+            raise InertiaModelError(
+                f"joint {name!r} is {joint.get('type')}: the mass-matrix bounds (docs/math.md, fact 10) "
+                "cover revolute and continuous joints only"
+            )
+        element = joint.find("axis")
+        axis = np.array([1.0, 0.0, 0.0]) if element is None else _vector(element, "xyz")  # the URDF default
+        length = float(np.linalg.norm(axis))
+        if abs(length - 1.0) > AXIS_TOLERANCE:
+            raise InertiaModelError(
+                f"joint {name!r}: axis {' '.join(f'{v:g}' for v in axis)} has length {length:.6g}, not 1 "
+                "(the dynamics would not be a rigid arm's): write a unit axis"
+            )
+        axes.append(axis)
+    return np.array(axes)
+
+
+@dataclass(frozen=True)
+class _Carried:
+    """Where a link hangs on the chain: its carrier ``c`` (the last chain joint above it), the
+    link frame in frame ``c`` (``rotation``, ``translation``) and, for each chain joint ``i``
+    above ``c`` (going up), ``(i, o_i'^(i))``: the origin of the next chain joint's frame below
+    ``i`` in frame ``i``, composed through the fixed joints between them."""
+
+    carrier: int
+    rotation: np.ndarray
+    translation: np.ndarray
+    above: list[tuple[int, np.ndarray]]
+
+
+def _carried(name: str, by_child: dict[str, ET.Element], index: dict[str, int]) -> _Carried | None:
+    """:class:`_Carried` of the link ``name``; None when no chain joint moves it. Movable joints
+    outside the chain count as fixed at zero (as in :func:`dvfc.models.robot.frozen_urdf`)."""
+    rotation, translation = np.eye(3), np.zeros(3)  # the tracked frame in the current link's frame
+    found: _Carried | None = None
+    child = name
+    while child in by_child:
+        joint = by_child[child]
+        origin = joint.find("origin")
+        k = index.get(joint.get("name"))
+        if k is not None and found is None:
+            found = _Carried(k, rotation, translation, [])
+        elif k is not None:
+            found.above.append((k, translation))
+        # across a chain joint only the origin of its frame is tracked (it lies on the axis, so
+        # the joint's rotation does not move it): the composed rotation is then unused
+        r = _rotation(origin)
+        rotation, translation = r @ rotation, r @ translation + _vector(origin, "xyz")
+        if k is not None:
+            translation = _vector(origin, "xyz")
+        child = joint.find("parent").get("link")
+    return found
+
+
 def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[float, ...] = ()) -> MassBounds:
-    """``m_lo``, ``m_hi`` of the arm whose movable joints are ``joints`` (root first; every
-    other movable joint frozen at zero, as in :func:`dvfc.models.robot.frozen_urdf`). See the
-    module text. A joint axis not of unit length counts with the worse of 1 and its length."""
+    """The bounds of the module text for the arm whose chain joints are ``joints`` (root first;
+    every other movable joint frozen at zero, and a ``mimic`` joint of the chain moving on its
+    own, as in :func:`dvfc.models.robot.frozen_urdf`, which strips the tag: the bounds and the
+    dynamics are both those of that arm, not of the coupled one the URDF describes).
+
+    Raises
+    ------
+    InertiaModelError
+        A chain joint not revolute or continuous, an axis not of unit length, or a link moved by
+        the chain with a negative principal inertia.
+    """
     root = ET.parse(urdf).getroot()
     by_child = {j.find("child").get("link"): j for j in root.findall("joint")}
-    chain = {j.get("name"): j for j in root.findall("joint") if j.get("name") in joints}
-    axis = np.array([np.linalg.norm(_vector(chain[name].find("axis"), "xyz")) or 1.0 for name in joints])
-    prismatic = np.array([chain[name].get("type") == "prismatic" for name in joints])
     index = {name: k for k, name in enumerate(joints)}
+    axes = _axes(root, joints)
     n = len(joints)
-    b = np.diag(np.asarray(armature, dtype=float)) if armature else np.zeros((n, n))
-    bodies = [_Link(0.0, np.zeros(3), np.zeros((3, 3))) for _ in range(n)]
+    arm = np.asarray(armature, dtype=float) if armature else np.zeros(n)
+    upper, lower = np.diag(arm), arm.copy()
+    bodies = [_EMPTY] * n
     for name, link in _links(root).items():
-        linear, angular = np.zeros(n), np.zeros(n)  # bounds on |Jv_L| and |Jw_L| column by column
-        length = np.linalg.norm(link.com)  # >= distance from the current joint's origin to the centre of mass
-        rotation, translation = np.eye(3), np.zeros(3)  # the link's frame in its carrying joint's frame
-        carrier, child = None, name
-        while child in by_child:
-            joint = by_child[child]
-            offset = _vector(joint.find("origin"), "xyz")
-            k = index.get(joint.get("name"))
-            if k is None and carrier is None:
-                r = _rotation(joint.find("origin"))
-                rotation, translation = r @ rotation, r @ translation + offset
-            elif k is not None:
-                carrier = k if carrier is None else carrier
-                scale = max(1.0, axis[k])
-                if prismatic[k]:
-                    limit = joint.find("limit")
-                    bounds = (limit.get("lower", "inf"), limit.get("upper", "inf")) if limit is not None else ("inf",)
-                    linear[k] = scale
-                    length += max(abs(float(v)) for v in bounds) * scale
-                else:
-                    linear[k], angular[k] = scale * length, scale
-            length += np.linalg.norm(offset)
-            child = joint.find("parent").get("link")
-        if carrier is None:
+        where = _carried(name, by_child, index)
+        if where is None:
             continue
-        b += link.mass * np.outer(linear, linear) + np.linalg.eigvalsh(link.inertia)[-1] * np.outer(angular, angular)
-        bodies[carrier] = _merge(bodies[carrier], link, rotation, translation)
+        principal = np.linalg.eigvalsh(link.inertia)
+        if principal[0] < -AXIS_TOLERANCE * max(1.0, principal[-1]):
+            raise InertiaModelError(
+                f"link {name!r}: principal inertia {principal[0]:.6g} kg m^2 < 0 (not a rigid body): "
+                "the mass-matrix bounds need positive semidefinite link inertias"
+            )
+        com = where.rotation @ link.com + where.translation  # c_L^(c)
+        spin = where.rotation @ link.inertia @ where.rotation.T  # S_L^(c)
+        a = axes[where.carrier]
+        moved = [where.carrier] + [k for k, _ in where.above]
+        beta = [float(np.linalg.norm(np.cross(a, com)))]  # exact
+        beta_lo = list(beta)
+        length = float(np.linalg.norm(com))
+        for k, offset in where.above:
+            perpendicular = float(np.linalg.norm(np.cross(axes[k], offset)))
+            beta.append(perpendicular + length)
+            beta_lo.append(max(0.0, perpendicular - length))
+            length += float(np.linalg.norm(offset))
+        alpha = np.full((len(moved), len(moved)), principal[-1])
+        alpha[0, :] = alpha[:, 0] = np.linalg.norm(spin @ a)  # |a_i^T S a_c| <= |S a_c|
+        alpha[0, 0] = a @ spin @ a  # exact
+        upper[np.ix_(moved, moved)] += link.mass * np.outer(beta, beta) + alpha
+        lower[moved] += link.mass * np.square(beta_lo) + np.r_[a @ spin @ a, np.full(len(moved) - 1, principal[0])]
+        bodies[where.carrier] = _merge(bodies[where.carrier], link, where.rotation, where.translation)
     mu = np.array([np.linalg.eigvalsh(body.inertia)[0] for body in bodies])
-    rigid = 0.0
-    if not prismatic.any() and np.all(mu > 0):
-        # |qd_k| = |w_k - w_{k-1}| / |a_k| <= |w_k - w_{k-1}| / min(1, |a_k|)
-        d = (np.eye(n) - np.eye(n, k=-1)) / np.minimum(1.0, axis)[:, None]
-        s = 1.0 / np.sqrt(mu)
-        rigid = float(1.0 / np.linalg.eigvalsh(s[:, None] * (d.T @ d) * s[None, :])[-1])
-    return MassBounds(rigid + (min(armature) if armature else 0.0), float(np.linalg.eigvalsh(b)[-1]))
+    return MassBounds(upper, lower, np.maximum(mu, 0.0), arm)
 
 
 def _merge(body: _Link, link: _Link, rotation: np.ndarray, translation: np.ndarray) -> _Link:

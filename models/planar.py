@@ -51,9 +51,10 @@ away from the arm's singularities), ``o(t)`` for the target's horizontal positio
   ``e_e = pinv(A) (f - fbar)`` holds exactly, not to first order as (21).
 - (P13) [docs/math.md, fact 7] the operating envelope. (P8) is exactly quadratic in ``e_c, e_e``
   (no rotation error function), so ``V <= x^T D x`` with
-  ``D = diag(m_hi/2 I_n, w_c/2 I_2, w_e/2 I_2)``, ``m_hi >= lambda_max(M(q))`` for every ``q``,
-  for every state: no ``theta_bar`` and no self-consistency condition. Completing the square
-  in (P10), ``x^T G w <= s x^T W x + |w|^2 / (4 s)`` for any ``s > 0``, so
+  ``D = diag(D_M/2, w_c/2 I_2, w_e/2 I_2)``, ``D_M >= M(q)`` for every ``q`` (the matrix bound of
+  docs/math.md, fact 10, at the Perron vector of ``diag(k_xi - s)^-1 B``), for every state: no
+  ``theta_bar`` and no self-consistency condition. Completing the square in (P10),
+  ``x^T G w <= s x^T W x + |w|^2 / (4 s)`` for any ``s > 0``, so
   ``dV/dt <= -x^T Q x + |w|^2 / (4 s)``, ``Q = N^T K N - s W``, and with
   ``kappa = lambda_min(D^-1/2 Q D^-1/2) > 0``: ``dV/dt <= -kappa V + |w|^2 / (4 s)``,
   ``V(t) <= exp(-kappa t) V(0) + wbar^2 / (4 s kappa)`` with ``wbar^2 = |tau_d|^2 + |v_o|^2``

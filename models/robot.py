@@ -22,7 +22,7 @@ import casadi as cs
 import numpy as np
 from adam.casadi import KinDynComputations
 
-from dvfc.models.inertia import MassBounds, mass_matrix_bounds
+from dvfc.models.inertia import InertiaModelError, MassBounds, mass_matrix_bounds
 from dvfc.models.lie import SE3, Matrix, vee
 
 _ERD = "cmeel.prefix/share/example-robot-data/robots"
@@ -223,6 +223,11 @@ class Robot:
             raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {exc}") from exc
         if self.armature and len(self.armature) != self.n:
             raise RobotModelError(f"armature: expected {self.n} entries (one per joint), got {len(self.armature)}")
+        try:
+            self.mass_bounds: MassBounds = mass_matrix_bounds(self.urdf, self.joints, self.armature)
+            """Bounds on ``M(q)`` for every ``q`` (:mod:`dvfc.models.inertia`; docs/math.md, fact 10)."""
+        except InertiaModelError as exc:
+            raise RobotModelError(f"{self.urdf.name}: {exc}") from exc
         self.q = cs.SX.sym("q", self.n)
         self.qd = cs.SX.sym("qd", self.n)
 
@@ -250,11 +255,6 @@ class Robot:
         """``M(q)`` of (33), symbolic in :attr:`q` (rigid body plus :attr:`armature`)."""
         rigid = self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self.q))
         return rigid + cs.diag(cs.DM(self.armature)) if self.armature else rigid
-
-    @cached_property
-    def mass_bounds(self) -> MassBounds:
-        """Rigorous ``m_lo <= lambda(M(q)) <= m_hi`` for every ``q`` (:mod:`dvfc.models.inertia`)."""
-        return mass_matrix_bounds(self.urdf, self.joints, self.armature)
 
     @cached_property
     def gravity(self) -> Matrix:

@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from dvfc.analysis.adversary import worst_disturbance
 from dvfc.analysis.case import Case
-from dvfc.analysis.certify import output_blocks, random_rotations
+from dvfc.analysis.certify import GainPoint, output_blocks, random_rotations, solve
 from dvfc.analysis.cli import app
 from dvfc.analysis.envelope import (
     DisturbanceBounds,
@@ -29,16 +29,20 @@ from dvfc.analysis.envelope import (
     rates,
     recheck,
     start_storage,
+    storage_diagonal,
+    xi_rates,
 )
 from dvfc.analysis.grid import GridSpec, certify_batch
 from dvfc.analysis.linearize import driven, driven_at_rest, equilibrium_configuration
 from dvfc.analysis.results import grid_envelope_for
 from dvfc.analysis.scenario import Scenario, build, gain_point, load
 from dvfc.analysis.simulate import Settings, Simulator
+from dvfc.analysis.synthesize import Bounds, _speed_problem
 from dvfc.analysis.verify import envelope_claims, rotation_angles
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import Sine
 from dvfc.models.lie import SO3
+from dvfc.models.loop import Weights
 from dvfc.models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, builtin_urdf
 
 from conftest import build_loop, run, scenario_dict
@@ -102,15 +106,16 @@ def random_states(loop, s0: np.ndarray, count: int, rng) -> list[np.ndarray]:
 
 def test_storage_is_below_x_d_x(default_loop, rng):
     """Fact 7: ``V <= x^T D x`` while ``theta_ec, theta_ee <= theta_bar``, term by term (the kinetic
-    term with ``m_hi`` from the URDF, the pose terms with ``1 + cos theta_bar``); and ``V`` bounds
-    every error (``error_bounds(V)`` above each one) with ``m_lo``. Tolerance 1e-12 relative:
-    both sides are sums of the same terms evaluated twice."""
+    term with ``D_M / 2`` of docs/math.md, fact 10, at the Perron vector for ``s = 0.3``, the pose
+    terms with ``1 + cos theta_bar``); and ``V`` bounds every error (``error_bounds(V)`` above each
+    one) with ``m_lo``. Tolerance 1e-12 relative: the pose terms are the same sums evaluated twice
+    (the kinetic term has a gap: ``D_M`` bounds every ``M(q)``)."""
     loop, s0, _ = default_loop
     design = design_of(gain_point(Scenario.model_validate(scenario_dict()), 6), loop.reference,
                        loop.robot.mass_bounds)  # fmt: skip
     f = storage_and_state(loop)
     theta_bar = math.radians(120.0)
-    d = np.concatenate([np.full(6, design.mass.m_hi / 2), design.d_diagonal(np.array([theta_bar]))[0]])
+    d = storage_diagonal(design, 0.3, theta_bar)
     checked = 0
     for s in random_states(loop, s0, 300, rng):
         v, kinetic, xi, e_c, e_e, th_c, th_e = (np.asarray(a).ravel() for a in f(0.0, s))
@@ -367,3 +372,102 @@ def test_worst_motion_at_095_of_the_largest_certified_speed_keeps_every_feature_
     pixels = traj["f"].reshape(len(traj.t), -1, 2) + loop.camera.centre
     assert np.all(pixels >= boxes[None, :, :2]) and np.all(pixels <= boxes[None, :, 2:])
     assert np.all(pixels >= 0) and np.all(pixels <= [loop.camera.width, loop.camera.height])
+
+
+@pytest.mark.parametrize(("w_rc", "w_re"), [(1.0, 3.0), (3.0, 1.0)])
+def test_self_consistent_level_keeps_both_rotations_within_theta_bar(default_loop, w_rc, w_re):
+    """Fact 7's first exit: at the self-consistent level ``c_max(theta_bar)`` the rotation bounds
+    of ``V <= c_max`` (``theta <= arccos(1 - c/w_r)``) stay within ``theta_bar`` for both errors,
+    with ``w_rc != w_re`` either way round (the smaller weight decides), and the level is the
+    largest such (1e-6 above it one of them exceeds). Tolerance 1e-9 deg: ``arccos`` near its
+    argument's rounding."""
+    loop, _, _ = default_loop
+    edit = lambda d: d["weights"].update(w_rc=w_rc, w_re=w_re)  # noqa: E731
+    design = design_of(gain_point(Scenario.model_validate(scenario_dict(edit)), 6), loop.reference,
+                       loop.robot.mass_bounds)  # fmt: skip
+    for degrees in (3.0, 30.0, 120.0):
+        level = float(design.c_max(np.radians(degrees)))
+        bounds = error_bounds(design, level)
+        assert max(bounds["theta_ec_deg"], bounds["theta_ee_deg"]) <= degrees + 1e-9
+        above = error_bounds(design, level * (1 + 1e-6))
+        assert max(above["theta_ec_deg"], above["theta_ee_deg"]) > degrees
+
+
+def test_recheck_refuses_a_rate_above_the_certified_one(default_loop):
+    """The a posteriori check ``lambda_min(Q - kappa D) >= 0`` (``D = diag(D_M/2, D_ce)``, fact 10)
+    passes at the certified rate and refuses rates 1.5x (decided by the pose block on the
+    default design) and 1.01x of it (decided by the joint block, with gains small enough that
+    the joint block sets the rate): it is made against the whole of ``D``."""
+    loop, _, _ = default_loop
+    theta_bar = math.radians(30.0)
+    for edit in (None, lambda d: d["gains"].update(k_xi=[1.0, 1.0, 1.0, 0.8, 0.8, 0.6])):
+        design = design_of(gain_point(Scenario.model_validate(scenario_dict(edit)), 6), loop.reference,
+                           loop.robot.mass_bounds)  # fmt: skip
+        (decay,) = decays(design, np.array([theta_bar]))
+        assert recheck(design, decay.s, theta_bar, decay.kappa) >= 0
+        factor = 1.5 if edit is None else 1.01
+        assert recheck(design, decay.s, theta_bar, decay.kappa * factor) < 0
+    assert decay.kappa == pytest.approx(xi_rates(design.mass, design.k_xi, np.array([decay.s]))[0], rel=1e-5)
+
+
+def test_a_design_whose_regions_reach_zero_depth_is_not_visible(default_loop):
+    """Fact 8: the smallest certified depth is ``min_i z_i - rho_i`` (the radius subtracted); at a
+    level whose radius reaches beyond the nearest feature's depth the regions reach zero depth,
+    and the design is not called visible, even by a camera with no image size (where no border
+    can decide it)."""
+    loop, _, _ = default_loop
+    design = design_of(gain_point(Scenario.model_validate(scenario_dict()), 6), loop.reference,
+                       loop.robot.mass_bounds)  # fmt: skip
+    desired = desired_features(loop.camera, loop.reference)
+    blind = Camera(loop.camera.focal_length, loop.camera.points)
+    near = feature_boxes(design, blind, desired, 1e-8)
+    assert near.visible is None and 0 < near.depth_min < desired[:, 2].min()
+    level = 2.0  # |p_ec| + |p_ee| alone reach 2 sqrt(2 c / 4) = 2 m, beyond every depth
+    assert 2 * math.sqrt(2 * level / 4.0) > desired[:, 2].max()
+    far = feature_boxes(design, blind, desired, level)
+    assert far.depth_min <= 0 and far.visible is False
+    assert feature_boxes(design, loop.camera, desired, level).visible is False
+
+
+def test_certify_reports_the_inertia_matrices_of_the_rate():
+    """``points[0].envelope.inertia`` of the default example: ``upper`` is ``diag(D_M)`` at the
+    optimum, ``lower`` is ``m_lo I``, both n x n; ``D_M = rho (K_xi - s)`` (the Perron vector's
+    equal ratios, 1e-9 relative) and bounds ``M`` at the start configuration."""
+    result = CliRunner().invoke(app, ["certify", str(EXAMPLES / "ur5_circle.toml"), "--no-lower-bounds",
+                                      "--json", "-"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    env = json.loads(result.stdout)["points"][0]["envelope"]
+    upper, lower = np.array(env["inertia"]["upper"]), np.array(env["inertia"]["lower"])
+    assert upper.shape == lower.shape == (6, 6) and "fact 10" in env["inertia"]["method"]
+    assert np.allclose(lower, env["m_lo"] * np.eye(6), rtol=1e-12, atol=0)
+    spec, base = load(EXAMPLES / "ur5_circle.toml")
+    k_xi = np.asarray(gain_point(spec, 6).k_xi)
+    s = 1 / (2 * env["gamma_prime"] ** 2)
+    ratio = np.diag(upper) / (k_xi - s)
+    assert ratio == pytest.approx(np.full(6, ratio[0]), rel=1e-9)
+    loop, s0, _ = build(spec, base)
+    m = np.asarray(cs.Function("M", [loop.robot.q], [loop.robot.mass_matrix])(s0[:6]))
+    assert np.linalg.eigvalsh(upper - m)[0] > 0 and np.linalg.eigvalsh(m - lower)[0] > 0
+
+
+@pytest.mark.parametrize("k_xi", [0.8, 20.0])
+def test_target_speed_sdp_rate_is_the_envelope_rate(default_loop, k_xi):
+    """The target-speed synthesis's SDP at fixed ``s`` has, as its optimum, the envelope's rate
+    (10.4) at the upper gains (the rate grows with every gain): its joint-block constraint
+    ``diag(k_xi - s) - (kappa/2) B >= 0`` is ``kappa <= 2 / rho(diag(k_xi - s)^-1 B)`` (binding for
+    ``k_xi = 0.8``), its pose block the same ``D_ce`` (binding for ``k_xi = 20``). 1e-6 relative:
+    Clarabel's accuracy (2e-8 measured); the gain boxes have width (a box of zero width is
+    degenerate for the interior-point solver)."""
+    loop, _, _ = default_loop
+    weights = Weights(4.0, 1.0, 4.0, 1.0)
+    bounds = Bounds((k_xi / 2, k_xi), (1.5, 3.0), (5.0, 10.0))
+    theta_bar, s_value = math.radians(20.0), 0.4
+    problem, s, kappa, _ = _speed_problem(weights, loop.reference, 6, bounds, loop.robot.mass_bounds, theta_bar)
+    s.value = s_value
+    assert solve(problem)[0] is not None
+    point = GainPoint(np.full(6, k_xi), np.full(6, 3.0), np.full(6, 10.0), weights)
+    design = design_of(point, loop.reference, loop.robot.mass_bounds)
+    expected = rates(design, np.array([s_value]), np.array([theta_bar]))[0]
+    assert float(kappa.value) == pytest.approx(expected, rel=1e-6)
+    xi = xi_rates(design.mass, design.k_xi, np.array([s_value]))[0]
+    assert (expected == pytest.approx(xi, rel=1e-12)) == (k_xi < 1)

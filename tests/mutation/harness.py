@@ -48,9 +48,9 @@ MUTATIONS = (
     # --- the seven of the audit --------------------------------------------------------
     Mutation(
         "grid-kmin-max",
-        "the grid's sound K_e takes the blockwise max instead of the min (fact 5)",
-        "analysis/grid.py",
-        (('d["k_e"][:, :3].min(1), d["k_e"][:, 3:].min(1)', 'd["k_e"][:, :3].max(1), d["k_e"][:, 3:].max(1)'),),
+        "the sound K_e (grid, certifier, envelope) takes the blockwise max instead of the min (fact 5)",
+        "analysis/certify.py",
+        (("k_e[..., :3].min(axis=-1), k_e[..., 3:].min(axis=-1)", "k_e[..., :3].max(axis=-1), k_e[..., 3:].max(axis=-1)"),),  # noqa: E501
         ("tests/test_reference.py::test_grid_rows_are_sound_complete_and_minimal",),
     ),
     Mutation(
@@ -137,7 +137,7 @@ MUTATIONS = (
         "tight-anisotropic-at-identity",
         "the fact-4 certificate for anisotropic K_e evaluated at R = I with the true K_e (not sound for every R)",
         "analysis/certify.py",
-        (("    sound = point if point.isotropic else point.with_k_e(", "    sound = point if True else point.with_k_e("),),  # noqa: E501
+        (("    sound = point.with_k_e(sound_k_e(point.k_e))\n    return tight_gamma_of(", "    sound = point\n    return tight_gamma_of("),),  # noqa: E501
         ("tests/test_reference.py::test_tight_certificate_is_sound_complete_and_minimal",),
     ),
     Mutation(
@@ -192,6 +192,86 @@ MUTATIONS = (
             ),
         ),
         ("tests/test_grid.py::test_crash_between_data_write_and_state_save_resumes_exactly",),
+    ),
+    # --- the operating envelope (facts 7-8) and the inertia bounds (docs/math.md, fact 10) ------------
+    Mutation(
+        "self-consistent-level-max",
+        "the self-consistent level taken with the larger of the two rotational weights",
+        "analysis/envelope.py",
+        (("np.minimum(weights[..., 1], weights[..., 3])", "np.maximum(weights[..., 1], weights[..., 3])"),),
+        ("tests/test_envelope.py::test_self_consistent_level_keeps_both_rotations_within_theta_bar",),
+    ),
+    Mutation(
+        "recheck-half-d",
+        "the a posteriori rate check made against half of D",
+        "analysis/envelope.py",
+        (("- kappa[:, None, None] * (d[:, :, None] * eye))[:, 0]", "- kappa[:, None, None] * (d[:, :, None] * eye) / 2)[:, 0]"),),  # noqa: E501
+        ("tests/test_envelope.py::test_recheck_refuses_a_rate_above_the_certified_one",),
+    ),
+    Mutation(
+        "recheck-joint-block-free",
+        "the a posteriori rate check made without the kinetic block D_M / 2 of D",
+        "analysis/envelope.py",
+        (("    return np.concatenate([d_m / 2, design.d_diagonal", "    return np.concatenate([0 * d_m, design.d_diagonal"),),  # noqa: E501
+        ("tests/test_envelope.py::test_recheck_refuses_a_rate_above_the_certified_one",),
+    ),
+    Mutation(
+        "depth-radius-added",
+        "the smallest certified depth computed with the radius added instead of subtracted",
+        "analysis/envelope.py",
+        (("np.min(desired[:, 2] - radius)", "np.min(desired[:, 2] + radius)"),),
+        ("tests/test_envelope.py::test_a_design_whose_regions_reach_zero_depth_is_not_visible",),
+    ),
+    Mutation(
+        "perron-vector-ones",
+        "D_M(v) built with v = 1 instead of the Perron vector of diag(k_xi - s)^-1 B",
+        "analysis/envelope.py",
+        (
+            (
+                "mass.upper_diagonal(scale * np.maximum(top, PERRON_FLOOR * top.max(axis=1, keepdims=True)))",
+                "mass.upper_diagonal(np.ones_like(scale))",
+            ),
+        ),
+        (
+            "tests/test_inertia.py::test_perron_rate_is_never_below_the_scalar_rate",
+            "tests/test_envelope.py::test_certify_reports_the_inertia_matrices_of_the_rate",
+        ),
+    ),
+    Mutation(
+        "carrier-full-length",
+        "B uses the full length |c_L| where the exact carrier entry |a_c x c_L| belongs",
+        "models/inertia.py",
+        (("beta = [float(np.linalg.norm(np.cross(a, com)))]  # exact", "beta = [float(np.linalg.norm(com))]"),),
+        ("tests/test_inertia.py::test_entries_are_bounded_and_the_carrier_entries_attained",),
+    ),
+    Mutation(
+        "carrier-alpha-spectral",
+        "B's carrier rotational term lambda_max(I_L) instead of the exact a_c^T S a_c",
+        "models/inertia.py",
+        (("        alpha[0, 0] = a @ spin @ a  # exact\n", "        alpha[0, 0] = principal[-1]\n"),),
+        ("tests/test_inertia.py::test_entries_are_bounded_and_the_carrier_entries_attained",),
+    ),
+    Mutation(
+        "lower-bound-p-dropped",
+        "the lower bound's P dropped from lambda_max(mu^-1/2 Delta^T P Delta mu^-1/2)",
+        "models/inertia.py",
+        (("(delta.T @ (p[:, None] * delta))", "(delta.T @ delta)"),),
+        ("tests/test_inertia.py::test_m_minus_lower_bound_is_positive_semidefinite",),
+    ),
+    Mutation(
+        "fixed-joint-rotation-dropped",
+        "offsets composed through fixed joints without their rotations",
+        "models/inertia.py",
+        (("rotation, translation = r @ rotation, r @ translation + _vector", "rotation, translation = r @ rotation, translation + _vector"),),  # noqa: E501
+        ("tests/test_inertia.py::test_entries_are_bounded_and_the_carrier_entries_attained",),
+    ),
+    Mutation(
+        "synthesis-xi-block-diagonal",
+        "the target-speed SDP's joint block with diag(B) in place of B (the inertia coupling dropped)",
+        "analysis/synthesize.py",
+        (("    q_xi = cp.diag(k_xi) - s * np.eye(n) - kappa * (mass.upper / 2)\n",
+          "    q_xi = cp.diag(k_xi) - s * np.eye(n) - kappa * (np.diag(np.diag(mass.upper)) / 2)\n"),),
+        ("tests/test_envelope.py::test_target_speed_sdp_rate_is_the_envelope_rate",),
     ),
     # --- the loop as implemented ---------------------------------------------------------
     Mutation(
