@@ -29,9 +29,16 @@ from dvfc.analysis.certify import (
     GainPoint,
 )
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
-from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, run_tasks, runs_done
+from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, runs_done
 from dvfc.analysis.multirate import implemented_text
-from dvfc.analysis.output import atomic_write, interrupt_aware, interrupted, provenance, write_json
+from dvfc.analysis.output import (
+    atomic_write,
+    interrupt_aware,
+    interrupted,
+    provenance,
+    raise_if_interrupted,
+    write_json,
+)
 from dvfc.analysis.pose import initial_view
 from dvfc.analysis.results import (
     certificate_result,
@@ -51,6 +58,7 @@ from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
 from dvfc.analysis.simulate import summary
 from dvfc.analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
+from dvfc.analysis.tasks import run_tasks
 from dvfc.models.loop import Weights
 
 app = typer.Typer(
@@ -118,8 +126,7 @@ def resumable(command: str) -> Iterator[None]:
     with interrupt_aware():
         try:
             yield
-            if interrupted(None):  # received, but swallowed by native code on the way
-                raise KeyboardInterrupt
+            raise_if_interrupted()
         except BaseException as exc:
             if not interrupted(exc):
                 raise

@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +30,8 @@ import pyarrow.parquet as pq
 
 from dvfc.analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks, sound_k_e
 from dvfc.analysis.envelope import GridEnvelope, envelope_columns
-from dvfc.analysis.output import atomic_write, interrupted, json_text
+from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
+from dvfc.analysis.tasks import run_tasks
 from dvfc.models.lie import SE3, SO3
 from dvfc.models.planar import TASK, planar_output_matrix
 
@@ -281,10 +282,10 @@ def run_sweep(
         atomic_write(state_path, lambda h: h.write(json_text(data).encode()))
 
     save()
-    with BatchRunner(workers, scheduler) as submit:
-        for result in submit(spec, list(batches(state.done, spec.size, batch_size))):
-            if interrupted(None):  # Ctrl-C that native code swallowed: keep nothing of this batch
-                raise KeyboardInterrupt
+    ranges = list(batches(state.done, spec.size, batch_size))
+    with closing(run_tasks(certify_batch, ranges, workers, scheduler, shared=spec)) as results:
+        for result in results:
+            raise_if_interrupted()  # keep nothing of this batch
             table = batch_table(result, axes)
             atomic_write(part_path(directory, int(result["index"][0])),
                          lambda h, table=table: pq.write_table(table, h, compression="zstd"))  # fmt: skip
@@ -320,56 +321,6 @@ def _record(state: SweepState, result: dict[str, np.ndarray]) -> None:
     k = int(np.argmin(costs))
     if np.isfinite(costs[k]) and (state.cheapest is None or costs[k] < state.cheapest[0]):
         state.cheapest = (float(costs[k]), int(result["index"][k]))
-
-
-def _windowed(submit_one: Callable, spec: GridSpec, ranges: list[tuple[int, int]], window: int):
-    """Results of ``submit_one(spec, lo, hi)`` futures in order, at most ``window`` in flight."""
-    futures = []
-    for lo, hi in ranges:
-        futures.append(submit_one(spec, lo, hi))
-        if len(futures) >= window:
-            yield futures.pop(0).result()
-    for f in futures:
-        yield f.result()
-
-
-class BatchRunner:
-    """Context manager yielding ``submit(spec, ranges)``: an iterator of batch results
-    in order, computed in-process, by local processes or on a Dask cluster."""
-
-    def __init__(self, workers: int, scheduler: str | None) -> None:
-        self.workers, self.scheduler = workers, scheduler
-        self.closers: list[Callable[[], None]] = []
-
-    def __enter__(self):
-        if self.scheduler is not None:
-            from distributed import Client, LocalCluster
-
-            if self.scheduler == "local":
-                cluster = LocalCluster(n_workers=max(1, self.workers), threads_per_worker=1, processes=True)
-                self.closers.append(cluster.close)
-                client = Client(cluster)
-            else:
-                client = Client(self.scheduler)
-            self.closers.insert(0, client.close)
-            window = 2 * max(1, len(client.scheduler_info()["workers"]))
-
-            def submit(spec, ranges):
-                scattered = client.scatter(spec, broadcast=True)
-                one = lambda _, lo, hi: client.submit(certify_batch, scattered, lo, hi, pure=False)  # noqa: E731
-                return _windowed(one, spec, ranges, window)
-
-            return submit
-        if self.workers > 1:
-            pool = ProcessPoolExecutor(self.workers)
-            self.closers.append(lambda: pool.shutdown(cancel_futures=True))
-            one = lambda spec, lo, hi: pool.submit(certify_batch, spec, lo, hi)  # noqa: E731
-            return lambda spec, ranges: _windowed(one, spec, ranges, 2 * self.workers)
-        return lambda spec, ranges: (certify_batch(spec, lo, hi) for lo, hi in ranges)
-
-    def __exit__(self, *exc) -> None:
-        for close in self.closers:
-            close()
 
 
 @dataclass(frozen=True)

@@ -171,6 +171,18 @@ def run_from_rest(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[c
     return float(np.sqrt(traj.integrals["x_squared"][-1] / traj.integrals["w_squared"][-1])), traj
 
 
+def newton(step: cs.Function, q0: np.ndarray, iterations: int) -> tuple[np.ndarray, float]:
+    """Newton's method ``q += dq`` with ``step(q) = (dq, error)``, from ``q0``, until
+    ``|error| < 1e-13`` or ``iterations``: the joint angles and the final residual ``|error|``."""
+    q = np.array(q0, dtype=float)
+    for _ in range(iterations):
+        dq, err = (np.asarray(v).ravel() for v in step(q))
+        q = q + dq
+        if np.linalg.norm(err) < 1e-13:
+            break
+    return q, float(np.linalg.norm(np.asarray(step(q)[1])))
+
+
 def equilibrium_configuration(loop: ClosedLoop, q0: np.ndarray, iterations: int = 50) -> np.ndarray:
     """Joint angles with ``g_wc(q) = g_wo(0) g_d^-1`` (camera at the reference), by Newton's
     method on ``log(g_wc(q)^-1 g_target)`` with the body Jacobian, from ``q0``."""
@@ -178,13 +190,7 @@ def equilibrium_configuration(loop: ClosedLoop, q0: np.ndarray, iterations: int 
     r = loop.robot
     error = SE3.from_matrix(r.camera_pose.inverse().as_matrix() @ cs.DM(target)).log()
     step = cs.Function("step", [r.q], [cs.pinv(r.body_jacobian) @ error, error])
-    q = np.array(q0, dtype=float)
-    for _ in range(iterations):
-        dq, err = (np.asarray(v).ravel() for v in step(q))
-        q = q + dq
-        if np.linalg.norm(err) < 1e-13:
-            break
-    residual = np.linalg.norm(np.asarray(step(q)[1]))
+    q, residual = newton(step, q0, iterations)
     if residual > 1e-9:
         raise ValueError(f"no equilibrium configuration found from q0 (pose residual {residual:.2e})")
     return q
@@ -288,13 +294,8 @@ def linearize_planar(loop: PlanarLoop, q0: np.ndarray, iterations: int = 50) -> 
     o0, p_d = _planar_rest(loop)
     error = cs.DM(o0 - p_d) - model.camera_position
     step = cs.Function("step", [model.q], [cs.pinv(model.task_jacobian) @ error, error])
-    q = np.array(q0, dtype=float)
-    for _ in range(iterations):
-        dq, err = (np.asarray(v).ravel() for v in step(q))
-        q = q + dq
-        if np.linalg.norm(err) < 1e-13:
-            break
-    if np.linalg.norm(np.asarray(step(q)[1])) > 1e-9:
+    q, residual = newton(step, q0, iterations)
+    if residual > 1e-9:
         raise ValueError("no equilibrium configuration found from q0 (the target is out of reach)")
     z = cs.SX.sym("z", model.n_state)
     state = cs.DM(driven_at_rest(loop, w, q)[1]) + z

@@ -18,12 +18,9 @@ with the runs already made.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures import wait as futures_wait
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -31,7 +28,7 @@ import numpy as np
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.multirate import implemented_record, implemented_text
-from dvfc.analysis.output import interrupted, json_text
+from dvfc.analysis.output import append_log, raise_if_interrupted, read_log
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
@@ -206,21 +203,14 @@ def search(case: Case, name: str, bound: TrackingBound, log: str | None = None) 
     new ones appended. Returns the margin record."""
     settings = case.settings
     p = PARAMETERS[name]
-    done: dict[float, dict] = {}
-    if log is not None and Path(log).exists():
-        for line in Path(log).read_text().splitlines():
-            if line.strip():
-                record = json.loads(line)
-                done[record["value"]] = record
+    done = {} if log is None else {record["value"]: record for record in read_log(Path(log))}
 
     def run(value: float) -> bool:
         if value not in done:
             done[value] = trial(case, name, value, bound)
-            if interrupted(None):  # Ctrl-C swallowed by native code: the run may be cut short, not logged
-                raise KeyboardInterrupt
+            raise_if_interrupted()  # the run may be cut short: not logged
             if log is not None:
-                with open(log, "a") as handle:
-                    handle.write(json_text(done[value], indent=None))
+                append_log(Path(log), done[value])
         return done[value]["holds"]
 
     start = base_value(name, settings)
@@ -261,43 +251,6 @@ def applicable(name: str, settings: Settings, loop: ClosedLoop) -> str | None:
     if name == "pixel_noise" and loop.mode != "image":
         return "pixel noise needs e_e = \"image\""
     return None
-
-
-def run_tasks(
-    function: Callable, arguments: list[tuple], workers: int, scheduler: str | None, poll: Callable[[], None]
-) -> list:
-    """``function(*a)`` for each ``a`` of ``arguments``, in-process (``workers = 1``), in
-    local processes or on a Dask cluster (``scheduler``: an address, or ``"local"``), calling
-    ``poll()`` about twice a second while they run; results in order."""
-    if scheduler is None and workers <= 1:
-        results = []
-        for a in arguments:
-            results.append(function(*a))
-            poll()
-        return results
-    if scheduler is not None:
-        from distributed import Client, LocalCluster, wait
-
-        cluster = LocalCluster(n_workers=max(1, workers), threads_per_worker=1) if scheduler == "local" else None
-        client = Client(cluster if cluster is not None else scheduler)
-        try:
-            futures = [client.submit(function, *a, pure=False) for a in arguments]
-            while wait(futures, timeout=0.5, return_when="ALL_COMPLETED").not_done:
-                poll()
-            return [f.result() for f in futures]
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    with ProcessPoolExecutor(workers) as pool:
-        futures = [pool.submit(function, *a) for a in arguments]
-        try:
-            while futures_wait(futures, timeout=0.5).not_done:
-                poll()
-        except BaseException:
-            pool.shutdown(cancel_futures=True)
-            raise
-        return [f.result() for f in futures]
 
 
 def linear_margin_text(result: dict) -> str:

@@ -114,6 +114,34 @@ def interrupt_aware() -> Iterator[None]:
         _SIGINT.clear()
 
 
+def read_log(path: Path) -> list[dict]:
+    """The entries of a JSON-lines log of finished runs (none when it does not exist); a last
+    line cut short by an interruption is ignored."""
+    if not path.exists():
+        return []
+    entries = []
+    for line in path.read_text().splitlines():
+        try:
+            entries.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return entries
+
+
+def append_log(path: Path, entry: dict) -> None:
+    """Append one finished run to a JSON-lines log (strict JSON, one line)."""
+    with open(path, "a") as handle:
+        handle.write(json_text(entry, indent=None))
+
+
+def raise_if_interrupted() -> None:
+    """Raise ``KeyboardInterrupt`` when Ctrl-C was received within :func:`interrupt_aware` but
+    swallowed by native code on the way (CVODES inside CasADi reports a failed right-hand
+    side): the work just finished may be cut short, and is not to be kept."""
+    if _SIGINT.is_set():
+        raise KeyboardInterrupt
+
+
 def interrupted(exc: BaseException | None) -> bool:
     """Whether ``exc`` is Ctrl-C or an error it caused: Ctrl-C was received within
     :func:`interrupt_aware`, or ``exc`` is (caused by) ``KeyboardInterrupt`` or Clarabel's

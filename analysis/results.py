@@ -33,7 +33,7 @@ from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, 
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.linearize import linearize, worst_case_disturbance
 from dvfc.analysis.multirate import implemented_record
-from dvfc.analysis.output import json_text
+from dvfc.analysis.output import append_log, read_log
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Settings, Trajectory
@@ -62,23 +62,15 @@ def logged_runs(run: Callable[[GainPoint], dict], log: Path, *, resume: bool) ->
     and the run's record) as it finishes; with ``resume`` the runs already in ``log`` are reused
     for the same design (a line cut short by an interruption is ignored), otherwise ``log``
     starts empty."""
-    done: dict[str, dict] = {}
-    if resume and log.exists():
-        for line in log.read_text().splitlines():
-            try:
-                entry = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            done[entry["design"]] = entry["run"]
-    else:
+    if not resume:
         log.unlink(missing_ok=True)
+    done = {entry["design"]: entry["run"] for entry in read_log(log)}
 
     def logged(point: GainPoint) -> dict:
         design = json.dumps([point.k_xi.tolist(), point.k_c.tolist(), point.k_e.tolist(), asdict(point.weights)])
         if design not in done:
             done[design] = run(point)
-            with open(log, "a") as handle:
-                handle.write(json_text({"design": design, "run": done[design]}, indent=None))
+            append_log(log, {"design": design, "run": done[design]})
         return done[design]
 
     return logged

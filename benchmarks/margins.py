@@ -23,10 +23,11 @@ from pathlib import Path
 from timing import best_of, seconds
 
 from dvfc.analysis.case import Case
-from dvfc.analysis.margins import margins, run_tasks, with_value
+from dvfc.analysis.margins import margins, with_value
 from dvfc.analysis.multirate import linear_margins, multirate_loop, spectral_radius
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.tasks import run_tasks
 
 
 def main() -> None:
@@ -63,7 +64,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as directory:
         start = time.perf_counter()
         result = margins(Case.load(DEFAULT_SCENARIO), Path(directory),
-                         map_tasks=lambda f, a: run_tasks(f, a, workers, None, lambda: None))  # fmt: skip
+                         map_tasks=lambda f, a: run_tasks(f, a, workers))  # fmt: skip
         t_margins = time.perf_counter() - start
     runs = sum(m.get("runs", 0) for m in result["margins"].values())
     print(f"default scenario, {settings.duration:g} s runs, {os.cpu_count()} cores, {workers} workers")

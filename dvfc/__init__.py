@@ -88,11 +88,11 @@ def margins(case: Case, directory: str | Path, *, workers: int = 1, resume: bool
     """The measured margins of the case's loop as implemented (each parameter by bisection on the
     nonlinear sampled loop, runs logged in ``directory``); the JSON of ``dvfc margins``."""
     from dvfc.analysis.margins import margins as measure
-    from dvfc.analysis.margins import run_tasks
+    from dvfc.analysis.tasks import run_tasks
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    result = measure(case, directory, map_tasks=lambda f, a: run_tasks(f, a, workers, None, lambda: None),
+    result = measure(case, directory, map_tasks=lambda f, a: run_tasks(f, a, workers),
                      resume=resume)  # fmt: skip
     return {**result, "provenance": case.provenance(["dvfc.margins"])}
 

@@ -22,8 +22,8 @@ from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
-from dvfc.analysis.margins import MarginError, linear_margin_text, margins, run_tasks
-from dvfc.analysis.output import atomic_write, interrupted
+from dvfc.analysis.margins import MarginError, linear_margin_text, margins
+from dvfc.analysis.output import atomic_write, raise_if_interrupted
 from dvfc.analysis.pose import xyz_rpy
 from dvfc.analysis.results import (
     certificate_result,
@@ -35,6 +35,7 @@ from dvfc.analysis.results import (
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Simulator, Trajectory, identity_residuals, summary
+from dvfc.analysis.tasks import run_tasks
 from dvfc.models.loop import ClosedLoop
 from dvfc.reports import figures
 
@@ -86,8 +87,7 @@ class StageCache:
             if stored["key"] == self.key:
                 return stored["value"]
         value = compute()
-        if interrupted(None):  # Ctrl-C that native code swallowed: the stage may be incomplete
-            raise KeyboardInterrupt
+        raise_if_interrupted()  # the stage may be incomplete: not kept
         if path is not None:
             path.parent.mkdir(exist_ok=True)
             payload = pickle.dumps({"key": self.key, "value": value})
@@ -115,7 +115,7 @@ def measure_margins(case: Case, cache: StageCache, envelope: dict, own_run: Traj
     scratch = cache.scratch("margins")
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            return margins(case, scratch or Path(tmp), map_tasks=lambda f, a: run_tasks(f, a, 1, None, lambda: None),
+            return margins(case, scratch or Path(tmp), map_tasks=run_tasks,
                            resume=scratch is not None, envelope=envelope, own_run=own_run)  # fmt: skip
         except MarginError as exc:
             return {"reason": str(exc)}
