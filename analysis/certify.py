@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from enum import IntEnum
 from functools import cache
 
 import casadi as cs
@@ -154,11 +155,25 @@ def nkn(n: np.ndarray, k: np.ndarray) -> np.ndarray:
     return n.transpose(0, 2, 1) @ (k[:, :, None] * n)
 
 
+class Reason(IntEnum):
+    """Why a point is not certified: the codes of a grid's ``reason`` column (0: certified)."""
+
+    CERTIFIED = 0
+    K_XI = 1
+    E_C_BLOCK = 2
+    SCHUR = 3
+    RECHECK = 4
+    ABOVE_BOUND = 5
+
+
 REASONS = {
-    1: "k_xi <= 1/2: the xi block of P needs k_xi > 1/2",
-    2: "the e_c block of N^T K N - I/2 is not positive definite (raise k_c or the weights W_c)",
-    3: "the Schur complement of the e_c block is not positive definite: no gamma satisfies Theorem 2",
+    Reason.K_XI: "k_xi <= 1/2: the xi block of P needs k_xi > 1/2",
+    Reason.E_C_BLOCK: "the e_c block of N^T K N - I/2 is not positive definite (raise k_c or the weights W_c)",
+    Reason.SCHUR: "the Schur complement of the e_c block is not positive definite: no gamma satisfies Theorem 2",
+    Reason.RECHECK: "a posteriori check failed",
+    Reason.ABOVE_BOUND: "gamma exceeds the required bound",
 }
+"""Each reason in words."""
 
 
 def gamma_of(s: np.ndarray) -> np.ndarray:
@@ -185,7 +200,7 @@ def p_min_eigenvalue(point: GainPoint, reference: SE3, r_ec: np.ndarray, gamma: 
 def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[float, int]:
     """Smallest gamma at one rotation by the closed form, and the reason code."""
     s, reason, _ = exact_s(
-        output_blocks(_weights_row(point)[None], reference, np.asarray(r_ec)[None]),
+        output_blocks(point.weights.as_array()[None], reference, np.asarray(r_ec)[None]),
         np.array([point.k_xi.min()]),
         point.k_c[None],
         point.k_e[None],
@@ -246,11 +261,6 @@ def sdp_gamma_of(a: np.ndarray, w: np.ndarray, solver_options: dict | None = Non
     if s.value <= 0:
         return None, f"sdp-{solver.lower()}", "the SDP optimum has s <= 0: no gamma satisfies Theorem 2"
     return float(1.0 / math.sqrt(2.0 * s.value)), f"sdp-{solver.lower()}", None
-
-
-def _weights_row(point: GainPoint) -> np.ndarray:
-    w = point.weights
-    return np.array([w.w_pc, w.w_rc, w.w_pe, w.w_re], dtype=float)
 
 
 @dataclass
@@ -366,7 +376,7 @@ def gammas_over_rotations(point: GainPoint, reference: SE3, rotations: np.ndarra
     """Smallest gamma of ``point`` at each rotation ``R_ec`` of a batch (B, 3, 3)."""
     b = len(rotations)
     s, _, _ = exact_s(
-        output_blocks(np.tile(_weights_row(point), (b, 1)), reference, rotations),
+        output_blocks(np.tile(point.weights.as_array(), (b, 1)), reference, rotations),
         np.full(b, point.k_xi.min()),
         np.tile(point.k_c, (b, 1)),
         np.tile(point.k_e, (b, 1)),

@@ -232,7 +232,7 @@ def design_of(point: GainPoint, reference: SE3 | None, mass: MassBounds) -> Desi
         sound = point.with_k_e(sound_k_e(point.k_e))
         a, wmat = theorem2_matrices(sound, reference, np.eye(3))
         nkn, wdiag = a + 0.5 * np.eye(len(a)), np.diag(wmat).copy()
-        weights, rotational = (w.w_pc, w.w_rc, w.w_pe, w.w_re), True
+        weights, rotational = tuple(w.as_array()), True
     return Design(nkn[n:, n:], wdiag[n:], np.asarray(point.k_xi, dtype=float), mass, weights, rotational, sound,
                   reference, (nkn, wdiag))  # fmt: skip
 

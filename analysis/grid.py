@@ -28,7 +28,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from dvfc.analysis.certify import INFLATION, REASONS, GainPoint, exact_s, gamma_of, output_blocks, sound_k_e
+from dvfc.analysis.certify import INFLATION, GainPoint, Reason, exact_s, gamma_of, output_blocks, sound_k_e
 from dvfc.analysis.envelope import GridEnvelope, envelope_columns
 from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
 from dvfc.analysis.tasks import run_tasks
@@ -88,7 +88,7 @@ class GridSpec:
             if unused:
                 raise ValueError(f"grid.{unused[0]}: the planar loop has no rotational gains or weights to sweep")
         return GridSpec(
-            point.k_xi, point.k_c, point.k_e, np.array([w.w_pc, w.w_rc, w.w_pe, w.w_re], dtype=float),
+            point.k_xi, point.k_c, point.k_e, w.as_array(),
             np.asarray(cs.DM(reference.translation)).ravel(), np.asarray(cs.DM(reference.rotation.matrix)),
             tuple(axes), gamma_bound, envelope,
         )  # fmt: skip
@@ -128,7 +128,8 @@ class GridSpec:
 
 def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray]:
     """Certify points ``start .. stop - 1``: gamma, margin, certified flag, reason code
-    (0 fine, 1-3 as :data:`dvfc.analysis.certify.REASONS`, 4 failed re-check, 5 above the bound)."""
+    (:class:`~dvfc.analysis.certify.Reason`: 0 certified, 1-3 the certifier's, 4 failed re-check, 5 above
+    the bound)."""
     d = spec.designs(start, stop)
     b = stop - start
     weights, which = np.unique(d["w"], axis=0, return_inverse=True)  # N depends on the weights only
@@ -150,9 +151,9 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     p = a - s_check[:, None, None] * (w_ce[:, :, None] * np.eye(2 * t))
     margin = np.minimum(np.linalg.eigvalsh((p + p.transpose(0, 2, 1)) / 2)[:, 0], k_xi_min - 0.5 - s_check)
     margin = np.where(finite, margin, np.nan)
-    reason = np.where((reason == 0) & (margin < 0), 4, reason)
+    reason = np.where((reason == Reason.CERTIFIED) & (margin < 0), Reason.RECHECK, reason)
     if spec.gamma_bound is not None:
-        reason = np.where((reason == 0) & (gamma > spec.gamma_bound), 5, reason)
+        reason = np.where((reason == Reason.CERTIFIED) & (gamma > spec.gamma_bound), Reason.ABOVE_BOUND, reason)
     certified = reason == 0
     extra = {}
     if spec.envelope is not None:
@@ -170,7 +171,6 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     }
 
 
-REASON_TEXT = {**REASONS, 4: "a posteriori check failed", 5: "gamma exceeds the required bound"}
 
 
 def batches(start: int, total: int, size: int) -> Iterator[tuple[int, int]]:
@@ -190,7 +190,7 @@ measured size is in docs/measured.md (``benchmarks/certify.py``), at most this."
 
 def batch_table(result: dict[str, np.ndarray], axes: list[str]) -> pa.Table:
     """A batch as a table: ``index``, the axis values, ``certified``, ``gamma`` and ``margin``
-    (null where no gamma exists) and ``reason`` (code, see :data:`REASON_TEXT`)."""
+    (null where no gamma exists) and ``reason`` (code, see :class:`~dvfc.analysis.certify.Reason`)."""
     nan = lambda v: pa.array(v, mask=np.isnan(v))  # noqa: E731
     return pa.table({
         "index": pa.array(result["index"], pa.uint64()),
@@ -397,7 +397,6 @@ def axis_value(point: GainPoint, name: str) -> float:
     """The design's value on a sweepable axis (the mean of the entries it sets)."""
     target, where = AXES[name]
     if target == "w":
-        w = point.weights
-        return float((w.w_pc, w.w_rc, w.w_pe, w.w_re)[where])
+        return float(point.weights.as_array()[where])
     values = getattr(point, target)
     return float(np.mean(values if where is None else values[where]))

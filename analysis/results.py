@@ -139,7 +139,7 @@ def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | 
     extra = {} if tight is None else {"gamma_tight": tight.gamma, "alpha": tight.alpha, "tight_reason": tight.reason}
     return {
         "gains": {"k_xi": point.k_xi.tolist(), "k_c": point.k_c.tolist(), "k_e": point.k_e.tolist()},
-        "weights": {"w_pc": w.w_pc, "w_rc": w.w_rc, "w_pe": w.w_pe, "w_re": w.w_re},
+        "weights": {k: float(v) for k, v in asdict(w).items()},
         "certified": cert.certified,
         "gamma": cert.gamma,
         "method": cert.method,

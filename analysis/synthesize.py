@@ -31,7 +31,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import cvxpy as cp
 import numpy as np
@@ -83,7 +83,7 @@ class Synthesis:
 
 def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target: float | None):
     """Solve the fact-6 SDP for fixed weights; returns ``(k_xi, k_c, k_e)`` or None."""
-    w = np.array([[weights.w_pc, weights.w_rc, weights.w_pe, weights.w_re]], dtype=float)
+    w = weights.as_array()[None]
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
     k_ep, k_er = cp.Variable(), cp.Variable()
@@ -131,7 +131,7 @@ def synthesize(
     candidates = [weights]
     if search_weights:
         scales = (0.25, 0.5, 1.0, 2.0, 4.0)
-        base = np.array([weights.w_pc, weights.w_rc, weights.w_pe, weights.w_re], dtype=float)
+        base = weights.as_array()
         candidates = [Weights(*(base * np.array(c))) for c in itertools.product(scales, repeat=4)]
     best: Synthesis = Synthesis(None, None, "infeasible: no gains within the bounds certify", len(candidates))
     for w in candidates:
@@ -159,7 +159,7 @@ def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, mas
     decoupled ``xi`` block: equivalent, for ``k_xi > s``, to ``kappa <= 2 / rho(diag(k_xi - s)^-1 B)``,
     the rate of (10.4), docs/math.md, fact 10, since ``rho`` is ``lambda_max`` of the symmetric
     ``(K_xi - s)^-1/2 B (K_xi - s)^-1/2``) and the gain bounds. Returns ``(problem, s, kappa, gains)``."""
-    w = np.array([[weights.w_pc, weights.w_rc, weights.w_pe, weights.w_re]], dtype=float)
+    w = weights.as_array()[None]
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
     k_ep, k_er = cp.Variable(), cp.Variable()
@@ -280,8 +280,7 @@ def scenario_text(original: str, point: GainPoint, *, name: str, weights: bool, 
     for key, values in (("k_xi", point.k_xi), ("k_c", point.k_c), ("k_e", point.k_e)):
         gains[key] = [float(v) for v in values]
     if weights:
-        w = point.weights
-        for key, value in (("w_pc", w.w_pc), ("w_rc", w.w_rc), ("w_pe", w.w_pe), ("w_re", w.w_re)):
+        for key, value in asdict(point.weights).items():
             doc["weights"][key] = float(value)
     if "grid" in doc:
         del doc["grid"]

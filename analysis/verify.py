@@ -438,7 +438,7 @@ def _ultimate_errors(loop: ClosedLoop, traj: Trajectory, env: dict, bound: np.nd
         measured["theta_ec_deg"] = np.degrees(th_c[tail].max())
         measured["theta_ee_deg"] = np.degrees(th_e[tail].max())
     w = loop.weights
-    at_level = level_bounds((w.w_pc, w.w_rc, w.w_pe, w.w_re), env["m_lo"], "theta_ec_deg" in measured, level)
+    at_level = level_bounds(tuple(w.as_array()), env["m_lo"], "theta_ec_deg" in measured, level)
     claims = []
     for name, value in measured.items():
         ultimate = env["bounds"][name]

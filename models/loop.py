@@ -61,6 +61,10 @@ class Weights:
         """``W_e``."""
         return cs.diag(cs.vertcat(*[self.w_pe] * 3, *[self.w_re] * 3))
 
+    def as_array(self) -> np.ndarray:
+        """``[w_pc, w_rc, w_pe, w_re]`` (numeric weights), the order of every batched certificate."""
+        return np.array([self.w_pc, self.w_rc, self.w_pe, self.w_re], dtype=float)
+
 
 @dataclass(frozen=True)
 class Gains:
