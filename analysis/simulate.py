@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import StrEnum
 from functools import cached_property
 
 import casadi as cs
@@ -78,6 +79,19 @@ CONDITION_MAX = 1e6
 inverts exceeds this."""
 
 
+class RunStatus(StrEnum):
+    """How a run ended: ``ok`` (it reached its horizon) or why it stopped."""
+
+    OK = "ok"
+    DIVERGED = "diverged"
+    SINGULAR = "singular"
+    TIME_BUDGET = "time_budget"
+    BEHIND_CAMERA = "behind_camera"
+    OUT_OF_VIEW = "out_of_view"
+    VELOCITY_LIMIT = "velocity_limit"
+    INTEGRATOR_FAILURE = "integrator_failure"
+
+
 @dataclass
 class Trajectory:
     """Signals on the time grid (first axis: time) and the accumulated integrals."""
@@ -85,7 +99,7 @@ class Trajectory:
     t: np.ndarray
     signals: dict[str, np.ndarray]
     integrals: dict[str, np.ndarray]
-    status: str = "ok"
+    status: RunStatus = RunStatus.OK
     message: str = ""
     wall_time: float = 0.0
     stats: dict[str, float] = field(default_factory=dict)
@@ -95,6 +109,9 @@ class Trajectory:
     stopped_at: float | None = None
     """Where a run that did not complete stopped (s), when that is after its last output sample;
     None: at its last output sample."""
+
+    def __post_init__(self) -> None:
+        self.status = RunStatus(self.status)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]

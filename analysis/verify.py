@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from enum import StrEnum
 
 import casadi as cs
 import numpy as np
@@ -30,6 +31,15 @@ from dvfc.models.planar import PlanarLoop
 from dvfc.models.target import TargetMotion
 
 IDENTITY_TOL = 1e-6
+
+
+class ClaimStatus(StrEnum):
+    """The verdict on a claim (see :class:`Claim`)."""
+
+    PASS = "PASS"
+    FAIL = "FAIL"
+    MEASURED = "MEASURED"
+    INCONCLUSIVE = "INCONCLUSIVE"
 
 
 @dataclass
@@ -60,10 +70,10 @@ class Claim:
             raise ValueError(f"an inconclusive check needs its reason: {self.name}")
 
     @property
-    def status(self) -> str:
+    def status(self) -> ClaimStatus:
         if self.inconclusive:
-            return "INCONCLUSIVE"
-        return {True: "PASS", False: "FAIL", None: "MEASURED"}[self.passed]
+            return ClaimStatus.INCONCLUSIVE
+        return {True: ClaimStatus.PASS, False: ClaimStatus.FAIL, None: ClaimStatus.MEASURED}[self.passed]
 
     def as_dict(self) -> dict:
         return {
