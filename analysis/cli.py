@@ -47,16 +47,16 @@ from dvfc.analysis.results import (
     envelope_record,
     grid_envelope_for,
     grid_result,
-    implementation_record,
     limit_search_record,
     logged_runs,
     point_record,
+    simulation_result,
     speed_theta_bar,
+    trajectory_arrays,
     verification_result,
 )
-from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
-from dvfc.analysis.simulate import summary
 from dvfc.analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
 from dvfc.analysis.tasks import run_tasks
 from dvfc.models.loop import Weights
@@ -206,20 +206,10 @@ def simulate(
 
         trajectory = simulator.run(s0, progress=advance)
 
-    result = {
-        "scenario": spec.name,
-        "mode": loop.mode,
-        "implementation": implementation_record(settings),
-        "summary": summary(trajectory),
-        "limits": limit_record(trajectory, robot_limits(loop, settings)),
-        "outputs": {"trajectory": str(directory / "trajectory.npz"), "summary": str(directory / "summary.json")},
-        "provenance": command_provenance(scenario),
-    }
-    urdf = robot_limits(loop, settings)
-    limits = {"effort_limit": urdf.effort, "velocity_limit": urdf.velocity}
-    integrals = {f"int_{k}": v for k, v in trajectory.integrals.items()}
-    arrays = {"t": trajectory.t, **trajectory.signals, **integrals, **limits}
-    atomic_write(directory / "trajectory.npz", lambda h: np.savez_compressed(h, **arrays))
+    outputs = {"trajectory": directory / "trajectory.npz", "summary": directory / "summary.json"}
+    result = simulation_result(case, trajectory, outputs, command_provenance(scenario))
+    arrays = trajectory_arrays(case, trajectory)
+    atomic_write(outputs["trajectory"], lambda h: np.savez_compressed(h, **arrays))
     emit(result, directory / "summary.json", json_target, show)
     if trajectory.status != "ok":
         err.print(f"run stopped: {trajectory.message}", markup=False, soft_wrap=True)

@@ -36,7 +36,7 @@ from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.output import append_log, read_log
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
-from dvfc.analysis.simulate import Settings, Trajectory
+from dvfc.analysis.simulate import Settings, Trajectory, summary
 from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, scaled
 from dvfc.analysis.verify import Claim, verify
 from dvfc.models.loop import ClosedLoop, Gains, Weights
@@ -119,6 +119,30 @@ def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
         "statement": found,
         "trials": [trial(t) for t in search.trials],
     }
+
+
+def simulation_result(case: Case, trajectory: Trajectory, outputs: dict[str, Path], provenance: dict) -> dict:
+    """The JSON result of a run of the case (``dvfc simulate``): its summary, how the loop was
+    implemented, per joint its peaks against the URDF's limits, the files written."""
+    loop, settings = case.loop, case.settings
+    return {
+        "scenario": case.name,
+        "mode": loop.mode,
+        "implementation": implementation_record(settings),
+        "summary": summary(trajectory),
+        "limits": limit_record(trajectory, robot_limits(loop, settings)),
+        "outputs": {name: str(path) for name, path in outputs.items()},
+        "provenance": provenance,
+    }
+
+
+def trajectory_arrays(case: Case, trajectory: Trajectory) -> dict[str, np.ndarray]:
+    """What ``trajectory.npz`` holds: the time grid, every signal, the running integrals
+    (``int_<name>``) and the joints' effort and velocity limits."""
+    urdf = robot_limits(case.loop, case.settings)
+    integrals = {f"int_{k}": v for k, v in trajectory.integrals.items()}
+    limits = {"effort_limit": urdf.effort, "velocity_limit": urdf.velocity}
+    return {"t": trajectory.t, **trajectory.signals, **integrals, **limits}
 
 
 def implementation_record(settings: Settings) -> dict:
