@@ -11,7 +11,7 @@ import numpy as np
 from dvfc.models.robot import JointLimits
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Implementation:
     """The digital controller.
 

@@ -195,12 +195,12 @@ def build(
             _check_reference_view(loop.camera, loop.reference)
     sim = scenario.simulation
     settings = Settings(
-        sim.duration,
-        sim.dt,
-        sim.rtol,
-        sim.atol,
-        sim.jit,
-        sim.time_budget,
+        duration=sim.duration,
+        dt=sim.dt,
+        rtol=sim.rtol,
+        atol=sim.atol,
+        jit=sim.jit,
+        time_budget=sim.time_budget,
         sigma_min=sim.sigma_min,
         implementation=_implementation(scenario, loop.mode),
         plant=_plant(scenario.plant, robot),

@@ -249,17 +249,17 @@ class ImplementationSection(_Strict):
 
     def implementation(self) -> Implementation:
         return Implementation(
-            self.control_rate,
-            self.camera_rate or self.control_rate,
-            self.latency,
-            self.pixel_noise,
-            self.quantization,
-            self.saturate,
-            self.torque_scale,
-            self.velocity_limits,
-            self.seed,
-            self.integrator,
-            self.substeps,
+            control_rate=self.control_rate,
+            camera_rate=self.camera_rate or self.control_rate,
+            latency=self.latency,
+            pixel_noise=self.pixel_noise,
+            quantization=self.quantization,
+            saturate=self.saturate,
+            torque_scale=self.torque_scale,
+            velocity_limits=self.velocity_limits,
+            seed=self.seed,
+            integrator=self.integrator,
+            substeps=self.substeps,
         )
 
 

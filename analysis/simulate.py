@@ -25,7 +25,7 @@ from dvfc.models.loop import QUADRATURES, ClosedLoop
 from dvfc.models.robot import Robot
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Settings:
     """Integration settings.
 

@@ -110,7 +110,7 @@ def test_saturation_far_above_the_peak_changes_nothing(default):
 def test_sampled_simulator_needs_the_sampled_loop(default):
     loop, _, settings = default
     with pytest.raises(ValueError, match="sampled=True"):
-        SampledSimulator(loop, replace(settings, implementation=Implementation(500.0, 60.0)))
+        SampledSimulator(loop, replace(settings, implementation=Implementation(control_rate=500.0, camera_rate=60.0)))
 
 
 @pytest.fixture(scope="module")
@@ -252,7 +252,7 @@ def test_captures_are_the_first_samples_at_or_after_each_camera_tick():
         for camera in (7, 24, 25, 30, 50, 60, 90, 100, 200):
             if camera > control:
                 continue
-            imp = Implementation(float(control), float(camera))
+            imp = Implementation(control_rate=float(control), camera_rate=float(camera))
             for steps in range(1, 601):
                 ticks = range(math.floor(Fraction(steps * camera, control)) + 1)
                 exact = sorted({math.ceil(Fraction(j * control, camera)) for j in ticks})
