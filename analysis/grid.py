@@ -1,10 +1,10 @@
 """Gain-grid sweeps of the Theorem 2 certificate: batched, stored as Parquet, resumable.
 
 The cartesian product of the ``[grid]`` axes is enumerated by a flat index; batches of
-consecutive indices are certified with the exact closed form (MATH fact 3) and an
+consecutive indices are certified with the exact closed form (docs/math.md, fact 3) and an
 a posteriori eigenvalue check of the ``(e_c, e_e)`` block of ``P`` (the ``xi`` block is
 diagonal and checked directly). Anisotropic ``K_e`` uses the blockwise-minimum bound
-(MATH fact 5), sound for every ``R_ec``; grids do not run the worst-rotation search.
+(docs/math.md, fact 5), sound for every ``R_ec``; grids do not run the worst-rotation search.
 
 Each batch is written as one Parquet file (zstd) in ``points/``, atomically (temporary
 file, then rename): the folder is one dataset for pyarrow, pandas, polars and Dask. After

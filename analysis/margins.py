@@ -7,7 +7,7 @@ value and the end of a stated range, and each run is judged by :func:`judge`: th
 image), the joints stay within their position and velocity limits and, when ``saturate``
 is off, the torques within the effort limits, and the
 tracking error over the last half of the run stays within the operating envelope's
-certified ultimate bound (MATH fact 7; twice the continuous loop's error where the design
+certified ultimate bound (docs/math.md, fact 7; twice the continuous loop's error where the design
 has no certified envelope) (:data:`CRITERION`). These are measurements on simulated runs,
 not certificates.
 
@@ -147,7 +147,7 @@ def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: Trackin
 
 
 def envelope_bound(case: Case, envelope: dict | None = None) -> TrackingBound | None:
-    """The tracking bound the operating envelope certifies for the scenario's design (MATH
+    """The tracking bound the operating envelope certifies for the scenario's design (docs/math.md,
     fact 7, :func:`dvfc.analysis.results.envelope_record`): ``g_d^-1 g = g_ec g_ee`` (from (15),
     (24)), so its position is at most ``|p_ec| + |p_ee|`` and its angle at most
     ``theta_ec + theta_ee`` (the triangle inequality on SO(3)), each at the certified
@@ -159,7 +159,7 @@ def envelope_bound(case: Case, envelope: dict | None = None) -> TrackingBound | 
         return None
     position, angle = b["p_ec"] + b["p_ee"], min(180.0, b["theta_ec_deg"] + b["theta_ee_deg"])
     text = (
-        f"the operating envelope's certified ultimate bound (MATH fact 7: the ideal continuous loop under its "
+        f"the operating envelope's certified ultimate bound (docs/math.md, fact 7: the ideal continuous loop under its "
         f"disturbance bounds, wbar = {env['wbar']:.4g}): position <= |p_ec| + |p_ee| = {b['p_ec']:.4g} + "
         f"{b['p_ee']:.4g} = {position:.4g} m and angle <= theta_ec + theta_ee = {b['theta_ec_deg']:.4g} + "
         f"{b['theta_ee_deg']:.4g} = {angle:.4g} deg (g_d^-1 g = g_ec g_ee, triangle inequality; the envelope's "

@@ -197,7 +197,7 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
 
 
 def envelope_record(case: Case, *, search: bool = True) -> dict:
-    """The operating envelope of the case's design (MATH facts 7-9), with what it assumes."""
+    """The operating envelope of the case's design (docs/math.md, facts 7-9), with what it assumes."""
     loop, point, planar = case.loop, case.point, case.planar
     if not planar and loop.robot.n < 6:
         return {"rate": None, "reason": NOT_APPLICABLE.format(n=loop.robot.n)}

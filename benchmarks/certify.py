@@ -5,8 +5,8 @@ the same grid end to end (:func:`dvfc.analysis.grid.run_sweep`: batches stored a
 atomically, with the resumable state) and its bytes a point on disk, the per-point
 Clarabel SDP on a sample of the same points, and raw batched ``numpy.linalg.eigvalsh`` of
 as many 12x12 matrices (the ceiling); then the time of one anisotropic sound certificate
-with its worst-rotation search; then the operating envelope of one design (MATH facts
-7-9, the rate of docs/math.md, fact 10) with and without the searches for the largest target
+with its worst-rotation search; then the operating envelope of one design (docs/math.md,
+facts 7-9, the rate of docs/math.md, fact 10) with and without the searches for the largest target
 speed and torque, against one exact gamma of the same design, and with the UR5's matrix inertia
 bound against the scalar one (``D_M = lambda_max(B) I``, the rate before fact 10). Prints
 points/s and ratios (goal for the grid: end to end >= 0.8 of in memory, <= 30 bytes a point;
