@@ -309,6 +309,70 @@ def verification_result(
     return result, claims
 
 
+def best_gamma(point: dict) -> tuple[float | None, str]:
+    """The best certified L2-gain bound of a certificate point and which certificate gives it:
+    the paper's ``P(gamma) >= 0`` (Theorem 2) or the scaled storage ``alpha V`` (fact 4)."""
+    paper, tight = point["gamma"] if point["certified"] else None, point.get("gamma_tight")
+    if tight is not None and (paper is None or tight < paper):
+        return tight, f"scaled storage alpha V (docs/math.md, fact 4, alpha = {point['alpha']:.4g})"
+    return paper, "the paper's P(gamma) >= 0 (Theorem 2)"
+
+
+def statements(certificate: dict, verification: dict, margins: dict | None = None) -> list[dict]:
+    """Every statement a review makes, each with the loop it is about and its own status:
+    ``CERTIFIED`` / ``NOT CERTIFIED`` (a certificate, re-checked), ``DOES NOT APPLY`` (its
+    assumptions fail here), ``PASS`` / ``FAIL`` / ``INCONCLUSIVE`` (checks on simulated runs),
+    ``MEASURED`` (a measurement, not a certificate)."""
+    point = certificate["points"][0]
+    gamma, which = best_gamma(point)
+    out = [{
+        "statement": "L2 gain (Theorem 2)", "loop": "ideal continuous loop, " + certificate["region"],
+        "status": "CERTIFIED" if gamma is not None else "NOT CERTIFIED",
+        "detail": f"gamma <= {gamma:.6g} by {which}" if gamma is not None else str(point["reason"]),
+    }]  # fmt: skip
+    env = point.get("envelope") or {}
+    if env.get("rate") is None:
+        out.append({"statement": "operating envelope (facts 7-10)", "loop": "ideal continuous loop",
+                    "status": "NOT CERTIFIED", "detail": str(env.get("reason", "not computed"))})  # fmt: skip
+    else:
+        speed, own = env.get("max_target_speed"), env["disturbance"]["target_speed"]
+        out += [
+            {"statement": "decay rate and ultimate bounds (facts 7, 10)", "loop": "ideal continuous loop",
+             "status": "CERTIFIED", "detail": f"rate {env['rate']:.4g} 1/s, ultimate V <= {env['ultimate_V']:.4g}"},
+            {"statement": "every feature in the image (fact 8)", "loop": "ideal continuous loop, ultimately",
+             "status": "CERTIFIED" if env["visible"] else "NOT CERTIFIED",
+             "detail": f"{env['image_margin_px']:.4g} px from the border" if env["visible"] else env["statement"]},
+            {"statement": "at the target's own speed", "loop": "ideal continuous loop",
+             "status": "CERTIFIED" if speed is not None and speed >= own else "NOT CERTIFIED",
+             "detail": f"largest certified target speed {'-' if speed is None else f'{speed:.4g}'} m/s against "
+                       f"{own:.4g} m/s"},
+            {"statement": "the start", "loop": "ideal continuous loop, from t = 0",
+             "status": "CERTIFIED" if env["start"]["inside"] else "NOT CERTIFIED",
+             "detail": f"V(0) = {env['start']['V0']:.4g} "
+                       + ("inside the certified set" if env["start"]["inside"] else
+                          "outside the certified set: the statements above hold only once the run enters it")},
+        ]  # fmt: skip
+    implemented = point.get("implemented")
+    if implemented is not None:
+        status = ("DOES NOT APPLY" if not implemented["applies"] else
+                  "CERTIFIED" if implemented["certified"] else "NOT CERTIFIED")  # fmt: skip
+        detail = (f"rho = {implemented['rho']:.6g} over {implemented['period'] * 1e3:.4g} ms, local rate "
+                  f"{implemented['rate']:.4g} 1/s" if implemented["certified"] else str(implemented["reason"]))
+        out.append({"statement": "local stability of the loop as implemented (fact 14)",
+                    "loop": "sampled multirate loop, linearised at rest: local", "status": status, "detail": detail})
+    if margins is not None and "margins" in margins:
+        held = [f"{name} {m['holds_at']:.4g} {m['unit']}" for name, m in margins["margins"].items()
+                if m.get("holds_at") is not None]  # fmt: skip
+        out.append({"statement": "margins of the loop as implemented", "loop": "sampled nonlinear loop, simulated",
+                    "status": "MEASURED", "detail": "holds at " + ", ".join(held)})
+    summary_ = verification["summary"]
+    status = "FAIL" if summary_["failed"] else "INCONCLUSIVE" if summary_["inconclusive"] else "PASS"
+    out.append({"statement": "the paper's claims and the limits, checked on runs", "loop": "simulated runs",
+                "status": status, "detail": f"{summary_['claims']} checked, {summary_['failed']} fail, "
+                                            f"{summary_['inconclusive']} inconclusive"})  # fmt: skip
+    return out
+
+
 def verdict(certificate: dict, verification: dict) -> dict:
     """The whole verdict of a review: the certificate AND every check behind it.
 
@@ -323,9 +387,9 @@ def verdict(certificate: dict, verification: dict) -> dict:
     if inconclusive:
         checks.append(f"{len(inconclusive)} check(s) INCONCLUSIVE")
     if point["certified"]:
-        headline = "CERTIFIED" + (", but " + " and ".join(checks) if checks else ", and every check passes")
+        headline = "L2 gain CERTIFIED" + (", but " + " and ".join(checks) if checks else ", and every check passes")
     else:
-        headline = "NOT CERTIFIED" + (" and " + " and ".join(checks) if checks else "")
+        headline = "L2 gain NOT CERTIFIED" + (" and " + " and ".join(checks) if checks else "")
     return {"passed": bool(point["certified"]) and not checks, "headline": headline, "failed": failed,
             "inconclusive": inconclusive}  # fmt: skip
 

@@ -26,9 +26,11 @@ from dvfc.analysis.margins import MarginError, linear_margin_text, margins
 from dvfc.analysis.output import atomic_write, raise_if_interrupted
 from dvfc.analysis.pose import xyz_rpy
 from dvfc.analysis.results import (
+    best_gamma,
     certificate_result,
     grid_envelope_for,
     implementation_record,
+    statements,
     verdict,
     verification_result,
 )
@@ -241,6 +243,8 @@ def render(data: ReportData) -> str:
         assumptions=data.certificate["assumptions"],
         verification=data.verification,
         verdict=verdict(data.certificate, data.verification),
+        statements=statements(data.certificate, data.verification, data.margins),
+        best_gamma=best_gamma(point),
         target_start=xyz_rpy(np.asarray(data.loop.target.start.as_matrix())),
         envelope=point.get("envelope"),
         envelope_claims=[c for c in data.verification["claims"] if c["paper"] in ("fact 7", "fact 8")],

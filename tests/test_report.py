@@ -172,7 +172,8 @@ def test_pdf_renders(report, tmp_path):
     for image in images:
         assert np.asarray(mpimg.imread(image))[..., :3].std() > 0.02, image.name
     text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
-    assert f"L2 gain ≤ {certified_gamma(html.read_text())}" in " ".join(text.split())
+    best = re.search(r'<span id="gamma-best">([^<]+)</span>', html.read_text()).group(1)
+    assert f"L2 gain ≤ {best}" in " ".join(text.split())
 
 
 def test_bad_scenario_writes_nothing(tmp_path):
@@ -272,3 +273,31 @@ def test_as_implemented_section_embeds_the_measured_margins(report):
     assert stored["linear_margins"]["certified"]
     assert f"latency <= {stored['linear_margins']['margins']['latency']['value'] * 1e3:.4g} ms" in linear
     assert "not measured" in linear
+
+
+def test_page_one_gives_every_statement_its_own_status(report):
+    """Page 1 lists every statement with the loop it is about and its own status (never one word
+    for all): the L2 gain, the envelope's rate, visibility, the target's own speed, the start,
+    the loop as implemented (fact 14), the measured margins, the checks; the default's start is
+    outside the certified set, so the banner is not green though the L2 gain is certified."""
+    html = report[0].read_text()
+    table = html[html.index('<table id="statements">') : html.index("</table>", html.index('<table id="statements">'))]
+    rows = [unescape(re.sub(r"<[^>]+>", "|", row)) for row in table.split("</tr>")[1:-1]]
+    status = {row.split("|")[2]: row for row in (r.replace("||", "|").strip("|\n ") for r in rows)}
+    names = [row.split("|")[0] for row in (r.replace("||", "|").strip("|\n ") for r in rows)]
+    assert names[0] == "L2 gain (Theorem 2)" and "the start" in names and len(names) >= 8
+    start = next(r for r in rows if "the start" in r)
+    assert "NOT CERTIFIED" in start and "outside the certified set" in start
+    assert 'class="verdict partial"' in html and "MEASURED" in table and status
+
+
+def test_banner_gives_the_best_certified_bound_and_its_certificate(report, tmp_path):
+    """The banner's bound is the smallest certified one, with the certificate that gives it: the
+    scaled storage's ``gamma_tight`` when below the paper's ``gamma`` (fact 4)."""
+    target = tmp_path / "c.json"
+    CliRunner().invoke(app, ["certify", str(DEFAULT_SCENARIO), "--no-lower-bounds", "--json", str(target)])
+    point = json.loads(target.read_text())["points"][0]
+    html = report[0].read_text()
+    best = re.search(r'<span id="gamma-best">([^<]+)</span> \(([^)]*)', html)
+    assert best.group(1) == f"{min(point['gamma'], point['gamma_tight']):.6g}"
+    assert ("scaled storage" in best.group(2)) == (point["gamma_tight"] < point["gamma"])
