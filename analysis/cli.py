@@ -51,6 +51,7 @@ from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
 from dvfc.analysis.simulate import summary
 from dvfc.analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
+from dvfc.analysis.windows import case_windows
 from dvfc.models.loop import Weights
 
 app = typer.Typer(
@@ -150,6 +151,14 @@ def warn_fewer_than_six(case: Case) -> None:
         err.print(f"warning: {why}", markup=False, soft_wrap=True)
 
 
+def warn_windows(case: Case) -> None:
+    """One warning line on standard error, before any run, when a gain ``k_xi,i`` lies outside
+    its window (:func:`dvfc.analysis.windows.case_windows`), naming the limit it breaks."""
+    windows = case_windows(case)
+    if windows is not None and (line := windows.warning()) is not None:
+        err.print(f"warning: {line}", markup=False, soft_wrap=True)
+
+
 def require_six(case: Case, command: str) -> None:
     """Refuse ``command`` (status 2, before any work) when it rests on Theorems 1-2 and they do
     not apply (:attr:`Case.theorems_do_not_apply`)."""
@@ -175,6 +184,7 @@ def simulate(
     spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     check_json_target(json_target)
     warn_fewer_than_six(case)
+    warn_windows(case)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
 
     with Progress(
@@ -227,7 +237,10 @@ def pose(scenario: ScenarioArg = DEFAULT_SCENARIO, json_target: JsonOpt = None) 
     case = load_case(scenario, check_view=False)
     check_json_target(json_target)
     warn_fewer_than_six(case)
-    result = {"scenario": case.name, **initial_view(case.loop, case.s0)}
+    warn_windows(case)
+    windows = case_windows(case)
+    result = {"scenario": case.name, **initial_view(case.loop, case.s0),
+              "gain_windows": None if windows is None else windows.as_dict()}  # fmt: skip
     emit(result, None, json_target, show_pose)
     if not all(f["in_view"] for f in result["features"]):
         raise typer.Exit(1)
@@ -248,6 +261,20 @@ def show_pose(result: dict) -> None:
     for f in result["features"]:
         table.add_row(str(f["point"]), f"{f['image'][0]:.1f}", f"{f['image'][1]:.1f}", f"{f['depth']:.4g}",
                       "yes" if f["in_view"] else "NO")  # fmt: skip
+    out.print(table)
+    if (windows := result["gain_windows"]) is not None:
+        show_windows(windows)
+
+
+def show_windows(windows: dict) -> None:
+    """The gain windows of ``pose``: per joint ``k_xi``, the window and whether it lies inside."""
+    table = Table(title="gain windows of k_xi (lower: " + windows["lower"] + "; upper: "
+                  + (windows["upper"] or "none, the ideal continuous loop has no hold") + ")")  # fmt: skip
+    for col in ("joint", "k_xi", "lower", "upper", "inside"):
+        table.add_column(Text(col))
+    for i, (k, (lo, hi), inside) in enumerate(zip(windows["k_xi"], windows["windows"], windows["inside"], strict=True)):
+        upper = "-" if hi is None else f"{hi:.4g}" + (" (alone)" if windows["upper_alone"][i] else "")
+        table.add_row(str(i + 1), f"{k:.4g}", f"{lo:.4g}", upper, "yes" if inside else "NO")
     out.print(table)
 
 
@@ -325,6 +352,7 @@ def certify_command(
     spec, loop, point = case.scenario, case.loop, case.point
     axes = spec.grid.axes() if spec.grid is not None else None
     check_json_target(json_target)
+    warn_windows(case)
     if axes is not None and spec.loop == "paper" and loop.robot.n < 6:
         err.print(f"NOT CERTIFIED: {NOT_APPLICABLE.format(n=loop.robot.n)}", markup=False, soft_wrap=True)
         raise typer.Exit(1)
@@ -661,6 +689,7 @@ def verify_command(
     case = load_case(scenario)
     check_json_target(json_target)
     warn_fewer_than_six(case)
+    warn_windows(case)
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("simulating and checking the claims"):
         result, claims = verification_result(case, command_provenance(scenario))
