@@ -130,10 +130,10 @@ class GainWindows:
         if not found:
             return None
         held = ""
-        if self.map_radius is not None:
-            verdict = "unstable" if self.map_radius >= 1 else "stable"
-            held = (f"; held torque at {self.control_rate:g} Hz: rho(I - h M(q0)^-1 K_xi) = {self.map_radius:.4g} "
-                    f"({verdict}, required <= {1 - self.margin:g})")  # fmt: skip
+        if self.held is not None:
+            verdict = "unstable" if self.held >= 2 else "stable"
+            held = (f"; held torque at {self.control_rate:g} Hz: most negative eigenvalue of I - h M(q0)^-1 K_xi "
+                    f"{1 - self.held:.4g} ({verdict}, required >= {self.margin - 1:g})")  # fmt: skip
         return f"gain outside its window: {'; '.join(found)}{held}"
 
     def as_dict(self) -> dict:
