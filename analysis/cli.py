@@ -35,7 +35,7 @@ from dvfc.analysis.output import atomic_write, interrupt_aware, interrupted, pro
 from dvfc.analysis.pose import initial_view
 from dvfc.analysis.results import (
     certificate_result,
-    design_limits,
+    design_recheck,
     design_runner,
     envelope_record,
     grid_envelope_for,
@@ -45,12 +45,13 @@ from dvfc.analysis.results import (
     logged_runs,
     point_record,
     speed_theta_bar,
+    synthesis_bounds,
     verification_result,
 )
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
 from dvfc.analysis.simulate import summary
-from dvfc.analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
+from dvfc.analysis.synthesize import designer, scenario_text, search_within_limits
 from dvfc.analysis.windows import case_windows
 from dvfc.models.loop import Weights
 
@@ -548,7 +549,10 @@ def synthesize_command(
     check_json_target(json_target)
     target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
     prepare_out_dir(target.parent)
-    bounds = Bounds(tuple(cfg.k_xi), tuple(cfg.k_c), tuple(cfg.k_e))
+    try:
+        bounds = synthesis_bounds(case)
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
     weights = Weights(**spec.weights.model_dump())
     speed = cfg.objective == "target_speed"
     theta = speed_theta_bar(case) if speed else None
@@ -581,7 +585,7 @@ def synthesize_command(
         "scenario": spec.name,
         "status": result.status,
         "objective": "maximise the certified target speed (facts 7-8)" if speed else objective,
-        "bounds": {"k_xi": cfg.k_xi, "k_c": cfg.k_c, "k_e": cfg.k_e},
+        "bounds": bounds.as_dict(),
         "weights_tried": result.weights_tried,
         "point": None if result.point is None else point_record(result.point, result.certificate),
         "region": None if result.certificate is None else result.certificate.region,
@@ -595,6 +599,17 @@ def synthesize_command(
     if search is not None:
         record["limit_search"] = limit_search_record(search, bounds)
     if result.point is not None:
+        if search is not None:  # the chosen design's run in the search
+            record["limits"] = search.chosen.run
+        else:
+            with err.status("simulating the design against the arm's limits"):
+                record["limits"] = design_runner(case)(result.point)
+        with err.status("re-checking the design on the loop as implemented (fact 14)"):
+            record["implemented"], refused = design_recheck(case, result.point, record["limits"])
+        if refused is not None:
+            record["status"] = f"refused, nothing written: {refused}"
+            emit(record, None, json_target, show_synthesis)
+            raise typer.Exit(1)
         urdf = str(loop.robot.urdf) if spec.robot.urdf is not None else None
         text = scenario_text(Path(scenario).read_text(), result.point, name=f"{spec.name}-synthesized",
                              weights=cfg.search_weights, urdf=urdf)  # fmt: skip
@@ -608,11 +623,6 @@ def synthesize_command(
             record["max_target_speed"] = env["max_target_speed"]
             if env["max_target_speed"] is None:
                 record["status"] = f"uncertified: no target speed certified for the written design ({env['reason']})"
-        if search is not None:  # the chosen design's run in the search
-            record["limits"] = search.chosen.run
-        else:
-            with err.status("simulating the design against the arm's limits"):
-                record["limits"] = design_limits(load_case(target))
         record["seconds"] = time.perf_counter() - start
     emit(record, None, json_target, show_synthesis)
     if result.point is None or (speed and record["max_target_speed"] is None):
