@@ -743,7 +743,7 @@ def show_synthesis(record: dict) -> None:
     out.print(
         f"gains: k_xi = {g['k_xi']}\n       k_c = {g['k_c']}\n       k_e = {g['k_e']}\n"
         f"weights: {p['weights']}\ncertified gamma = {p['gamma']:.6g} over {record['region']}\n"
-        f"scenario written: {record['scenario_file']}",
+        f"scenario written: {record['scenario_file'] or 'none, ' + record['status']}",
         markup=False,
     )
     if "max_target_speed" in record:

@@ -127,3 +127,32 @@ def test_the_implemented_storage_identity_holds_and_fails_when_the_torque_is_per
     assert implemented_storage(bad) > 1e-3 > IMPLEMENTED_TOL
     claim = next(c for c in implemented(wrong, case.s0, settings, bad) if c.reference == "docs/math.md, fact 11")
     assert claim.status == "FAIL"
+
+
+def test_a_synthesized_design_that_would_diverge_is_refused(tmp_path):
+    """On the light wrist at 500 Hz, ``[synthesize] k_xi = [1, 100]`` for every joint gives a
+    design certified for the ideal loop whose held torque diverges (its run's peak torque is
+    ~1e254 x the limit): it is refused, exit 1, nothing written."""
+    path = write(tmp_path, lambda d: (light_wrist(d), d.update(synthesize={"k_xi": [1.0, 100.0]})))
+    target = tmp_path / "out" / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(path), "--out", str(target), "--json", "-"])
+    record = json.loads(result.stdout)
+    assert result.exit_code == 1 and not target.exists() and record["scenario_file"] is None
+    assert record["status"].startswith("refused, nothing written: the loop as implemented is not certified (fact 14)")
+
+
+def test_synthesis_defaults_to_the_windows_and_says_when_one_is_empty(tmp_path):
+    """Without ``[synthesize] k_xi`` the box is the gain windows: on the light wrist at 500 Hz
+    wrist 3's hold limit (0.474, effective inertia 4.9e-4 kg m^2) lies below the certificate's
+    1/2, so no design exists and none is written (exit 1); per-joint intervals are read as given
+    and a wrong count is one line naming the field (exit 2)."""
+    path = write(tmp_path, light_wrist)
+    target = tmp_path / "out" / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(path), "--out", str(target), "--json", "-"])
+    record = json.loads(result.stdout)
+    assert result.exit_code == 1 and not target.exists()
+    (lo6, hi6) = record["bounds"]["k_xi"][5]
+    assert hi6 < 0.5 and lo6 == pytest.approx(hi6)
+    wrong = write(tmp_path, lambda d: d.update(synthesize={"k_xi": [[1.0, 2.0]] * 5}))
+    result = runner.invoke(app, ["synthesize", str(wrong), "--out", str(target)])
+    assert result.exit_code == 2 and "synthesize.k_xi: 5 intervals for 6 joints" in result.stderr
