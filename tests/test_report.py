@@ -272,3 +272,14 @@ def test_as_implemented_section_embeds_the_measured_margins(report):
     assert stored["linear_margins"]["certified"]
     assert f"latency <= {stored['linear_margins']['margins']['latency']['value'] * 1e3:.4g} ms" in linear
     assert "not measured" in linear
+
+
+def test_as_implemented_section_says_which_statement_covers_which_part(report):
+    """Section "As implemented" names the statement of each part: facts 7 and 10 for the ideal
+    loop, fact 14 (local) for the sampled loop, measured margins and runs for the rest."""
+    html = report[0].read_text()
+    section = html[html.index("<h2>6. As implemented</h2>") : html.index("<h2>7.")]
+    coverage = section[section.index('<p id="coverage">') :].split("</p>")[0]
+    assert "ideal continuous loop by Theorem 2 and the envelope (facts 7 and 10" in coverage
+    assert "sampled loop as implemented by fact 14 (local" in coverage
+    assert "measured margins and runs of this section, which are measurements, not certificates" in coverage
