@@ -156,3 +156,16 @@ def test_synthesis_defaults_to_the_windows_and_says_when_one_is_empty(tmp_path):
     wrong = write(tmp_path, lambda d: d.update(synthesize={"k_xi": [[1.0, 2.0]] * 5}))
     result = runner.invoke(app, ["synthesize", str(wrong), "--out", str(target)])
     assert result.exit_code == 2 and "synthesize.k_xi: 5 intervals for 6 joints" in result.stderr
+
+
+@pytest.mark.slow
+def test_the_default_example_is_certified_for_the_loop_as_implemented_and_at_its_target_speed():
+    """``examples/ur5_circle.toml`` as shipped: fact 14 certifies the sampled loop (rho 0.937
+    over 50 ms, local) and the envelope (facts 7, 10; ideal continuous loop) certifies a target
+    speed above the target's own 2 pi 0.05 / 4 = 0.0785 m/s, visibility included."""
+    result = runner.invoke(app, ["certify", str(CIRCLE), "--json", "-", "--no-lower-bounds"])
+    assert result.exit_code == 0, result.output
+    point = json.loads(result.stdout)["points"][0]
+    implemented, envelope = point["implemented"], point["envelope"]
+    assert implemented["certified"] and implemented["rho"] < 0.95
+    assert envelope["max_target_speed"] > 2 * np.pi * 0.05 / 4 and envelope["visible"] is True
