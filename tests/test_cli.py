@@ -507,8 +507,10 @@ def test_help_texts_print_every_bracketed_word():
 def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_path):
     """The written scenario is the user's file, comments and layout kept, with only the name and
     the gains changed (one line each, 3-8 significant figures, no ``19.99999997``); the gamma
-    reported is the certificate of exactly those rounded values."""
-    original = DEFAULT_SCENARIO_TEXT.replace("jit = true", "jit = false")
+    reported is the certificate of exactly those rounded values. (The bounds keep the design
+    within the arm's limits and certified as implemented, so that it is written at all.)"""
+    bounds = "\n[synthesize]\nk_xi = [1.0, 5.0]\nk_c = [0.1, 2.0]\nk_e = [0.1, 10.0]\n"
+    original = DEFAULT_SCENARIO_TEXT.replace("jit = true", "jit = false") + bounds
     scenario = tmp_path / "commented.toml"
     scenario.write_text(original)
     target = tmp_path / "syn.toml"
