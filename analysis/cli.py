@@ -42,7 +42,7 @@ from dvfc.analysis.output import (
 from dvfc.analysis.pose import initial_view
 from dvfc.analysis.results import (
     certificate_result,
-    design_limits,
+    design_recheck,
     design_runner,
     envelope_record,
     grid_envelope_for,
@@ -52,13 +52,15 @@ from dvfc.analysis.results import (
     point_record,
     simulation_result,
     speed_theta_bar,
+    synthesis_bounds,
     trajectory_arrays,
     verification_result,
 )
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
-from dvfc.analysis.synthesize import Bounds, designer, scenario_text, search_within_limits
+from dvfc.analysis.synthesize import designer, scenario_text, search_within_limits
 from dvfc.analysis.tasks import run_tasks
+from dvfc.analysis.windows import case_windows
 from dvfc.models.loop import Weights
 
 app = typer.Typer(
@@ -157,6 +159,14 @@ def warn_fewer_than_six(case: Case) -> None:
         err.print(f"warning: {why}", markup=False, soft_wrap=True)
 
 
+def warn_windows(case: Case) -> None:
+    """One warning line on standard error, before any run, when a gain ``k_xi,i`` lies outside
+    its window (:func:`dvfc.analysis.windows.case_windows`), naming the limit it breaks."""
+    windows = case_windows(case)
+    if windows is not None and (line := windows.warning()) is not None:
+        err.print(f"warning: {line}", markup=False, soft_wrap=True)
+
+
 def require_six(case: Case, command: str) -> None:
     """Refuse ``command`` (status 2, before any work) when it rests on Theorems 1-2 and they do
     not apply (:attr:`Case.theorems_do_not_apply`)."""
@@ -182,6 +192,7 @@ def simulate(
     spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     check_json_target(json_target)
     warn_fewer_than_six(case)
+    warn_windows(case)
     directory = prepare_out_dir(out_dir or Path("out") / spec.name)
 
     with Progress(
@@ -224,7 +235,10 @@ def pose(scenario: ScenarioArg = DEFAULT_SCENARIO, json_target: JsonOpt = None) 
     case = load_case(scenario, check_view=False)
     check_json_target(json_target)
     warn_fewer_than_six(case)
-    result = {"scenario": case.name, **initial_view(case.loop, case.s0)}
+    warn_windows(case)
+    windows = case_windows(case)
+    result = {"scenario": case.name, **initial_view(case.loop, case.s0),
+              "gain_windows": None if windows is None else windows.as_dict()}  # fmt: skip
     emit(result, None, json_target, show_pose)
     if not all(f["in_view"] for f in result["features"]):
         raise typer.Exit(1)
@@ -245,6 +259,20 @@ def show_pose(result: dict) -> None:
     for f in result["features"]:
         table.add_row(str(f["point"]), f"{f['image'][0]:.1f}", f"{f['image'][1]:.1f}", f"{f['depth']:.4g}",
                       "yes" if f["in_view"] else "NO")  # fmt: skip
+    out.print(table)
+    if (windows := result["gain_windows"]) is not None:
+        show_windows(windows)
+
+
+def show_windows(windows: dict) -> None:
+    """The gain windows of ``pose``: per joint ``k_xi``, the window and whether it lies inside."""
+    table = Table(title="gain windows of k_xi (lower: " + windows["lower"] + "; upper: "
+                  + (windows["upper"] or "none, the ideal continuous loop has no hold") + ")")  # fmt: skip
+    for col in ("joint", "k_xi", "lower", "upper", "inside"):
+        table.add_column(Text(col))
+    for i, (k, (lo, hi), inside) in enumerate(zip(windows["k_xi"], windows["windows"], windows["inside"], strict=True)):
+        upper = "-" if hi is None else f"{hi:.4g}" + (" (alone)" if windows["upper_alone"][i] else "")
+        table.add_row(str(i + 1), f"{k:.4g}", f"{lo:.4g}", upper, "yes" if inside else "NO")
     out.print(table)
 
 
@@ -322,6 +350,7 @@ def certify_command(
     spec, loop, point = case.scenario, case.loop, case.point
     axes = spec.grid.axes() if spec.grid is not None else None
     check_json_target(json_target)
+    warn_windows(case)
     if axes is not None and spec.loop == "paper" and loop.robot.n < 6:
         err.print(f"NOT CERTIFIED: {NOT_APPLICABLE.format(n=loop.robot.n)}", markup=False, soft_wrap=True)
         raise typer.Exit(1)
@@ -517,7 +546,10 @@ def synthesize_command(
     check_json_target(json_target)
     target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
     prepare_out_dir(target.parent)
-    bounds = Bounds(tuple(cfg.k_xi), tuple(cfg.k_c), tuple(cfg.k_e))
+    try:
+        bounds = synthesis_bounds(case)
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
     weights = Weights(**spec.weights.model_dump())
     speed = cfg.objective == "target_speed"
     theta = speed_theta_bar(case) if speed else None
@@ -550,7 +582,7 @@ def synthesize_command(
         "scenario": spec.name,
         "status": result.status,
         "objective": "maximise the certified target speed (facts 7-8)" if speed else objective,
-        "bounds": {"k_xi": cfg.k_xi, "k_c": cfg.k_c, "k_e": cfg.k_e},
+        "bounds": bounds.as_dict(),
         "weights_tried": result.weights_tried,
         "point": None if result.point is None else point_record(result.point, result.certificate),
         "region": None if result.certificate is None else result.certificate.region,
@@ -564,6 +596,17 @@ def synthesize_command(
     if search is not None:
         record["limit_search"] = limit_search_record(search, bounds)
     if result.point is not None:
+        if search is not None:  # the chosen design's run in the search
+            record["limits"] = search.chosen.run
+        else:
+            with err.status("simulating the design against the arm's limits"):
+                record["limits"] = design_runner(case)(result.point)
+        with err.status("re-checking the design on the loop as implemented (fact 14)"):
+            record["implemented"], refused = design_recheck(case, result.point, record["limits"])
+        if refused is not None:
+            record["status"] = f"refused, nothing written: {refused}"
+            emit(record, None, json_target, show_synthesis)
+            raise typer.Exit(1)
         urdf = str(loop.robot.urdf) if spec.robot.urdf is not None else None
         text = scenario_text(Path(scenario).read_text(), result.point, name=f"{spec.name}-synthesized",
                              weights=cfg.search_weights, urdf=urdf)  # fmt: skip
@@ -577,11 +620,6 @@ def synthesize_command(
             record["max_target_speed"] = env["max_target_speed"]
             if env["max_target_speed"] is None:
                 record["status"] = f"uncertified: no target speed certified for the written design ({env['reason']})"
-        if search is not None:  # the chosen design's run in the search
-            record["limits"] = search.chosen.run
-        else:
-            with err.status("simulating the design against the arm's limits"):
-                record["limits"] = design_limits(load_case(target))
         record["seconds"] = time.perf_counter() - start
     emit(record, None, json_target, show_synthesis)
     if result.point is None or (speed and record["max_target_speed"] is None):
@@ -658,6 +696,7 @@ def verify_command(
     case = load_case(scenario)
     check_json_target(json_target)
     warn_fewer_than_six(case)
+    warn_windows(case)
     directory = prepare_out_dir(out_dir) if out_dir is not None else None
     with err.status("simulating and checking the claims"):
         result, claims = verification_result(case, command_provenance(scenario))
@@ -701,7 +740,7 @@ def show_synthesis(record: dict) -> None:
     out.print(
         f"gains: k_xi = {g['k_xi']}\n       k_c = {g['k_c']}\n       k_e = {g['k_e']}\n"
         f"weights: {p['weights']}\ncertified gamma = {p['gamma']:.6g} over {record['region']}\n"
-        f"scenario written: {record['scenario_file']}",
+        f"scenario written: {record['scenario_file'] or 'none, ' + record['status']}",
         markup=False,
     )
     if "max_target_speed" in record:

@@ -35,10 +35,11 @@ from dvfc.analysis.linearize import linearize, worst_case_disturbance
 from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.output import append_log, read_log
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import Scenario
+from dvfc.analysis.scenario import Scenario, ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory, summary
-from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, scaled
+from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, excess, scaled, within_limits
 from dvfc.analysis.verify import Claim, verify
+from dvfc.analysis.windows import case_windows
 from dvfc.models.loop import ClosedLoop, Gains, Weights
 
 
@@ -76,9 +77,46 @@ def logged_runs(run: Callable[[GainPoint], dict], log: Path, *, resume: bool) ->
     return logged
 
 
-def design_limits(case: Case) -> dict:
-    """The case's own design run as implemented (:func:`design_runner`)."""
-    return design_runner(case)(case.point)
+DEFAULT_K_XI = (1.0, 100.0)
+"""``[synthesize] k_xi`` where the gain windows have no upper limit (the continuous loop), and
+the cap on a hold limit: the former one interval for every joint."""
+
+
+def synthesis_bounds(case: Case) -> Bounds:
+    """The ``[synthesize]`` gain box of the case: ``k_xi`` per joint as given (one interval for
+    every joint, or one per joint: their number must be ``n``, else :class:`ScenarioError`
+    naming the field), or by default each joint's gain window
+    (:func:`dvfc.analysis.windows.case_windows`): ``[1, min(100, upper)]``, the lower end the
+    window's own when the hold limit is below 1."""
+    cfg, n = case.scenario.synthesize, case.loop.robot.n
+    if cfg.k_xi is not None and isinstance(cfg.k_xi[0], list):
+        if len(cfg.k_xi) != n:
+            raise ScenarioError(f"synthesize.k_xi: {len(cfg.k_xi)} intervals for {n} joints (give one, or one a joint)")
+        k_xi = tuple(np.array(b, dtype=float) for b in zip(*cfg.k_xi, strict=True))
+    elif cfg.k_xi is not None:
+        k_xi = tuple(np.full(n, b, dtype=float) for b in cfg.k_xi)
+    else:
+        windows = case_windows(case)
+        hi = np.full(n, DEFAULT_K_XI[1]) if windows.upper is None else np.minimum(windows.upper, DEFAULT_K_XI[1])
+        k_xi = (np.where(hi >= DEFAULT_K_XI[0], DEFAULT_K_XI[0], np.minimum(windows.lower, hi)), hi)
+    return Bounds(k_xi, tuple(cfg.k_c), tuple(cfg.k_e))
+
+
+def design_recheck(case: Case, point: GainPoint, run: dict) -> tuple[dict | None, str | None]:
+    """The a posteriori checks of a synthesised design before it is written: its fact-14 record
+    on the loop as implemented (None without an ``[implementation]``) and why it is refused
+    (None: accepted): fact 14 applies and does not certify it (``rho`` not below ``1 - margin``
+    or the Lyapunov check fails), or its run (``run``, a limit record) not within
+    :data:`dvfc.analysis.synthesize.LIMITS_CRITERION`."""
+    record = None
+    if case.settings.implementation is not None:
+        designed = replace(case.loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
+        record = implemented_record(designed, case.s0, case.settings)
+        if record["applies"] and not record["certified"]:
+            return record, f"the loop as implemented is not certified (fact 14): {record['reason']}"
+    if not within_limits(run):
+        return record, f"its run as implemented {excess(run)}"
+    return record, None
 
 
 def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
@@ -112,7 +150,7 @@ def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
         "resolution": None if chosen is None or exceeds is None else exceeds.alpha - chosen.alpha,
         "alpha": None if chosen is None else chosen.alpha,
         "exceeds_at": None if exceeds is None else exceeds.alpha,
-        "bounds": None if chosen is None else asdict(scaled(bounds, chosen.alpha)),
+        "bounds": None if chosen is None else scaled(bounds, chosen.alpha).as_dict(),
         "gamma_unconstrained": None if top.synthesis.certificate is None else top.synthesis.certificate.gamma,
         "runs": search.runs,
         "syntheses": search.syntheses,

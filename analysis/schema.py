@@ -309,12 +309,14 @@ Interval = Annotated[list[Positive], Field(min_length=2, max_length=2)]
 
 
 class SynthesizeSection(_Strict):
-    """Gain bounds ``[lower, upper]`` for ``synthesize``, the objective (the certified gamma, or
-    the envelope's certified target speed), an optional gamma target, whether to search the
-    weights on a log grid around the scenario's, and whether the design must run within the
-    arm's effort and velocity limits (``respect_limits``: a search over shrunken gain boxes)."""
+    """Gain bounds ``[lower, upper]`` for ``synthesize`` (``k_xi``: one interval for every joint,
+    or one per joint; absent: each joint's gain window, :mod:`dvfc.analysis.windows`), the
+    objective (the certified gamma, or the envelope's certified target speed), an optional gamma
+    target, whether to search the weights on a log grid around the scenario's, and whether the
+    design must run within the arm's effort and velocity limits (``respect_limits``: a search
+    over shrunken gain boxes)."""
 
-    k_xi: Interval = [1.0, 100.0]
+    k_xi: Interval | list[Interval] | None = None
     k_c: Interval = [0.1, 20.0]
     k_e: Interval = [0.1, 50.0]
     objective: Literal["gamma", "target_speed"] = "gamma"
@@ -324,8 +326,11 @@ class SynthesizeSection(_Strict):
 
     @model_validator(mode="after")
     def _ordered(self) -> SynthesizeSection:
-        for name in ("k_xi", "k_c", "k_e"):
-            lo, hi = getattr(self, name)
+        intervals = [("k_c", self.k_c), ("k_e", self.k_e)]
+        if self.k_xi is not None:
+            nested = isinstance(self.k_xi[0], list)
+            intervals += [(f"k_xi[{i}]", b) for i, b in enumerate(self.k_xi)] if nested else [("k_xi", self.k_xi)]
+        for name, (lo, hi) in intervals:
             if lo > hi:
                 raise ValueError(f"{name}: lower bound {lo} exceeds upper bound {hi}")
         if self.objective == "target_speed" and self.gamma is not None:

@@ -66,11 +66,17 @@ LIMITS_CRITERION = (
 
 @dataclass(frozen=True)
 class Bounds:
-    """Lower and upper bounds of each gain (positive)."""
+    """Lower and upper bounds of each gain (positive); ``k_xi``'s per joint (arrays of ``n``) or
+    one pair for every joint."""
 
-    k_xi: tuple[float, float]
+    k_xi: tuple[np.ndarray | float, np.ndarray | float]
     k_c: tuple[float, float]
     k_e: tuple[float, float]
+
+    def as_dict(self) -> dict:
+        """JSON-ready: ``k_xi`` as ``[lower, upper]`` per joint (one pair when one for all)."""
+        k_xi = np.column_stack(np.broadcast_arrays(*self.k_xi)).tolist()
+        return {"k_xi": k_xi, "k_c": [float(b) for b in self.k_c], "k_e": [float(b) for b in self.k_e]}
 
 
 @dataclass
@@ -199,7 +205,7 @@ def synthesize_speed(
     the largest ``s`` with a positive rate: that of the upper gains, since ``N^T K N`` grows
     with every gain. The result carries the ordinary Theorem 2 certificate over
     ``|theta_ec| <= theta_max``; its envelope is computed by the ordinary route by the caller."""
-    upper = GainPoint(np.full(n, bounds.k_xi[1]), np.full(6, bounds.k_c[1]), np.full(6, bounds.k_e[1]), weights)
+    upper = GainPoint(np.broadcast_to(bounds.k_xi[1], n), np.full(6, bounds.k_c[1]), np.full(6, bounds.k_e[1]), weights)
     top = s_limit(design_of(upper, reference, mass))
     failed = Synthesis(None, None, "infeasible: no gains within the bounds give a positive decay rate")
     if top <= 0:
@@ -301,9 +307,9 @@ def scaled(bounds: Bounds, alpha: float) -> Bounds:
     small beside ``K_c`` the features leave the image: on the idealised UR5 (default bounds,
     0.2 s) its best design within the limits certified gamma 0.87, the boxes' 0.68."""
 
-    def shrink(b: tuple[float, float]) -> tuple[float, float]:
+    def shrink(b: tuple) -> tuple:
         lo, hi = b
-        return lo, min(hi, lo * (hi / lo) ** alpha)
+        return lo, np.minimum(hi, lo * (np.asarray(hi) / lo) ** alpha)
 
     return Bounds(shrink(bounds.k_xi), shrink(bounds.k_c), shrink(bounds.k_e))
 

@@ -307,12 +307,16 @@ def test_certify_bad_region_is_exit_2(tmp_path):
 
 @pytest.mark.slow
 def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
+    """Within bounds whose optimum the UR5 can run (a design exceeding a limit is refused), the
+    file written certifies at the gamma synthesised, and its run is stated against the limits."""
     target = tmp_path / "syn.toml"
-    result = runner.invoke(app, ["synthesize", str(write(tmp_path)), "--out", str(target), "--json", "-"])
+    bounds = {"k_xi": [1.0, 5.0], "k_c": [0.1, 2.0], "k_e": [0.1, 10.0]}
+    result = runner.invoke(app, ["synthesize", str(write(tmp_path, setter("synthesize", bounds))), "--out",
+                                 str(target), "--json", "-"])  # fmt: skip
     assert result.exit_code == 0, result.output
     record = json.loads(result.stdout)
-    limits = record["limits"]  # the design run against the UR5's limits, stated whichever way it goes
-    assert limits["within_effort"] == all(r <= 1 for r in limits["torque_ratio"]) and len(limits["effort_limit"]) == 6
+    limits = record["limits"]
+    assert limits["within_effort"] and all(r <= 1 for r in limits["torque_ratio"]) and len(limits["effort_limit"]) == 6
     check = runner.invoke(app, ["certify", str(target), "--json", "-"])
     assert check.exit_code == 0
     assert json.loads(check.stdout)["points"][0]["gamma"] == pytest.approx(record["point"]["gamma"], rel=1e-9)
@@ -322,7 +326,7 @@ def test_synthesize_writes_a_scenario_that_certifies(tmp_path):
 def test_target_speed_synthesis_reports_the_written_designs_certified_speed(tmp_path):
     """``objective = "target_speed"``: the speed reported is the envelope that ``certify``
     computes for the file written (the ordinary route), not the synthesis' own value."""
-    bounds = {"objective": "target_speed", "k_xi": [1.0, 30.0], "k_c": [0.5, 5.0], "k_e": [0.5, 15.0]}
+    bounds = {"objective": "target_speed", "k_xi": [1.0, 5.0], "k_c": [0.1, 2.0], "k_e": [0.1, 10.0]}
     target = tmp_path / "syn.toml"
     result = runner.invoke(app, ["synthesize", str(write(tmp_path, setter("synthesize", bounds))), "--out",
                                  str(target), "--json", "-"])  # fmt: skip
@@ -507,8 +511,10 @@ def test_help_texts_print_every_bracketed_word():
 def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_path):
     """The written scenario is the user's file, comments and layout kept, with only the name and
     the gains changed (one line each, 3-8 significant figures, no ``19.99999997``); the gamma
-    reported is the certificate of exactly those rounded values."""
-    original = DEFAULT_SCENARIO_TEXT.replace("jit = true", "jit = false")
+    reported is the certificate of exactly those rounded values. (The bounds keep the design
+    within the arm's limits and certified as implemented, so that it is written at all.)"""
+    bounds = "\n[synthesize]\nk_xi = [1.0, 5.0]\nk_c = [0.1, 2.0]\nk_e = [0.1, 10.0]\n"
+    original = DEFAULT_SCENARIO_TEXT.replace("jit = true", "jit = false") + bounds
     scenario = tmp_path / "commented.toml"
     scenario.write_text(original)
     target = tmp_path / "syn.toml"

@@ -78,10 +78,11 @@ def test_every_claim_listed(report):
     """The checklist has a row per claim of ``verify`` (16 of the paper, the singularity
     check, the run from rest reaching the lower bound, 3 measurements of the image loop,
     9 of the operating envelope, and the run as implemented: it completes, its torques, joint
-    speeds and joint positions are within the URDF's limits) with a status."""
+    speeds and joint positions are within the URDF's limits, its storage identity (fact 11)
+    holds) with a status."""
     html = report[0].read_text()
     rows = re.findall(r'<span class="(PASS|FAIL|INCONCLUSIVE|MEASURED)">', html[html.index('<table id="claims">') :])
-    assert len(rows) == 34 and rows.count("MEASURED") == 6 and rows.count("PASS") == 28
+    assert len(rows) == 35 and rows.count("MEASURED") == 6 and rows.count("PASS") == 29
 
 
 def test_banner_carries_the_failed_checks(report, tmp_path):
@@ -301,3 +302,14 @@ def test_banner_gives_the_best_certified_bound_and_its_certificate(report, tmp_p
     best = re.search(r'<span id="gamma-best">([^<]+)</span> \(([^)]*)', html)
     assert best.group(1) == f"{min(point['gamma'], point['gamma_tight']):.6g}"
     assert ("scaled storage" in best.group(2)) == (point["gamma_tight"] < point["gamma"])
+
+
+def test_as_implemented_section_says_which_statement_covers_which_part(report):
+    """Section "As implemented" names the statement of each part: facts 7 and 10 for the ideal
+    loop, fact 14 (local) for the sampled loop, measured margins and runs for the rest."""
+    html = report[0].read_text()
+    section = html[html.index("<h2>6. As implemented</h2>") : html.index("<h2>7.")]
+    coverage = section[section.index('<p id="coverage">') :].split("</p>")[0]
+    assert "ideal continuous loop by Theorem 2 and the envelope (facts 7 and 10" in coverage
+    assert "sampled loop as implemented by fact 14 (local" in coverage
+    assert "measured margins and runs of this section, which are measurements, not certificates" in coverage

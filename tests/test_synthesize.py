@@ -247,7 +247,8 @@ def _limits_scenario(tmp_path: Path, name: str, edit=None) -> Path:
 @pytest.fixture(scope="module")
 def limited(tmp_path_factory):
     """``synthesize`` of the same scenario with the default bounds, unconstrained and with
-    ``respect_limits``: the two JSON records and the file the second wrote."""
+    ``respect_limits``: the two JSON records and the file the second wrote. The unconstrained
+    optimum's run exceeds the torque limits, so it is refused (exit 1, nothing written)."""
     tmp = tmp_path_factory.mktemp("limits")
     free = _limits_scenario(tmp, "free.toml")
     bound = _limits_scenario(tmp, "bound.toml", lambda d: d.update(synthesize={"respect_limits": True}))
@@ -255,8 +256,11 @@ def limited(tmp_path_factory):
     for scenario in (free, bound):
         result = runner.invoke(app, ["synthesize", str(scenario), "--out", str(tmp / f"{scenario.stem}-syn.toml"),
                                      "--json", "-"])  # fmt: skip
-        assert result.exit_code == 0, result.output
         records.append(json.loads(result.stdout))
+        refused = scenario is free
+        assert result.exit_code == int(refused), result.output
+        assert records[-1]["status"].startswith("refused, nothing written: its run as implemented exceeds") == refused
+        assert (tmp / f"{scenario.stem}-syn.toml").exists() != refused
     return records[0], records[1], tmp / "bound-syn.toml"
 
 

@@ -334,6 +334,27 @@ MUTATIONS = (
         (("        if ratio > 1:\n", "        if ratio > 1e9:\n"),),
         ("tests/test_margins.py",),
     ),
+    Mutation(
+        "windows-hold-by-half",
+        "the hold limit taken at h lambda_max <= 1 - margin instead of 2 - margin",
+        "analysis/windows.py",
+        (("h)[-1] <= 2 - margin  #", "h)[-1] <= 1 - margin  #"),),
+        ("tests/test_windows.py",),
+    ),
+    Mutation(
+        "implemented-storage-without-delta",
+        "fact 11's identity checked without the hold channel int xi^T delta",
+        "analysis/verify.py",
+        ((' - i["supply_x_G_w"] - i["unmodelled_supply"]', ' - i["supply_x_G_w"]'),),
+        ("tests/test_windows.py",),
+    ),
+    Mutation(
+        "synthesize-no-recheck",
+        "a synthesized design is written without the fact-14 re-check",
+        "analysis/results.py",
+        (('        if record["applies"] and not record["certified"]:', '        if False:'),),
+        ("tests/test_windows.py",),
+    ),
 )
 
 

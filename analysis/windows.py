@@ -1,0 +1,183 @@
+"""The window each joint's gain ``k_xi,i`` must lie in (docs/math.md, "Gain windows").
+
+Below, the certificate's requirement on the ``xi`` block of the ideal continuous loop:
+Theorem 2's L2 certificate at ``gamma`` needs ``K_xi - I/2 - s I >= 0`` with
+``s = 1/(2 gamma^2)``; the window asks ``k_xi,i > 1/2 + 1/(2 gamma^2)`` at the scenario's
+required gamma (``[certify] gamma``), ``k_xi,i > 1/2`` for any finite gamma; the envelope's rate needs
+``k_xi,i > s`` for its own ``s``, which it meets by choosing ``s < min_i k_xi,i``.
+
+Above, the hold limit of the sampled loop at the control rate: the torque ``-K_xi xi`` held
+over ``h`` on ``M(q0) xi' = tau`` (the joint-velocity loop alone, linear, at ``q0``, the
+model's inertia) is exactly ``xi_(k+1) = (I - h M^-1 K_xi) xi_k``. Its eigenvalues ``1 - h
+lambda`` (``lambda`` those of ``M^-1 K_xi``, real and positive) lie in ``(-(1 - HOLD_MARGIN),
+1)`` iff ``h lambda_max(M^-1 K_xi) <= 2 - HOLD_MARGIN``. Each joint's limit is found exactly,
+by bisection on its gain with the other gains fixed at their values; where the others break
+the limit already, the joint's limit alone (the others at zero: the diagonal term
+``(2 - HOLD_MARGIN) / (h (M^-1)_ii)``, necessary whatever the others are) is used instead, and
+gains that break the limit together, none above its own, are reported together. This is a
+necessary condition for the sampled loop, local, at ``q0``: fact 14
+(:mod:`dvfc.analysis.multirate`) is the certificate of the whole sampled loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from dvfc.analysis.case import Case
+
+HOLD_MARGIN = 0.05
+"""The held map's eigenvalues must lie in ``(-(1 - HOLD_MARGIN), 1)``: at the hold limit the
+joint's velocity error, sampled, still shrinks by 5% a period in its fastest mode."""
+
+BISECTION_STEPS = 60
+"""Bisection steps on each gain between 0 and its diagonal limit (to ``2^-60`` of it)."""
+
+
+def certificate_lower(gamma: float | None) -> float:
+    """The bound ``k_xi,i`` must exceed for the ``xi`` block of Theorem 2's certificate:
+    ``1/2 + 1/(2 gamma^2)`` at a required ``gamma``; ``1/2`` for any finite gamma."""
+    return 0.5 if gamma is None else 0.5 + 1.0 / (2.0 * gamma**2)
+
+
+def held_eigenvalues(m_inv: np.ndarray, k_xi: np.ndarray, h: float) -> np.ndarray:
+    """The eigenvalues of ``h M^-1 K_xi`` in ascending order, from the symmetric
+    ``h K^1/2 M^-1 K^1/2``: the held map ``I - h M^-1 K_xi`` has the eigenvalues ``1 -`` these."""
+    root = np.sqrt(k_xi)
+    return h * np.linalg.eigvalsh(root[:, None] * m_inv * root[None, :])
+
+
+def hold_limits(
+    m_inv: np.ndarray, k_xi: np.ndarray, h: float, margin: float = HOLD_MARGIN
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per joint, the largest ``k_xi,i`` with ``h lambda_max(M^-1 K_xi) <= 2 - margin``, the
+    other gains fixed at their values, by bisection between 0 and the joint's limit alone (the
+    others at zero), the diagonal term ``(2 - margin) / (h (M^-1)_ii)`` (``lambda_max >= k_i
+    (M^-1)_ii``: a gain above it breaks the limit whatever the others are). Where the other
+    gains break the limit already, no gain of this joint meets it, and its limit alone is
+    returned; ``alone`` says where."""
+    diagonal = (2.0 - margin) / (h * np.diag(m_inv))
+    limits, alone = diagonal.copy(), np.ones(len(k_xi), bool)
+    for i in range(len(k_xi)):
+        joint = np.arange(len(k_xi)) == i
+        stable = lambda k: held_eigenvalues(m_inv, np.where(joint, k, k_xi), h)[-1] <= 2 - margin  # noqa: B023, E731
+        lo, hi = 0.0, float(diagonal[i])
+        if not stable(lo):
+            continue
+        alone[i] = False
+        for _ in range(BISECTION_STEPS):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+        limits[i] = lo
+    return limits, alone
+
+
+@dataclass(frozen=True)
+class GainWindows:
+    """The windows of the joints' gains ``k_xi`` (see the module's description).
+
+    ``lower``: the certificate's requirement (exclusive when ``gamma`` is None); ``upper``: the
+    hold limits at ``control_rate`` (None: the ideal continuous loop, no hold), ``alone`` where a
+    joint's is its limit alone (:func:`hold_limits`); ``held``: ``h lambda_max(M(q0)^-1 K_xi)`` at the
+    given gains, at most ``2 - margin`` within the hold limit (None without a hold);
+    ``map_radius``: the spectral radius of ``I - h M(q0)^-1 K_xi`` (None without a hold)."""
+
+    k_xi: np.ndarray
+    lower: float
+    gamma: float | None
+    upper: np.ndarray | None
+    alone: np.ndarray | None
+    control_rate: float | None
+    held: float | None
+    map_radius: float | None
+    margin: float = HOLD_MARGIN
+
+    @property
+    def below(self) -> np.ndarray:
+        """Per joint, whether the gain breaks the certificate's requirement ``k_xi,i > lower``."""
+        return self.k_xi <= self.lower
+
+    @property
+    def above(self) -> np.ndarray:
+        """Per joint, whether the gain exceeds its hold limit (never without a hold)."""
+        return np.zeros(len(self.k_xi), bool) if self.upper is None else self.k_xi > self.upper
+
+    @property
+    def hold_broken(self) -> bool:
+        """Whether the gains together break the hold limit ``h lambda_max <= 2 - margin``."""
+        return self.held is not None and self.held > 2 - self.margin
+
+    def breaks(self) -> list[str]:
+        """Each gain outside its window, with the limit it breaks, in words; and the gains
+        together when they break the hold limit with no single joint's gain above its own."""
+        requirement = f"the L2 certificate's {self.lower:.4g}" + (f" (gamma = {self.gamma:g})" if self.gamma else "")
+        found = []
+        for i, k in enumerate(self.k_xi):
+            if self.below[i]:
+                found.append(f"joint {i + 1} k_xi = {k:.4g} not above {requirement}")
+            if self.above[i]:
+                found.append(f"joint {i + 1} k_xi = {k:.4g} above its hold limit {self.upper[i]:.4g}")
+        if self.hold_broken and not self.above.any():
+            found.append("the gains together break the hold limit (no single joint's gain is above its own)")
+        return found
+
+    def warning(self) -> str | None:
+        """One line naming the gains outside their windows, or None when all lie inside."""
+        found = self.breaks()
+        if not found:
+            return None
+        held = ""
+        if self.held is not None:
+            verdict = "unstable" if self.held >= 2 else "stable"
+            held = (f"; held torque at {self.control_rate:g} Hz: most negative eigenvalue of I - h M(q0)^-1 K_xi "
+                    f"{1 - self.held:.4g} ({verdict}, required >= {self.margin - 1:g})")  # fmt: skip
+        return f"gain outside its window: {'; '.join(found)}{held}"
+
+    def as_dict(self) -> dict:
+        """JSON-ready: per joint ``[lower, upper]`` (upper None without a hold) and what each limit is."""
+        upper = [None] * len(self.k_xi) if self.upper is None else self.upper.tolist()
+        block = "ideal continuous loop, Theorem 2's xi block: k_xi > 1/2"
+        return {
+            "k_xi": [float(k) for k in self.k_xi],
+            "windows": [[self.lower, u] for u in upper],
+            "inside": (~(self.below | self.above)).tolist(),
+            "hold_broken": self.hold_broken,
+            "upper_alone": None if self.alone is None else self.alone.tolist(),
+            "lower": f"{block} + 1/(2 gamma^2) at gamma = {self.gamma:g}" if self.gamma else f"{block}, any gamma",
+            "envelope": "k_xi > s, met by the envelope's choice of s below min k_xi",
+            "upper": None if self.upper is None else (
+                f"sampled loop, local at q0: the torque -K_xi xi held over h = 1/{self.control_rate:g} s on "
+                f"M(q0) xi' = tau, map I - h M^-1 K_xi with eigenvalues in (-(1 - {self.margin:g}), 1); per joint by "
+                "bisection on its gain, the others fixed (upper_alone: the others break it already, the joint's "
+                "limit with the others at zero)"),
+            "map_radius": self.map_radius,
+            "outside": self.breaks(),
+        }  # fmt: skip
+
+
+def gain_windows(mass: np.ndarray, k_xi: np.ndarray, control_rate: float | None, gamma: float | None) -> GainWindows:
+    """The windows of ``k_xi`` for the inertia ``mass = M(q0)``, the control rate (None: the
+    ideal continuous loop) and the required gamma (None: any finite gamma)."""
+    k_xi = np.asarray(k_xi, dtype=float)
+    if control_rate is None:
+        return GainWindows(k_xi, certificate_lower(gamma), gamma, None, None, None, None, None)
+    h = 1.0 / control_rate
+    m_inv = np.linalg.inv(mass)
+    m_inv = (m_inv + m_inv.T) / 2
+    eigenvalues = held_eigenvalues(m_inv, k_xi, h)
+    return GainWindows(k_xi, certificate_lower(gamma), gamma, *hold_limits(m_inv, k_xi, h), control_rate,
+                       float(eigenvalues[-1]), float(np.abs(1.0 - eigenvalues).max()))  # fmt: skip
+
+
+def case_windows(case: Case) -> GainWindows | None:
+    """The windows of the case's gains at its ``q0`` (the model's ``M(q0)``), control rate and
+    ``[certify] gamma``; None for the reduced planar loop (no joint-space inertia)."""
+    if case.planar:
+        return None
+    robot, imp = case.loop.robot, case.settings.implementation
+    mass = np.asarray(robot.function("M", robot.mass_matrix)(case.s0[: robot.n], 0))
+    rate = None if imp is None else imp.control_rate
+    return gain_windows(mass, case.point.k_xi, rate, case.scenario.certify.gamma)
