@@ -25,7 +25,15 @@ from dvfc.models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop, Gains, Weights
 from dvfc.models.planar import TASK, PlanarLoop
-from dvfc.models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, Payload, Robot, RobotModelError, builtin_urdf
+from dvfc.models.robot import (
+    BUILTIN_ARMATURE,
+    BUILTIN_CAMERA_FRAME,
+    ChainError,
+    Payload,
+    Robot,
+    RobotModelError,
+    builtin_urdf,
+)
 from dvfc.models.target import TargetMotion
 
 DEFAULT_SCENARIO = Path(__file__).parent / "scenarios" / "ur5_circle.toml"
@@ -91,7 +99,7 @@ def build_robot(section: RobotSection, base: Path) -> Robot:
         return Robot(urdf, frame, section.mount.se3(), armature)
     except RobotModelError as exc:
         field = "robot.model" if "unknown robot model" in str(exc) else "robot.urdf"
-        if "no link named" in str(exc):
+        if isinstance(exc, ChainError):
             field = "robot.camera_frame"
         elif str(exc).startswith("armature"):
             field = "robot"
