@@ -14,6 +14,8 @@ Both are lower bounds: a certified gamma below either is a contradiction (a bug)
 
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
@@ -325,18 +327,35 @@ def observable_quotient(sys: control.StateSpace, tol: float = 1e-9) -> control.S
     return control.ss(keep.T @ a @ keep, keep.T @ b, c @ keep, d)
 
 
+MARGINAL = 1e-9
+"""A pole with real part above ``-MARGINAL max(1, |pole|)`` counts as on the imaginary axis."""
+
+MARGINAL_POLES = (
+    "the linearised loop has poles on the imaginary axis (modes that neither grow nor decay): "
+    "its H-infinity norm is infinite"
+)
+"""What an infinite :func:`hinf_norm` means, in one line."""
+
+
 def hinf_norm(sys: control.StateSpace) -> float:
-    """H-infinity norm by python-control (Hamiltonian bisection; slycot not needed).
+    """H-infinity norm by python-control (Hamiltonian bisection; slycot not needed); ``inf``
+    when a pole lies on the imaginary axis (:data:`MARGINAL`, :data:`MARGINAL_POLES`), which
+    python-control would only warn about.
 
     ``control.system_norm`` 0.10.2 mis-sizes a non-square ``D``; zero input columns (which
     change no singular value) make the system square first.
     """
+    poles = np.linalg.eigvals(sys.A)
+    if poles.size and np.any(poles.real > -MARGINAL * np.maximum(1.0, np.abs(poles))):
+        return math.inf
     extra = sys.noutputs - sys.ninputs
     b, d = sys.B, sys.D
     if extra > 0:
         b = np.hstack([b, np.zeros((b.shape[0], extra))])
         d = np.hstack([d, np.zeros((d.shape[0], extra))])
-    return float(control.system_norm(control.ss(sys.A, b, sys.C, d), p="inf"))
+    with warnings.catch_warnings():  # near the axis: the value stands, the library's doubt is not ours to print
+        warnings.simplefilter("ignore", UserWarning)
+        return float(control.system_norm(control.ss(sys.A, b, sys.C, d), p="inf"))
 
 
 def frequency_peak(sys: control.StateSpace) -> tuple[float, float, np.ndarray]:

@@ -31,7 +31,7 @@ from dvfc.analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
 from dvfc.analysis.grid import GridSpec, SweepState
-from dvfc.analysis.linearize import linearize, worst_case_disturbance
+from dvfc.analysis.linearize import MARGINAL_POLES, linearize, worst_case_disturbance
 from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.output import append_log, read_log
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
@@ -226,6 +226,7 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
     return {
         "gamma_lower_linear": lin.peak_gain,
         "hinf_python_control": lin.hinf,
+        **({"hinf_note": MARGINAL_POLES} if math.isinf(lin.hinf) else {}),
         "gamma_lower_nonlinear": nonlinear,
         "worst_disturbance": disturbance,
         "gamma_lower": lower,

@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from dvfc.analysis.certify import GainPoint
+from dvfc.analysis.ik import Configuration, NoConfigurationError, solve_configuration
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.messages import one_line
 from dvfc.analysis.schema import DisturbancesSection, PlantSection, RobotSection, Scenario, ScenarioError
@@ -25,7 +26,15 @@ from dvfc.models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop, Gains, Weights
 from dvfc.models.planar import TASK, PlanarLoop
-from dvfc.models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, Payload, Robot, RobotModelError, builtin_urdf
+from dvfc.models.robot import (
+    BUILTIN_ARMATURE,
+    BUILTIN_CAMERA_FRAME,
+    ChainError,
+    Payload,
+    Robot,
+    RobotModelError,
+    builtin_urdf,
+)
 from dvfc.models.target import TargetMotion
 
 DEFAULT_SCENARIO = Path(__file__).parent / "scenarios" / "ur5_circle.toml"
@@ -91,7 +100,7 @@ def build_robot(section: RobotSection, base: Path) -> Robot:
         return Robot(urdf, frame, section.mount.se3(), armature)
     except RobotModelError as exc:
         field = "robot.model" if "unknown robot model" in str(exc) else "robot.urdf"
-        if "no link named" in str(exc):
+        if isinstance(exc, ChainError):
             field = "robot.camera_frame"
         elif str(exc).startswith("armature"):
             field = "robot"
@@ -158,6 +167,22 @@ def _check_planar(scenario: Scenario, robot: Robot, q0: np.ndarray) -> None:
         raise ScenarioError(f"robot: the planar loop needs at least {TASK} joints, the arm has {robot.n}")
 
 
+def auto_q0(scenario: Scenario, robot: Robot) -> Configuration:
+    """The configuration of :func:`dvfc.analysis.ik.solve_configuration` for the camera at the
+    reference pose relative to the target's ``g_wo(0)`` (given in the world frame)."""
+    t = scenario.target
+    if t.relative_to_camera is not None:
+        raise ScenarioError(
+            'robot.q0: "auto" needs the target placed in the world (target.xyz, target.rpy); '
+            "target.relative_to_camera follows the camera wherever q0 puts it"
+        )
+    goal = SE3.from_xyz_rpy(t.xyz, t.rpy) @ scenario.reference.se3().inverse()
+    try:
+        return solve_configuration(robot, np.asarray(cs.DM(goal.as_matrix())))
+    except NoConfigurationError as exc:
+        raise ScenarioError(f'robot.q0: "auto": {exc}') from exc
+
+
 def build(
     scenario: Scenario, base: Path, *, mode: str | None = None, check_view: bool = True
 ) -> tuple[ClosedLoop, np.ndarray, Settings]:
@@ -166,7 +191,7 @@ def build(
     the camera or outside the image, or a singular arm (:func:`dvfc.analysis.pose` shows them)."""
     robot = build_robot(scenario.robot, base)
     n = robot.n
-    q0 = _vector(scenario.robot.q0, n, "robot.q0")
+    q0 = auto_q0(scenario, robot).q if scenario.robot.q0 == "auto" else _vector(scenario.robot.q0, n, "robot.q0")
     _check_position_limits(robot, q0)
     if scenario.loop == "planar":
         _check_planar(scenario, robot, q0)

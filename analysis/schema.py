@@ -50,7 +50,7 @@ class RobotSection(_Strict):
     model: str | None = None
     urdf: str | None = None
     camera_frame: str | None = None
-    q0: list[Finite]
+    q0: list[Finite] | Literal["auto"]
     qd0: list[Finite] | None = None
     mount: Pose = Pose()
     armature: list[Annotated[float, Field(ge=0, allow_inf_nan=False)]] | None = None

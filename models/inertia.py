@@ -117,6 +117,31 @@ class MassBounds:
             rigid = p / np.linalg.eigvalsh(scale[:, None] * (delta.T @ (p[:, None] * delta)) * scale[None, :])[-1]
         return np.diag(rigid + self.armature)
 
+    def coupled(self, t: np.ndarray, armature: np.ndarray) -> MassBounds:
+        """The bounds on ``T^T M(q) T + diag(armature)``, the mass matrix of the arm whose joints
+        move as ``q = T q_r + c`` (mimic joints): ``|T|^T B |T|`` above
+        (``|t_i^T M t_j| <= |t_i|^T B |t_j|``), and on the diagonal
+        ``t_i^T M t_i >= sum_k t_ki^2 (d_k + B_kk) - |t_i|^T B |t_i|`` (the off-diagonal terms at
+        their worst), or 0. ``mu`` is 0: the rotational argument of the lower bound (10.3) needs
+        one joint per body, so the rigid part of :meth:`lower` is 0 for the coupled arm.
+
+        Parameters
+        ----------
+        t
+            ``T`` (n_moving, n): the joints of these bounds as functions of the coupled arm's.
+        armature
+            The coupled arm's armature (n,).
+        """
+        a = np.abs(np.asarray(t, dtype=float))
+        squares = (a**2).T @ (self.diagonal_lower + np.diag(self.upper))
+        worst = squares - np.einsum("ki,kl,li->i", a, self.upper, a)
+        return MassBounds(
+            a.T @ self.upper @ a + np.diag(armature),
+            np.maximum(worst, 0.0) + armature,
+            np.zeros(a.shape[1]),
+            np.asarray(armature, dtype=float),
+        )
+
 
 @dataclass(frozen=True)
 class _Link:
@@ -220,9 +245,9 @@ def _carried(name: str, by_child: dict[str, ET.Element], index: dict[str, int]) 
 
 def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[float, ...] = ()) -> MassBounds:
     """The bounds of the module text for the arm whose chain joints are ``joints`` (root first;
-    every other movable joint frozen at zero, and a ``mimic`` joint of the chain moving on its
-    own, as in :func:`dvfc.models.robot.frozen_urdf`, which strips the tag: the bounds and the
-    dynamics are both those of that arm, not of the coupled one the URDF describes).
+    every other movable joint frozen at zero, as in :func:`dvfc.models.robot.frozen_urdf`, and
+    each joint moving on its own: the bounds of an arm with mimic joints are those of this one
+    through :meth:`MassBounds.coupled`).
 
     Raises
     ------

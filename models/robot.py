@@ -58,6 +58,20 @@ class RobotModelError(ValueError):
     """The URDF cannot be read, or it does not have the frame or joints asked for."""
 
 
+class ChainError(RobotModelError):
+    """The chain from the URDF's root to the camera link cannot be modelled: no such link, no
+    movable joint on the way, or a joint of a kind the toolkit does not support."""
+
+
+@dataclass(frozen=True)
+class Mimic:
+    """A URDF ``<mimic>`` joint: ``q_joint = multiplier q_master + offset``."""
+
+    master: str
+    multiplier: float = 1.0
+    offset: float = 0.0
+
+
 @dataclass(frozen=True)
 class JointLimits:
     """The URDF's ``<limit>`` of each joint of the chain (``inf`` where the file gives none):
@@ -104,25 +118,100 @@ def _parse(urdf: Path) -> ET.Element:
 
 
 def chain_joints(urdf: Path, frame: str) -> list[str]:
-    """Names of the movable joints from the URDF's root to ``frame``, root first."""
+    """Names of the movable joints from the URDF's root to ``frame``, root first (``mimic``
+    joints included).
+
+    Raises
+    ------
+    ChainError
+        No link ``frame``, no movable joint on the way, or a joint on the way that is neither
+        revolute nor continuous (a prismatic joint: the inertia bounds of
+        :mod:`dvfc.models.inertia` and the planar and spatial loops are for revolute joints).
+    """
     root = _parse(urdf)
     links = {link.get("name") for link in root.iter("link")}
     if frame not in links:
         close = difflib.get_close_matches(frame, sorted(links), n=3, cutoff=0.3) or sorted(links)[:6]
-        raise RobotModelError(
-            f"URDF {urdf.name} has no link named {frame!r}; closest: {', '.join(map(repr, close))}"
-        )
+        raise ChainError(f"URDF {urdf.name} has no link named {frame!r}; closest: {', '.join(map(repr, close))}")
     parent_joint = {j.find("child").get("link"): j for j in root.iter("joint") if j.find("child") is not None}
     names: list[str] = []
     link = frame
     while link in parent_joint:
         joint = parent_joint[link]
-        if joint.get("type") in ("revolute", "continuous", "prismatic"):
+        kind = joint.get("type")
+        if kind in ("prismatic", "planar", "floating"):
+            raise ChainError(
+                f"joint {joint.get('name')!r} is {kind}, on the chain from the root of {urdf.name} to {frame!r}: "
+                "only revolute and continuous joints are supported; mount the camera on a link above it"
+            )
+        if kind in ("revolute", "continuous"):
             names.append(joint.get("name"))
         link = joint.find("parent").get("link")
     if not names:
-        raise RobotModelError(f"no movable joint between the root of {urdf.name} and {frame!r}")
+        raise ChainError(f"no movable joint between the root of {urdf.name} and {frame!r}")
     return names[::-1]
+
+
+def mimic_joints(urdf: Path) -> dict[str, Mimic]:
+    """The URDF's movable ``<mimic>`` joints: name -> :class:`Mimic` (the URDF's defaults:
+    multiplier 1, offset 0).
+
+    Raises
+    ------
+    RobotModelError
+        A mimic joint whose master is not a joint of the URDF.
+    """
+    joints = _parse(urdf).findall("joint")
+    names = {joint.get("name") for joint in joints}
+    out = {}
+    for joint in joints:
+        tag = joint.find("mimic")
+        if tag is None or joint.get("type") == "fixed":
+            continue
+        name, master = joint.get("name"), tag.get("joint")
+        if master not in names:
+            raise RobotModelError(f"joint {name!r} of {urdf.name} mimics {master!r}: no such joint")
+        multiplier, offset = float(tag.get("multiplier", 1.0)), float(tag.get("offset", 0.0))
+        out[name] = Mimic(master, multiplier, offset)
+    return out
+
+
+def coupling(chain: list[str], mimic: dict[str, Mimic]) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
+    """The independent joints of ``chain`` and every joint that moves with them:
+    ``(joints, moving, T, c)`` with ``q_moving = T q_joints + c``.
+
+    ``joints`` are the chain's joints that mimic none; ``moving`` is ``joints`` followed by the
+    chain's mimic joints and every other mimic joint whose master, followed through mimics of
+    mimics, is one of ``joints``. A mimic joint whose master is held fixed at zero (a movable
+    joint off the chain) sits at its offset.
+
+    Raises
+    ------
+    RobotModelError
+        Mimic joints that follow each other in a cycle (:class:`ChainError`: a chain of mimic
+        joints only).
+    """
+    joints = [name for name in chain if name not in mimic]
+    if not joints:
+        raise ChainError(f"every joint of the chain ({', '.join(map(repr, chain))}) mimics another")
+    n = len(joints)
+
+    def resolve(name: str, seen: tuple[str, ...]) -> tuple[np.ndarray, float]:
+        if name in joints:
+            return np.eye(n)[joints.index(name)], 0.0
+        if name not in mimic:
+            return np.zeros(n), 0.0  # a movable joint off the chain, held fixed at zero
+        if name in seen:
+            cycle = " -> ".join(map(repr, (*seen, name)))
+            raise RobotModelError(f"the mimic joints {cycle} follow each other in a cycle")
+        m = mimic[name]
+        row, offset = resolve(m.master, (*seen, name))
+        return m.multiplier * row, m.multiplier * offset + m.offset
+
+    rows = {name: resolve(name, ()) for name in (*joints, *mimic)}
+    moving = [*joints, *(name for name in mimic if name in chain or np.any(rows[name][0]))]
+    t = np.array([rows[name][0] for name in moving]).reshape(len(moving), n)
+    return joints, moving, t, np.array([rows[name][1] for name in moving])
 
 
 def joint_limits(urdf: Path, joints: list[str]) -> JointLimits:
@@ -171,7 +260,8 @@ def frozen_urdf(urdf: Path, joints: list[str]) -> str:
     """The URDF with every movable joint outside ``joints`` (a gripper's fingers, say) fixed at
     zero and without ``mimic`` and ``dynamics`` tags and top-level elements other than links,
     joints and materials (``transmission``, ``ros2_control``, ``gazebo``: not rigid-body data):
-    the arm's dynamics then carry those links as rigid loads."""
+    the arm's dynamics then carry those links as rigid loads (the joints that mimic others are
+    in ``joints`` and :class:`Robot` couples them, :func:`coupling`)."""
     root = _parse(urdf)
     for child in list(root):  # transmission, ros2_control, gazebo: not rigid-body data, unknown to the parser
         if child.tag not in ("link", "joint", "material"):
@@ -213,23 +303,33 @@ class Robot:
 
     def __post_init__(self) -> None:
         self.urdf = Path(self.urdf)
-        self.joints = chain_joints(self.urdf, self.frame)
-        try:
-            text = frozen_urdf(self.urdf, self.joints)
-            if self.perturbed:
-                text = perturbed_urdf(text, self.frame, self.payload, self.mass_scale)
-            self._kindyn = KinDynComputations(text, self.joints)
-        except Exception as exc:  # adam raises bare exceptions on malformed files
-            raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {exc}") from exc
+        self.joints, self.moving, self.coupling, offset = coupling(
+            chain_joints(self.urdf, self.frame), mimic_joints(self.urdf)
+        )
+        """``joints``: the independent joints of the chain (``q``); ``moving``: every joint the
+        dynamics move, ``q_moving = coupling q + offset`` (:func:`coupling`)."""
         if self.armature and len(self.armature) != self.n:
             raise RobotModelError(f"armature: expected {self.n} entries (one per joint), got {len(self.armature)}")
         try:
-            self.mass_bounds: MassBounds = mass_matrix_bounds(self.urdf, self.joints, self.armature)
-            """Bounds on ``M(q)`` for every ``q`` (:mod:`dvfc.models.inertia`; docs/math.md, fact 10)."""
+            text = frozen_urdf(self.urdf, self.moving)
+            if self.perturbed:
+                text = perturbed_urdf(text, self.frame, self.payload, self.mass_scale)
+            self._kindyn = KinDynComputations(text, self.moving)
+        except Exception as exc:  # adam raises bare exceptions on malformed files
+            raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {exc}") from exc
+        try:
+            if self.moving == self.joints:
+                self.mass_bounds: MassBounds = mass_matrix_bounds(self.urdf, self.joints, self.armature)
+                """Bounds on ``M(q)`` for every ``q`` (:mod:`dvfc.models.inertia`; docs/math.md, fact 10)."""
+            else:
+                arm = np.asarray(self.armature, dtype=float) if self.armature else np.zeros(self.n)
+                self.mass_bounds = mass_matrix_bounds(self.urdf, self.moving).coupled(self.coupling, arm)
         except InertiaModelError as exc:
             raise RobotModelError(f"{self.urdf.name}: {exc}") from exc
         self.q = cs.SX.sym("q", self.n)
         self.qd = cs.SX.sym("qd", self.n)
+        self._offset = offset
+        self._q_moving = cs.DM(self.coupling) @ self.q + cs.DM(offset)
 
     @property
     def perturbed(self) -> bool:
@@ -238,8 +338,21 @@ class Robot:
 
     @cached_property
     def limits(self) -> JointLimits:
-        """The URDF's joint limits of the chain."""
-        return joint_limits(self.urdf, self.joints)
+        """The URDF's limits of the chain's independent joints, the position and velocity limits
+        narrowed by those of the joints that mimic them (``lower <= m q_i + o <= upper`` and
+        ``|m qd_i| <= velocity`` for ``q_mimic = m q_i + o``)."""
+        every = joint_limits(self.urdf, self.moving)
+        lower, upper, velocity = (every.lower[: self.n].copy(), every.upper[: self.n].copy(),
+                                  every.velocity[: self.n].copy())  # fmt: skip
+        for k in range(self.n, len(self.moving)):
+            i = int(np.argmax(np.abs(self.coupling[k])))
+            m = self.coupling[k, i]
+            if m == 0.0:  # a mimic of a joint held fixed: it does not move
+                continue
+            low, high = sorted(((every.lower[k] - self._offset[k]) / m, (every.upper[k] - self._offset[k]) / m))
+            lower[i], upper[i] = max(lower[i], low), min(upper[i], high)
+            velocity[i] = min(velocity[i], every.velocity[k] / abs(m))
+        return JointLimits(every.effort[: self.n], velocity, lower, upper)
 
     @property
     def n(self) -> int:
@@ -253,13 +366,14 @@ class Robot:
     @cached_property
     def mass_matrix(self) -> Matrix:
         """``M(q)`` of (33), symbolic in :attr:`q` (rigid body plus :attr:`armature`)."""
-        rigid = self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self.q))
+        t = cs.DM(self.coupling)
+        rigid = t.T @ self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self._q_moving)) @ t
         return rigid + cs.diag(cs.DM(self.armature)) if self.armature else rigid
 
     @cached_property
     def gravity(self) -> Matrix:
         """``g(q)`` of (33): the gradient of the potential energy."""
-        return self._joint_block(self._kindyn.gravity_term(cs.SX.eye(4), self.q))
+        return cs.DM(self.coupling).T @ self._joint_block(self._kindyn.gravity_term(cs.SX.eye(4), self._q_moving))
 
     @cached_property
     def coriolis(self) -> Matrix:
@@ -281,7 +395,7 @@ class Robot:
     @cached_property
     def camera_pose(self) -> SE3:
         """``g_wc(q)``: world to camera, the link's forward kinematics times the mount."""
-        link = SE3.from_matrix(self._kindyn.forward_kinematics(self.frame, cs.SX.eye(4), self.q))
+        link = SE3.from_matrix(self._kindyn.forward_kinematics(self.frame, cs.SX.eye(4), self._q_moving))
         return link @ self.mount
 
     @cached_property
@@ -294,7 +408,7 @@ class Robot:
 
     def potential_energy(self) -> Matrix:
         """``U(q) = -m_total g0 . c(q)``, c the centre of mass (for checking ``g(q) = dU/dq``)."""
-        com = self._kindyn.CoM_position(cs.SX.eye(4), self.q)
+        com = self._kindyn.CoM_position(cs.SX.eye(4), self._q_moving)
         return -self._kindyn.get_total_mass() * (cs.DM(self._kindyn.g[0:3]).T @ com)
 
     def function(self, name: str, expr: Matrix) -> cs.Function:
