@@ -126,9 +126,13 @@ class Dispersion:
         """The drawn quantities, in the order they are drawn (sorted)."""
         return sorted(self.distributions)
 
+    def columns_of(self, key: str) -> list[str]:
+        """The dataset columns of one drawn quantity."""
+        return column_names(key, len(self.base[key]))
+
     def columns(self) -> list[str]:
         """Every dataset column of the drawn quantities."""
-        return [c for key in self.keys for c in column_names(key, len(self.base[key]))]
+        return [c for key in self.keys for c in self.columns_of(key)]
 
     def draw(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """One run's values (absolute, within each field's domain)."""

@@ -334,11 +334,12 @@ def _windowed(submit_one: Callable, spec: GridSpec, ranges: list[tuple[int, int]
 
 
 class BatchRunner:
-    """Context manager yielding ``submit(spec, ranges)``: an iterator of batch results
-    in order, computed in-process, by local processes or on a Dask cluster."""
+    """Context manager yielding ``submit(spec, ranges)``: an iterator of the results of
+    ``function(spec, lo, hi)`` (:func:`certify_batch` unless given) in order, computed
+    in-process, by local processes or on a Dask cluster."""
 
-    def __init__(self, workers: int, scheduler: str | None) -> None:
-        self.workers, self.scheduler = workers, scheduler
+    def __init__(self, workers: int, scheduler: str | None, function: Callable = certify_batch) -> None:
+        self.workers, self.scheduler, self.function = workers, scheduler, function
         self.closers: list[Callable[[], None]] = []
 
     def __enter__(self):
@@ -356,16 +357,16 @@ class BatchRunner:
 
             def submit(spec, ranges):
                 scattered = client.scatter(spec, broadcast=True)
-                one = lambda _, lo, hi: client.submit(certify_batch, scattered, lo, hi, pure=False)  # noqa: E731
+                one = lambda _, lo, hi: client.submit(self.function, scattered, lo, hi, pure=False)  # noqa: E731
                 return _windowed(one, spec, ranges, window)
 
             return submit
         if self.workers > 1:
             pool = ProcessPoolExecutor(self.workers)
             self.closers.append(lambda: pool.shutdown(cancel_futures=True))
-            one = lambda spec, lo, hi: pool.submit(certify_batch, spec, lo, hi)  # noqa: E731
+            one = lambda spec, lo, hi: pool.submit(self.function, spec, lo, hi)  # noqa: E731
             return lambda spec, ranges: _windowed(one, spec, ranges, 2 * self.workers)
-        return lambda spec, ranges: (certify_batch(spec, lo, hi) for lo, hi in ranges)
+        return lambda spec, ranges: (self.function(spec, lo, hi) for lo, hi in ranges)
 
     def __exit__(self, *exc) -> None:
         for close in self.closers:

@@ -30,6 +30,7 @@ run is cut back to the capture.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable
@@ -171,6 +172,25 @@ class SampledSimulator(Simulator):
             self._window = tuple(np.tile(bound, loop.camera.m) for bound in loop.camera.image_window())
             if self.errors is not None:
                 self._window = self.errors.window(loop.camera)
+
+    def for_run(self, settings: Settings) -> SampledSimulator:
+        """This simulator (its compiled functions) for another run of the same loop: the
+        settings' implementation and plant errors (``errors`` set here too) replace this one's.
+        A campaign builds one simulator and runs it with each run's values."""
+        if (settings.errors is None) != (self.errors is None):
+            raise ValueError("for_run: the plant errors must be given for both runs or neither")
+        other = copy.copy(self)
+        imp = settings.implementation
+        other.settings, other.implementation = settings, imp
+        other.limits = imp.limits(self.loop.robot.limits)
+        other._effort = other.limits.effort if imp.saturate else np.full(self.loop.robot.n, np.inf)
+        if settings.errors is not None:
+            other.errors = settings.errors
+            other._friction = settings.errors.friction_vector()
+            other._errors = settings.errors.camera_vector(self.loop.camera)
+            if self._window is not None:
+                other._window = settings.errors.window(self.loop.camera)
+        return other
 
     def _rk4(self, t: cs.MX, s: cs.MX, applied: cs.MX, e: cs.MX, friction: cs.MX) -> tuple[cs.MX, cs.MX]:
         """The state after one control period from ``(t, s)`` with the torque ``applied`` and
