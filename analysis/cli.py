@@ -6,6 +6,7 @@ features lost), 2 bad input (one line on standard error naming the field).
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import sys
@@ -23,13 +24,15 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
+from dvfc.analysis.campaign import CampaignSpec, read_runs, run_campaign, summarize, worst_case
+from dvfc.analysis.campaign import row as campaign_row
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import (
     NOT_APPLICABLE,
     GainPoint,
 )
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
-from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, runs_done
+from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, runs_done, tracking_bound
 from dvfc.analysis.multirate import implemented_text
 from dvfc.analysis.output import (
     atomic_write,
@@ -186,10 +189,19 @@ def simulate(
     out_dir: OutOpt = None,
     json_target: JsonOpt = None,
     mode: Annotated[Mode | None, typer.Option(help="Override [simulation] mode.")] = None,
+    campaign_run: Annotated[int | None, typer.Option(min=0, help="Replay run K of `dvfc campaign`.")] = None,
+    campaign_values: Annotated[
+        Path | None, typer.Option(help="Replay the values of a worst-case file of `dvfc campaign`.")
+    ] = None,
+    campaign_seed: Annotated[int, typer.Option(min=0, help="The campaign's --seed.")] = 0,
 ) -> None:
     """Simulate the closed loop (36), (42) and check its energy identities."""
     case = load_case(scenario, mode.value if mode else None)
     spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
+    replayed = None
+    if campaign_run is not None or campaign_values is not None:
+        replayed = campaign_replay(case, campaign_run, campaign_values, campaign_seed)
+        settings, s0 = replayed.run_settings(campaign_run or 0, replayed_values(replayed, campaign_values))
     check_json_target(json_target)
     warn_fewer_than_six(case)
     warn_windows(case)
@@ -218,8 +230,11 @@ def simulate(
         trajectory = simulator.run(s0, progress=advance)
 
     outputs = {"trajectory": directory / "trajectory.npz", "summary": directory / "summary.json"}
-    result = simulation_result(case, trajectory, outputs, command_provenance(scenario))
-    arrays = trajectory_arrays(case, trajectory)
+    result = simulation_result(case, trajectory, outputs, command_provenance(scenario), settings)
+    if replayed is not None:
+        values = replayed_values(replayed, campaign_values) or replayed.values(campaign_run)
+        result["campaign_row"] = campaign_row(replayed, campaign_run or 0, trajectory, settings, values)
+    arrays = trajectory_arrays(case, trajectory, settings)
     atomic_write(outputs["trajectory"], lambda h: np.savez_compressed(h, **arrays))
     emit(result, directory / "summary.json", json_target, show)
     if trajectory.status != "ok":
@@ -795,3 +810,117 @@ def show_claims(result: dict, claims: list) -> None:
     problems += [f"{summary_['inconclusive']} check(s) INCONCLUSIVE"] if summary_["inconclusive"] else []
     verdict = "; ".join(problems) or "every claim holds"
     out.print(f"{verdict} ({summary_['claims']} checked)", markup=False)
+
+
+def campaign_replay(case: Case, run: int | None, values: Path | None, seed: int) -> CampaignSpec:
+    """The campaign of ``case`` for a replay (exit 2 on bad input)."""
+    if run is not None and values is not None:
+        raise fail("--campaign-run and --campaign-values: give one")
+    try:
+        return CampaignSpec.of(case, tracking_bound(case), seed)
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+
+
+def replayed_values(spec: CampaignSpec, path: Path | None) -> dict[str, np.ndarray] | None:
+    """The values of a worst-case file (``--campaign-values``), or None."""
+    if path is None:
+        return None
+    try:
+        data = json.loads(path.read_text())["values"]
+        values = {k: np.asarray(v, dtype=float) for k, v in data.items()}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise fail(f"--campaign-values: cannot read {path}: {exc}") from exc
+    if set(values) != set(spec.dispersion.keys):
+        raise fail(f"--campaign-values: {path} has other quantities than the scenario's [dispersion]")
+    return values
+
+
+@app.command("campaign")
+def campaign_command(
+    scenario: ScenarioArg = DEFAULT_SCENARIO,
+    runs: Annotated[int, typer.Option(help="Runs to make (at least 1).")] = 100,
+    confidence: Annotated[float, typer.Option(help="Confidence of the statements, in (0, 1).")] = 0.95,
+    p_fail: Annotated[float, typer.Option("--p", help="P(fail) for the zero-failure run count, in (0, 1).")] = 0.01,
+    quantile: Annotated[float, typer.Option(help="Quantile of the tracking error bounded, in (0, 1).")] = 0.9,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the campaign's seed sequence.")] = 0,
+    search: Annotated[int, typer.Option(min=0, help="Runs of the worst-case search (0: none).")] = 0,
+    workers: Annotated[int, typer.Option(min=1, help="Local worker processes.")] = 1,
+    scheduler: SchedulerOpt = None,
+    batch_size: Annotated[int, typer.Option(min=1, help="Runs per batch (one Parquet file each).")] = 25,
+    resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
+    out_dir: OutOpt = None,
+    json_target: JsonOpt = None,
+) -> None:
+    """Run the scenario's [dispersion] as a campaign of independent runs of the loop as implemented,
+    each judged by the margins criterion; state the failure probability with its confidence.
+    Exit 0 no failure, 1 some run fails, 2 bad input."""
+    if runs < 1:
+        raise fail(f"--runs: {runs}; give at least 1")
+    for name, value in (("--confidence", confidence), ("--p", p_fail), ("--quantile", quantile)):
+        if not 0 < value < 1:
+            raise fail(f"{name}: {value:g} is not in (0, 1)")
+    case = load_case(scenario)
+    if not case.scenario.dispersion:
+        raise fail("dispersion: the scenario has no [dispersion] section")
+    check_json_target(json_target)
+    bound = tracking_bound(case)
+    try:
+        spec = CampaignSpec.of(case, bound, seed)
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    directory = prepare_out_dir(out_dir or Path("out") / f"{case.name}-campaign")
+    if resume and not (directory / "campaign.json").exists():
+        raise fail(f"--resume: no campaign to resume in {directory}")
+    sha = provenance(scenario, [])["scenario_sha256"]
+    columns = (TextColumn("[bold]campaign[/]"), BarColumn(), MofNCompleteColumn(), TextColumn("runs"),
+               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    again = f"dvfc campaign {scenario} --runs {runs} --seed {seed} --out {directory} --resume"
+    try:
+        with (
+            resumable(again),
+            Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar,
+        ):
+            task = bar.add_task("runs", total=runs)
+            lines = None if err.is_terminal else ProgressLines("campaign", runs, "runs")
+
+            def advance(done: int) -> None:
+                bar.update(task, completed=done)
+                if lines is not None:
+                    lines(done)
+
+            run_campaign(spec, directory, runs, batch_size=batch_size, workers=workers, scheduler=scheduler,
+                         resume=resume, progress=advance, scenario_sha256=sha)  # fmt: skip
+            result = summarize(spec, read_runs(directory), confidence, p_fail, quantile)
+            if search:
+                found = worst_case(spec, search)
+                write_json(directory / "worst_case.json", found)
+                found["replay"] = spec.replay(values=directory / "worst_case.json")
+                result["worst_case_search"] = found
+    except ValueError as exc:
+        raise fail(str(exc)) from exc
+    result |= {"scenario": case.name, "dataset": str(directory / "runs"), "provenance": command_provenance(scenario)}
+    emit(result, directory / "summary.json", json_target, show_campaign)
+    if result["failures"]:
+        raise typer.Exit(1)
+
+
+def show_campaign(result: dict) -> None:
+    """Human output of ``campaign``: the statement, the tolerance bound, the strongest drivers, the worst runs."""
+    out.print(result["statement"], markup=False, soft_wrap=True)
+    out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
+    out.print(result["zero_failure"]["statement"], markup=False, soft_wrap=True)
+    out.print(f"tolerance: {result['tolerance']['statement']}", markup=False, soft_wrap=True)
+    table = Table(title="Sensitivity of the tracking ratio (Spearman, measured)")
+    for name in ("quantity", "spearman", "failure rate per quartile"):
+        table.add_column(name)
+    for e in result["sensitivity"]:
+        rates = " ".join("-" if r is None else f"{r:.2f}" for r in e["failure_rate"])
+        table.add_row(e["quantity"], _number(e["spearman"]), rates)
+    out.print(table)
+    for w in result["worst"]:
+        out.print(f"run {w['run']}: {'holds' if w['holds'] else 'fails'} ({w['reason']}); replay: {w['replay']}",
+                  markup=False, soft_wrap=True)  # fmt: skip
+    if (found := result.get("worst_case_search")) is not None:
+        out.print(f"worst case found ({found['statement']}): closeness to failure {found['worst_closeness']:.4g}; "
+                  f"replay: {found['replay']}", markup=False, soft_wrap=True)  # fmt: skip

@@ -36,6 +36,11 @@ class Implementation:
         the classical fourth-order Runge-Kutta method in ``substeps`` equal steps per control
         period (error ``O((h/substeps)^4)``), or ``"cvodes"``, CVODES restarted at every
         sample with the run's error tolerances (about 5x slower).
+    latency_jitter, frame_drop, outlier_probability, outlier_size
+        Timing and detection faults, drawn per image from the run's fault stream
+        (:meth:`arrivals`): up to ``latency_jitter`` further whole control periods of latency
+        (uniform), the probability that an image is lost, and per feature point the
+        probability of a wrong detection ``outlier_size`` px away in a uniform direction.
     """
 
     control_rate: float
@@ -49,6 +54,10 @@ class Implementation:
     seed: int = 0
     integrator: Literal["rk4", "cvodes"] = "rk4"
     substeps: int = 1
+    latency_jitter: int = 0
+    frame_drop: float = 0.0
+    outlier_probability: float = 0.0
+    outlier_size: float = 0.0
 
     @property
     def period(self) -> float:
@@ -71,3 +80,29 @@ class Implementation:
         rounding)."""
         ticks = np.arange(math.floor(steps * self.camera_rate / self.control_rate + 1e-9) + 1)
         return np.unique(np.ceil(ticks * self.control_rate / self.camera_rate - 1e-9).astype(int))
+
+    def arrivals(self, captures: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """The images that arrive, as ``(capture steps, arrival steps)``, both increasing: each
+        capture arrives :attr:`latency_steps` plus a uniform draw from ``0 .. latency_jitter``
+        periods later unless it is dropped (probability :attr:`frame_drop`) or a later image
+        arrives no later (the controller uses the newest image, so an overtaken one is never
+        used). Without faults no draw is made: every capture arrives ``latency_steps`` later."""
+        arrive = captures + self.latency_steps
+        kept = np.ones(len(captures), dtype=bool)
+        if self.latency_jitter > 0:
+            arrive = arrive + rng.integers(0, self.latency_jitter + 1, len(captures))
+            later = np.minimum.accumulate(arrive[::-1])[::-1]  # the earliest arrival from each image on
+            kept &= np.append(arrive[:-1] < later[1:], True)
+        if self.frame_drop > 0:
+            kept &= rng.random(len(captures)) >= self.frame_drop
+        return captures[kept], arrive[kept]
+
+    def outliers(self, size: int, rng: np.random.Generator) -> np.ndarray:
+        """Wrong detections of one image: per point, with probability :attr:`outlier_probability`,
+        a displacement of :attr:`outlier_size` px in a uniform direction (``size`` = 2 m entries)."""
+        if self.outlier_probability == 0:
+            return np.zeros(size)
+        hit = rng.random(size // 2) < self.outlier_probability
+        angle = rng.uniform(0, 2 * np.pi, size // 2)
+        shift = self.outlier_size * np.column_stack([np.cos(angle), np.sin(angle)]) * hit[:, None]
+        return shift.ravel()

@@ -159,10 +159,12 @@ def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
     }
 
 
-def simulation_result(case: Case, trajectory: Trajectory, outputs: dict[str, Path], provenance: dict) -> dict:
-    """The JSON result of a run of the case (``dvfc simulate``): its summary, how the loop was
-    implemented, per joint its peaks against the URDF's limits, the files written."""
-    loop, settings = case.loop, case.settings
+def simulation_result(case: Case, trajectory: Trajectory, outputs: dict[str, Path], provenance: dict,
+                      settings: Settings | None = None) -> dict:
+    """The JSON result of a run of the case (``dvfc simulate``; ``settings``: the run's, when not the
+    case's, as a campaign run replayed): its summary, how the loop was implemented, per joint its
+    peaks against the URDF's limits, the files written."""
+    loop, settings = case.loop, settings or case.settings
     return {
         "scenario": case.name,
         "mode": loop.mode,
@@ -174,10 +176,11 @@ def simulation_result(case: Case, trajectory: Trajectory, outputs: dict[str, Pat
     }
 
 
-def trajectory_arrays(case: Case, trajectory: Trajectory) -> dict[str, np.ndarray]:
+def trajectory_arrays(case: Case, trajectory: Trajectory, settings: Settings | None = None) -> dict[str, np.ndarray]:
     """What ``trajectory.npz`` holds: the time grid, every signal, the running integrals
-    (``int_<name>``) and the joints' effort and velocity limits."""
-    urdf = robot_limits(case.loop, case.settings)
+    (``int_<name>``) and the joints' effort and velocity limits (``settings`` as in
+    :func:`simulation_result`)."""
+    urdf = robot_limits(case.loop, settings or case.settings)
     integrals = {f"int_{k}": v for k, v in trajectory.integrals.items()}
     limits = {"effort_limit": urdf.effort, "velocity_limit": urdf.velocity}
     return {"t": trajectory.t, **trajectory.signals, **integrals, **limits}

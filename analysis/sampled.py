@@ -30,6 +30,7 @@ run is cut back to the capture.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable
@@ -41,6 +42,8 @@ import numpy as np
 from dvfc.analysis.compile import Buffered, compiled
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.simulate import Settings, Simulator, Trajectory, joint_peaks
+from dvfc.models.errors import PlantErrors, camera_size, controller_features, friction_torque, true_features
+from dvfc.models.lie import SE3
 from dvfc.models.loop import QUADRATURES, ClosedLoop
 from dvfc.models.robot import JointLimits
 
@@ -131,6 +134,9 @@ class SampledSimulator(Simulator):
         # The torque is clipped at the input ``effort`` (inf: not clipped), so that another
         # torque scale or saturate setting needs no new code; a NaN torque stays NaN.
         effort = cs.MX.sym("effort", n)
+        friction = cs.MX.sym("friction", 2 * n + 1)  # [viscous; coulomb; eps] of the plant (models/errors.py)
+        self.errors = settings.errors
+        self._friction = (self.errors or PlantErrors.none(loop.camera, n)).friction_vector()
         self._effort = limits.effort if implementation.saturate else np.full(n, np.inf)
         law = cs.Function("dvfc_law", [loop.t, loop.state, loop.hold], [loop.tau])
         if settings.jit and implementation.integrator == "cvodes":  # the RK4 period is compiled whole
@@ -138,40 +144,77 @@ class SampledSimulator(Simulator):
         commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e))
         applied = cs.if_else(commanded > effort, effort, cs.if_else(commanded < -effort, -effort, commanded))
         if implementation.integrator == "rk4":
-            after, quad = self._rk4(t, s, cs.vertcat(applied, e))
+            after, quad = self._rk4(t, s, applied, e, friction)
         else:
             result = self._cvodes()(x0=s, p=cs.vertcat(t, applied, e))
             after, quad = result["xf"], result["qf"]
         for q in loop.quaternions:
             after[q] = after[q] / cs.norm_2(after[q])
-        period = cs.Function("dvfc_period", [s, t, e, effort], [after, commanded, applied, quad])
+        period = cs.Function("dvfc_period", [s, t, e, effort, friction], [after, commanded, applied, quad])
         last = cs.Function("dvfc_last", [t, s, e, effort], [commanded, applied])  # at t = T: the law, no integration
         if settings.jit and implementation.integrator == "rk4":
             period, last = compiled(period, jacobian=False, level="-O2"), compiled(last, jacobian=False)
         self._period, self._last = period, Buffered(last)
         self._chunks: dict[int, Buffered] = {}
         noise = cs.SX.sym("noise", loop.features.numel())
-        self._camera = cs.Function("dvfc_camera", [loop.t, loop.state, noise], self._image(noise))
+        if self.errors is None:
+            self._camera = cs.Function("dvfc_camera", [loop.t, loop.state, noise], self._image(noise))
+        else:
+            errors = cs.SX.sym("errors", camera_size(loop.camera.m))
+            image = self._true_image(noise, errors)
+            self._camera = cs.Function("dvfc_true_camera", [loop.t, loop.state, noise, errors], image)
+            self._errors = self.errors.camera_vector(loop.camera)
         if settings.jit:
             self._camera = compiled(self._camera, jacobian=False)
         self._camera = Buffered(self._camera)
         self._window = None  # the image as bounds on f, point by point (when the run checks it)
         if settings.view and loop.camera.has_image:
             self._window = tuple(np.tile(bound, loop.camera.m) for bound in loop.camera.image_window())
+            if self.errors is not None:
+                self._window = self.errors.window(loop.camera)
 
-    def _rk4(self, t: cs.MX, s: cs.MX, hold: cs.MX) -> tuple[cs.MX, cs.MX]:
-        """The state after one control period from ``(t, s)`` with ``hold`` held, and the
+    def for_run(self, settings: Settings) -> SampledSimulator:
+        """This simulator (its compiled functions) for another run of the same loop: the
+        settings' implementation and plant errors (``errors`` set here too) replace this one's.
+        A campaign builds one simulator and runs it with each run's values."""
+        if (settings.errors is None) != (self.errors is None):
+            raise ValueError("for_run: the plant errors must be given for both runs or neither")
+        other = copy.copy(self)
+        imp = settings.implementation
+        other.settings, other.implementation = settings, imp
+        other.limits = imp.limits(self.loop.robot.limits)
+        other._effort = other.limits.effort if imp.saturate else np.full(self.loop.robot.n, np.inf)
+        if settings.errors is not None:
+            other.errors = settings.errors
+            other._friction = settings.errors.friction_vector()
+            other._errors = settings.errors.camera_vector(self.loop.camera)
+            if self._window is not None:
+                other._window = settings.errors.window(self.loop.camera)
+        return other
+
+    def _rk4(self, t: cs.MX, s: cs.MX, applied: cs.MX, e: cs.MX, friction: cs.MX) -> tuple[cs.MX, cs.MX]:
+        """The state after one control period from ``(t, s)`` with the torque ``applied`` and
+        ``e`` held, less the plant's friction at each stage's joint speeds, and the
         quadratures' increments: :attr:`Implementation.substeps` classical RK4 steps."""
-        loop = self.loop
-        rate = cs.Function("dvfc_rate", [loop.t, loop.state, loop.hold], [loop.state_rate, loop.quadratures])
+        loop, n = self.loop, self.loop.robot.n
+        held = cs.Function("dvfc_held", [loop.t, loop.state, loop.hold], [loop.state_rate, loop.quadratures])
+        syms = [cs.MX.sym(name, v.numel()) for name, v in (("t", t), ("x", s), ("tau", applied), ("e", e),
+                                                            ("friction", friction))]  # fmt: skip
+        t_, x, tau, e_, b = syms
+        torque = tau - friction_torque(x[n : 2 * n], b, n)  # no friction: tau - 0, exactly tau
+        stage = cs.Function("dvfc_rate", syms, held(t_, x, cs.vertcat(torque, e_)))
+
+        def rate(time: cs.MX, state: cs.MX) -> list[cs.MX]:
+            return stage(time, state, applied, e, friction)
+
         step = self.implementation.period / self.implementation.substeps
         quad = cs.MX.zeros(len(QUADRATURES))
         for i in range(self.implementation.substeps):
             t0 = t + i * step
-            k1, q1 = rate(t0, s, hold)
-            k2, q2 = rate(t0 + step / 2, s + step / 2 * k1, hold)
-            k3, q3 = rate(t0 + step / 2, s + step / 2 * k2, hold)
-            k4, q4 = rate(t0 + step, s + step * k3, hold)
+            k1, q1 = rate(t0, s)
+            k2, q2 = rate(t0 + step / 2, s + step / 2 * k1)
+            k3, q3 = rate(t0 + step / 2, s + step / 2 * k2)
+            k4, q4 = rate(t0 + step, s + step * k3)
             s = s + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             quad = quad + step / 6 * (q1 + 2 * q2 + 2 * q3 + q4)
         return s, quad
@@ -201,34 +244,66 @@ class SampledSimulator(Simulator):
         """What one image gives: the true features ``f`` (11), the exact ``e_e`` (15), the
         ``e_e`` of (21) from ``f`` plus ``noise`` rounded (half up) to the pixel grid, and
         the depths of the points."""
-        loop, imp = self.loop, self.implementation
-        measured = loop.features + noise
-        if imp.quantization > 0:
-            camera = loop.camera
-            offset = cs.DM(np.tile(camera.centre if camera.has_image else np.zeros(2), camera.m))
-            measured = cs.floor((measured + offset) / imp.quantization + 0.5) * imp.quantization - offset
+        loop = self.loop
+        measured = self._quantized(loop.features + noise)
         return [loop.features, loop.e_e, loop.image_estimate(measured), loop.camera.depths(loop.relative_pose)]
+
+    def _quantized(self, measured: cs.SX) -> cs.SX:
+        """Pixel offsets about the nominal principal point rounded (half up) to the pixel grid."""
+        imp, camera = self.implementation, self.loop.camera
+        if imp.quantization == 0:
+            return measured
+        offset = cs.DM(np.tile(camera.centre if camera.has_image else np.zeros(2), camera.m))
+        return cs.floor((measured + offset) / imp.quantization + 0.5) * imp.quantization - offset
+
+    def _true_image(self, noise: cs.SX, errors: cs.SX) -> list[cs.SX]:
+        """What one image gives when the plant's camera differs from the controller's
+        (:mod:`dvfc.models.errors`, ``errors`` its :meth:`~dvfc.models.errors.PlantErrors.camera_vector`):
+        the true features about the true principal point (for the true image's bounds), the
+        exact ``e_e`` (15) of the nominal model, the ``e_e`` of (21) from the pixels plus
+        ``noise`` read with the nominal intrinsics, and the true depths."""
+        loop = self.loop
+        true, about_nominal, depths = true_features(loop.camera, loop.relative_pose, errors)
+        measured = controller_features(loop.camera, self._quantized(about_nominal + noise))
+        return [true, loop.e_e, loop.image_estimate(measured), depths]
+
+    def true_tracking(self, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """The tracking error ``g_d^-1 g`` of the true camera (``g`` seen through the mount
+        error) at times ``t`` and ``states`` (rows), as the rows of ``g_tracking``."""
+        loop = self.loop
+        mount = cs.SX.sym("mount", 6)
+        g = SE3.from_xyz_rpy(mount[:3], mount[3:]).inverse() @ loop.relative_pose
+        error = cs.vec((loop.reference.inverse() @ g).as_matrix())
+        function = cs.Function("true_tracking", [loop.t, loop.state, mount], [error]).map(len(t))
+        m = np.repeat(self._errors[:6, None], len(t), axis=1)
+        return np.asarray(function(t, states.T, m)).T
 
     def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, str | None]:
         """The ``e_e`` of an image captured at ``(t, s)``, or the reason there is none."""
         size = self.loop.features.numel()
         image = self.loop.mode == "image"
         noise = self.implementation.pixel_noise * rng.standard_normal(size) if image else np.zeros(size)
-        f, e_ideal, e_image, depth = (v.ravel() for v in self._camera(t, s, noise))
+        if self.implementation.outlier_probability > 0:
+            noise = noise + self.implementation.outliers(size, self._faults)
+        if self.errors is None:
+            f, e_ideal, e_image, depth = (v.ravel() for v in self._camera(t, s, noise))
+        else:
+            f, e_ideal, e_image, depth = (v.ravel() for v in self._camera(t, s, noise, self._errors))
         if np.any(depth <= 0):
             return e_ideal, f"a feature point is behind the camera at t = {t:.4g} s"
         if self._window is not None and (np.any(f < self._window[0]) or np.any(f > self._window[1])):
-            outside = self.loop.camera.outside_image(f)
+            outside = np.flatnonzero(np.any(((f < self._window[0]) | (f > self._window[1])).reshape(-1, 2), axis=1))
             return e_ideal, f"feature {int(outside[0])} left the image at t = {t:.4g} s"
         return (e_image if image else e_ideal), None
 
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
         """Run the sampled loop from ``s0`` over the settings' horizon."""
         st, imp, loop = self.settings, self.implementation, self.loop
-        n, h, lag = loop.robot.n, imp.period, imp.latency_steps
+        n, h = loop.robot.n, imp.period
         steps = round(st.duration * imp.control_rate)
-        captures = imp.capture_steps(steps)
         rng = np.random.default_rng(imp.seed)
+        self._faults = np.random.default_rng((imp.seed % 2**64, 1))  # timing and detection faults
+        captures, arrivals = imp.arrivals(imp.capture_steps(steps), self._faults)
         s = np.array(s0, dtype=float)
         e_held = np.zeros(loop.task_dim)
         kept = {0: s}  # states at capture steps whose image is not measured yet
@@ -240,12 +315,13 @@ class SampledSimulator(Simulator):
         signal_chunks: list[dict[str, np.ndarray]] = []
         evaluated = 0
 
-        def measure_through(last: int) -> np.ndarray | None:
-            """Measure the captures up to step ``last`` in order; the latest ``e_e``, or None
-            (and a stop) when a feature is lost."""
+        def measure_through(last: int, steps_of: np.ndarray) -> np.ndarray | None:
+            """Measure in order the images whose step in ``steps_of`` (their arrivals, or their
+            captures) is at most ``last``; the latest ``e_e``, or None (and a stop) when a
+            feature is lost."""
             nonlocal measured
             e_new = None
-            while measured < len(captures) and captures[measured] <= last:
+            while measured < len(captures) and steps_of[measured] <= last:
                 c = int(captures[measured])
                 e_new, lost = self._measure(c * h, kept.pop(c), rng)
                 measured += 1
@@ -273,13 +349,13 @@ class SampledSimulator(Simulator):
         check_joints(0, s[None, : 2 * n])
         k = 0
         while not stops:
-            if (e_new := measure_through(k - lag)) is not None:
+            if (e_new := measure_through(k, arrivals)) is not None:
                 e_held = e_new
             if stops or k == steps:
                 break
-            end = min(int(captures[measured]) + lag, steps) if measured < len(captures) else steps
+            end = min(int(arrivals[measured]), steps) if measured < len(captures) else steps
             try:
-                held = (np.repeat(v[:, None], end - k, 1) for v in (e_held, self._effort))
+                held = (np.repeat(v[:, None], end - k, 1) for v in (e_held, self._effort, self._friction))
                 after, commanded, applied, quad = self._chunk(end - k)(s, np.arange(k, end) * h, *held)
             except RuntimeError as exc:
                 if interrupted(exc):
@@ -316,7 +392,7 @@ class SampledSimulator(Simulator):
                     stops.append(_Stop(k, 4, "time_budget", message, k, k + 1))
         # The captures up to the end (T, or the first stop) not measured yet: a feature lost in
         # one ends the run there, though its image would arrive later.
-        measure_through(min(stops).step if stops else steps)
+        measure_through(min(stops).step if stops else steps, captures)
         if not stops:  # the law at t = T, no integration
             commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held, self._effort))
             history["tau"].append(np.abs(commanded[None, :]))
@@ -337,9 +413,11 @@ class SampledSimulator(Simulator):
                 rows = rows[:kept_rows]
         signals = {name: np.concatenate([c[name] for c in signal_chunks])[: len(rows)] for name in signal_chunks[0]}
         signals["state"] = np.array([r[1] for r in rows])
+        if self.errors is not None:  # the camera the image comes from is the one held to g_d
+            signals["g_tracking"] = self.true_tracking(np.array([r[0] for r in rows]) * h, signals["state"])
         steps_of_rows = np.array([r[0] for r in rows])
         quad = np.vstack([np.zeros((1, len(QUADRATURES))), *history.pop("quad")]).cumsum(axis=0)[steps_of_rows]
-        ends = {"tau": stop.tau_end, "tau_applied": stop.tau_end, "q": stop.qd_end, "qd": stop.qd_end}
+        ends = {"tau": stop.tau_end, "tau_applied": stop.tau_end, "q": max(stop.qd_end, 1), "qd": stop.qd_end}
         samples = {key: np.vstack([np.zeros((0, n)), *v])[: ends[key]] for key, v in history.items()}
         q = samples.pop("q")  # the start at least
         peaks = {key: v.max(axis=0, initial=0.0) for key, v in samples.items()}

@@ -9,20 +9,30 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import casadi as cs
 import numpy as np
 from pydantic import ValidationError
 
+from dvfc.analysis.calibration import CalibrationError, read_calibration
 from dvfc.analysis.certify import GainPoint
 from dvfc.analysis.ik import Configuration, NoConfigurationError, solve_configuration
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.messages import one_line
-from dvfc.analysis.schema import DisturbancesSection, PlantSection, RobotSection, Scenario, ScenarioError
+from dvfc.analysis.schema import (
+    CameraSection,
+    DisturbancesSection,
+    PlantSection,
+    RobotSection,
+    Scenario,
+    ScenarioError,
+)
 from dvfc.analysis.simulate import Settings
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
+from dvfc.models.errors import PlantErrors
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop, Gains, Weights
 from dvfc.models.planar import TASK, PlanarLoop
@@ -34,6 +44,7 @@ from dvfc.models.robot import (
     Robot,
     RobotModelError,
     builtin_urdf,
+    joint_dynamics,
 )
 from dvfc.models.target import TargetMotion
 
@@ -204,7 +215,7 @@ def build(
     kind = PlanarLoop if scenario.loop == "planar" else ClosedLoop
     loop = kind(
         robot=robot,
-        camera=scenario.camera.camera(np.asarray(t.points, dtype=float)),
+        camera=build_camera(scenario.camera, base, np.asarray(t.points, dtype=float)),
         target=target,
         reference=scenario.reference.se3(),
         weights=point.weights,
@@ -229,8 +240,66 @@ def build(
         sigma_min=sim.sigma_min,
         implementation=_implementation(scenario, loop.mode),
         plant=_plant(scenario.plant, robot),
+        errors=plant_errors(scenario, loop),
     )
     return loop, s0, settings
+
+
+def build_camera(section: CameraSection, base: Path, points: np.ndarray) -> Camera:
+    """The controller's camera: from ``[camera]``, or its ``calibration`` file (relative to the
+    scenario's folder), which must agree with ``width`` and ``height`` when they are given."""
+    if section.calibration is None:
+        return section.camera(points)
+    path = base / section.calibration
+    try:
+        c = read_calibration(path)
+    except CalibrationError as exc:
+        raise ScenarioError(f"camera.calibration: {exc}") from exc
+    for name, value in (("width", c.width), ("height", c.height)):
+        given = getattr(section, name)
+        if given is not None and given != value:
+            raise ScenarioError(f"camera.{name}: {given:g} px, but the calibration file {path.name} says {value}")
+    return Camera(c.fx, points, c.width, c.height, c.principal_point, c.fy / c.fx, c.distortion)
+
+
+def plant_errors(scenario: Scenario, loop: ClosedLoop) -> PlantErrors | None:
+    """What the controller's model gets wrong (``[plant]`` mount, camera, target_points, friction),
+    or None when the scenario gives none of them; refused where it cannot act (no
+    ``[implementation]``; camera entries with the ideal ``e_e``; friction with CVODES)."""
+    section, imp, n = scenario.plant, scenario.implementation, loop.robot.n
+    if not section.has_errors:
+        return None
+    given = next(k for k in ("mount", "camera", "target_points", "friction") if getattr(section, k) is not None)
+    if imp is None:
+        raise ScenarioError(f"plant.{given}: acts on the loop as implemented; add an [implementation] section")
+    image = next((k for k in ("mount", "camera", "target_points") if getattr(section, k) is not None), None)
+    if image is not None and loop.mode != "image":
+        raise ScenarioError(f'plant.{image}: acts through the image; needs e_e = "image"')
+    if section.friction is not None and imp.integrator != "rk4":
+        raise ScenarioError('plant.friction: needs integrator = "rk4" (friction acts within the control period)')
+    errors = PlantErrors.none(loop.camera, n)
+    changes: dict = {}
+    if section.mount is not None:
+        changes |= {"mount_xyz": np.asarray(section.mount.xyz), "mount_rpy": np.asarray(section.mount.rpy)}
+    if (c := section.camera) is not None:
+        if c.focal_length is not None:
+            changes |= {"fx": c.focal_length, "fy": c.focal_length * loop.camera.aspect}
+        changes |= {k: getattr(c, k) for k in ("fx", "fy") if getattr(c, k) is not None}
+        if c.principal_point is not None:
+            changes["principal_point"] = np.asarray(c.principal_point, dtype=float)
+        if c.distortion is not None:
+            changes["distortion"] = np.asarray(c.distortion, dtype=float)
+    if section.target_points is not None:
+        if len(section.target_points) != loop.camera.m:
+            got = len(section.target_points)
+            raise ScenarioError(f"plant.target_points: expected {loop.camera.m} points, got {got}")
+        changes["point_errors"] = np.asarray(section.target_points, dtype=float)
+    if section.friction == "urdf":
+        changes["viscous"], changes["coulomb"] = joint_dynamics(loop.robot.urdf, loop.robot.joints)
+    elif (f := section.friction) is not None:
+        changes |= {"viscous": _vector(f.viscous, n, "plant.friction.viscous"),
+                    "coulomb": _vector(f.coulomb, n, "plant.friction.coulomb"), "smoothing": f.smoothing}  # fmt: skip
+    return replace(errors, **changes)
 
 
 def _implementation_mode(scenario: Scenario) -> str:

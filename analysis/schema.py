@@ -62,17 +62,36 @@ class RobotSection(_Strict):
         return self
 
 
-class CameraSection(_Strict):
-    """Pinhole camera: focal length and, optionally, the sensor's size and principal point
-    (pixels, from the top-left corner; the centre unless given)."""
+Distortion = Annotated[list[Finite], Field(min_length=5, max_length=5)]
+"""OpenCV's Brown-Conrady coefficients ``[k1, k2, p1, p2, k3]``."""
+Probability = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 
-    focal_length: Positive
+
+class CameraSection(_Strict):
+    """Pinhole camera: the focal length (``focal_length``, or ``fx`` and ``fy``, or a
+    ``calibration`` file: :func:`dvfc.analysis.calibration.read_calibration`) and, optionally,
+    the sensor's size, principal point (pixels, from the top-left corner; the centre unless
+    given) and the distortion coefficients the controller undistorts with."""
+
+    focal_length: Positive | None = None
+    fx: Positive | None = None
+    fy: Positive | None = None
+    calibration: str | None = None
     width: Positive | None = None
     height: Positive | None = None
     principal_point: Annotated[list[Finite], Field(min_length=2, max_length=2)] | None = None
+    distortion: Distortion | None = None
 
     @model_validator(mode="after")
     def _image(self) -> CameraSection:
+        focal = (self.focal_length, self.fx if self.fx is not None else self.fy, self.calibration)
+        given = [v is not None for v in focal]
+        if sum(given) != 1:
+            raise ValueError("give exactly one of focal_length, fx and fy, or calibration (a camera_info YAML file)")
+        if (self.fx is None) != (self.fy is None):
+            raise ValueError("give both fx and fy (pixels)")
+        if self.calibration is not None and (self.principal_point is not None or self.distortion is not None):
+            raise ValueError("principal_point and distortion come from the calibration file; do not give them too")
         if (self.width is None) != (self.height is None):
             raise ValueError("give both width and height (pixels), or neither")
         if self.principal_point is not None:
@@ -84,8 +103,11 @@ class CameraSection(_Strict):
         return self
 
     def camera(self, points: np.ndarray) -> Camera:
+        """The nominal camera (without a calibration file: see :func:`dvfc.analysis.calibration.camera`)."""
         pp = None if self.principal_point is None else tuple(self.principal_point)
-        return Camera(self.focal_length, points, self.width, self.height, pp)
+        fx = self.focal_length or self.fx
+        aspect = 1.0 if self.fy is None else self.fy / self.fx
+        return Camera(fx, points, self.width, self.height, pp, aspect, tuple(self.distortion or (0.0,) * 5))
 
 
 class MotionSection(_Strict):
@@ -218,6 +240,13 @@ class SimulationSection(_Strict):
         return self
 
 
+class OutlierSection(_Strict):
+    """Wrong detections: per feature point and image, the probability and the size (px)."""
+
+    probability: Probability = 0.0
+    size: NonNegative = 0.0
+
+
 class ImplementationSection(_Strict):
     """The digital controller (:class:`dvfc.analysis.implementation.Implementation`); absent: the
     paper's continuous loop."""
@@ -234,6 +263,9 @@ class ImplementationSection(_Strict):
     seed: int = 0
     integrator: Literal["rk4", "cvodes"] = "rk4"
     substeps: Annotated[int, Field(ge=1, le=1000)] = 1
+    latency_jitter: Annotated[int, Field(ge=0, le=1000)] = 0
+    frame_drop: Probability = 0.0
+    outliers: OutlierSection = OutlierSection()
 
     @model_validator(mode="after")
     def _samples(self) -> ImplementationSection:
@@ -260,6 +292,10 @@ class ImplementationSection(_Strict):
             seed=self.seed,
             integrator=self.integrator,
             substeps=self.substeps,
+            latency_jitter=self.latency_jitter,
+            frame_drop=self.frame_drop,
+            outlier_probability=self.outliers.probability,
+            outlier_size=self.outliers.size,
         )
 
 
@@ -272,11 +308,77 @@ class PayloadSection(_Strict):
     inertia: Annotated[list[Finite], Field(min_length=6, max_length=6)] = [0.0] * 6
 
 
+class PlantCameraSection(_Strict):
+    """The true intrinsics (each absent: the controller's ``[camera]`` value)."""
+
+    focal_length: Positive | None = None
+    fx: Positive | None = None
+    fy: Positive | None = None
+    principal_point: Annotated[list[Finite], Field(min_length=2, max_length=2)] | None = None
+    distortion: Distortion | None = None
+
+    @model_validator(mode="after")
+    def _one_focal(self) -> PlantCameraSection:
+        if self.focal_length is not None and (self.fx is not None or self.fy is not None):
+            raise ValueError("give focal_length or fx/fy, not both")
+        return self
+
+
+class FrictionSection(_Strict):
+    """Joint friction the law does not model, ``b qd + c tanh(qd / smoothing)``: viscous ``b``
+    and Coulomb ``c`` (a scalar for every joint, or one per joint)."""
+
+    viscous: NonNegative | list[NonNegative] = 0.0
+    coulomb: NonNegative | list[NonNegative] = 0.0
+    smoothing: Positive = 0.05
+
+
 class PlantSection(_Strict):
-    """The arm as it is, when it differs from the URDF the controller uses."""
+    """The arm as it is, when it differs from the URDF the controller uses, and what else the
+    controller's model gets wrong (:mod:`dvfc.models.errors`): the true camera mount relative
+    to the nominal one, the true intrinsics, the error of each feature point (m), friction
+    (or ``"urdf"``: the URDF's ``<dynamics damping friction>``)."""
 
     payload: PayloadSection | None = None
     mass_scale: Positive = 1.0
+    mount: Pose | None = None
+    camera: PlantCameraSection | None = None
+    target_points: list[Vector3] | None = None
+    friction: FrictionSection | Literal["urdf"] | None = None
+
+    @property
+    def has_errors(self) -> bool:
+        """Whether an entry beyond the payload and mass scale is given."""
+        return any(v is not None for v in (self.mount, self.camera, self.target_points, self.friction))
+
+
+class DistributionSection(_Strict):
+    """The deviation of one field from the scenario's value (:mod:`dvfc.analysis.dispersion`):
+    ``normal`` (``sigma``, truncated at ``clip`` sigmas), ``uniform`` (``low``, ``high``),
+    ``lognormal`` (a factor ``exp(N(0, sigma))``) or ``choice`` (absolute ``values``); a scalar
+    applies to every entry of a vector field, a list entry by entry."""
+
+    dist: Literal["normal", "uniform", "lognormal", "choice"]
+    sigma: NonNegative | list[NonNegative] | None = None
+    clip: Positive | None = None
+    low: Finite | list[Finite] | None = None
+    high: Finite | list[Finite] | None = None
+    values: Annotated[list[Finite | list[Finite]], Field(min_length=1)] | None = None
+
+    @model_validator(mode="after")
+    def _parameters(self) -> DistributionSection:
+        needed = {"normal": {"sigma"}, "lognormal": {"sigma"}, "uniform": {"low", "high"}, "choice": {"values"}}
+        allowed = needed[self.dist] | ({"clip"} if self.dist == "normal" else set())
+        given = {k for k in ("sigma", "clip", "low", "high", "values") if getattr(self, k) is not None}
+        if missing := needed[self.dist] - given:
+            raise ValueError(f"dist = {self.dist!r} needs {', '.join(sorted(missing))}")
+        if extra := given - allowed:
+            raise ValueError(f"dist = {self.dist!r} takes no {', '.join(sorted(extra))}")
+        if self.dist == "uniform":
+            low, high = np.broadcast_arrays(np.asarray(self.low, float), np.asarray(self.high, float))
+            if np.any(low > high):
+                raise ValueError(f"low {self.low} exceeds high {self.high}")
+        return self
 
 
 class CertifySection(_Strict):
@@ -420,6 +522,14 @@ class Scenario(_Strict):
     report: ReportSection = ReportSection()
     grid: GridSection | None = None
     synthesize: SynthesizeSection = SynthesizeSection()
+    dispersion: dict[str, DistributionSection] = {}
+
+    @model_validator(mode="after")
+    def _dispersed_fields(self) -> Scenario:
+        from dvfc.analysis.dispersion import check_keys
+
+        check_keys(self)
+        return self
 
     @model_validator(mode="after")
     def _map_needs_envelope(self) -> Scenario:

@@ -21,6 +21,7 @@ import numpy as np
 from dvfc.analysis.compile import compiled
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.output import interrupted
+from dvfc.models.errors import PlantErrors
 from dvfc.models.loop import QUADRATURES, ClosedLoop
 from dvfc.models.robot import Robot
 
@@ -53,6 +54,10 @@ class Settings:
         The loop as it runs on the robot (:func:`dvfc.analysis.sampled.as_implemented`): the
         digital controller (None: the paper's continuous loop), the arm as it really is
         (None: the URDF's).
+    errors
+        What the controller's model gets wrong in the plant of the loop as implemented
+        (:class:`dvfc.models.errors.PlantErrors`: camera mount, intrinsics, feature points,
+        friction); None: nothing beyond ``plant``.
     view
         End the run with status ``"out_of_view"`` when a feature leaves the camera's image
         (when its size is known): the runs as implemented do, the paper's claims do not.
@@ -68,6 +73,7 @@ class Settings:
     sigma_min: float = 0.02
     implementation: Implementation | None = None
     plant: Robot | None = None
+    errors: PlantErrors | None = None
     view: bool = False
 
 

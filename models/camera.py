@@ -31,7 +31,12 @@ class Camera:
         visibility statement is possible).
     principal_point
         ``(u0, v0)`` in pixels from the image's top-left corner; ``None`` means the centre.
-        The features ``f`` of (11) are measured about it: pixel ``(u, v) = (u0, v0) + f``.
+        The features ``f`` of (11) are measured about it: pixel ``(u, v) = (u0, v0) + f``
+        (``(u0, v0) + (f_u, aspect f_v)`` when ``aspect != 1``).
+    aspect, distortion
+        ``fy / fx`` (``focal_length`` is ``fx``) and OpenCV's ``[k1, k2, p1, p2, k3]``: the
+        controller reads pixels through them (:func:`dvfc.models.errors.controller_features`);
+        the features ``f`` of (11) are undistorted, in units of ``fx``.
     """
 
     focal_length: float
@@ -39,6 +44,8 @@ class Camera:
     width: float | None = None
     height: float | None = None
     principal_point: tuple[float, float] | None = None
+    aspect: float = 1.0
+    distortion: tuple[float, ...] = (0.0,) * 5
 
     @property
     def has_image(self) -> bool:
@@ -57,8 +64,9 @@ class Camera:
     def image_window(self) -> tuple[np.ndarray, np.ndarray]:
         """The image as a box in feature coordinates (about the principal point):
         ``f`` is inside the image iff ``low <= f <= high`` componentwise (per point)."""
-        low = -self.centre
-        return low, low + np.array([self.width, self.height])
+        scale = np.array([1.0, 1.0 / self.aspect])
+        low = -self.centre * scale
+        return low, low + np.array([self.width, self.height]) * scale
 
     def outside_image(self, f: np.ndarray) -> np.ndarray:
         """Indices of the points whose features ``f`` (2m, about the principal point) lie

@@ -229,6 +229,15 @@ def joint_limits(urdf: Path, joints: list[str]) -> JointLimits:
     return JointLimits(**{key: np.asarray(v) for key, v in values.items()})
 
 
+def joint_dynamics(urdf: Path, joints: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The ``<dynamics damping friction>`` of ``joints`` (in that order) from the URDF: viscous
+    damping (N m s/rad or N s/m) and Coulomb friction (N m or N), 0 where not given."""
+    by_name = {j.get("name"): j.find("dynamics") for j in _parse(urdf).findall("joint")}
+    values = [[float((d.get(key) if d is not None else None) or 0.0) for d in map(by_name.get, joints)]
+              for key in ("damping", "friction")]  # fmt: skip
+    return np.asarray(values[0]), np.asarray(values[1])
+
+
 def perturbed_urdf(text: str, frame: str, payload: Payload | None, mass_scale: float) -> str:
     """The URDF ``text`` with every link's mass and inertia scaled by ``mass_scale`` and
     ``payload`` fixed to the link ``frame``: the arm the plant is, not the one the

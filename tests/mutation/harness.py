@@ -354,6 +354,32 @@ MUTATIONS = (
         "analysis/results.py",
         (('        if record["applies"] and not record["certified"]:', '        if False:'),),
         ("tests/test_windows.py",),
+        "distortion-tangential-swapped",
+        "the true camera's tangential distortion terms p1 and p2 swapped",
+        "models/errors.py",
+        (("    tx = 2 * k[2] * x * y + k[3] * (r2 + 2 * x**2)\n", "    tx = 2 * k[3] * x * y + k[2] * (r2 + 2 * x**2)\n"),),  # noqa: E501
+        ("tests/test_dispersion.py::test_distortion_equals_opencv_project_points",),
+    ),
+    Mutation(
+        "mount-error-not-inverted",
+        "the true camera sees the target through the mount error, not its inverse",
+        "models/errors.py",
+        (("    seen = mount.inverse() @ relative\n", "    seen = mount @ relative\n"),),
+        ("tests/test_dispersion.py::test_mount_error_features_are_the_true_cameras_and_the_law_keeps_the_nominal_jacobian",),
+    ),
+    Mutation(
+        "clopper-pearson-two-sided",
+        "the Clopper-Pearson bound at the two-sided level (1 + c) / 2 instead of the one-sided c",
+        "analysis/campaign.py",
+        (("    return float(stats.beta.ppf(confidence, failures + 1, runs - failures))\n", "    return float(stats.beta.ppf((1 + confidence) / 2, failures + 1, runs - failures))\n"),),  # noqa: E501
+        ("tests/test_dispersion.py::test_clopper_pearson_equals_scipy_and_the_hand_computation",),
+    ),
+    Mutation(
+        "campaign-seed-by-batch",
+        "a run's seed taken from its position in the batch, not its run number",
+        "analysis/campaign.py",
+        (("    rows = [simulate_run(spec, k, simulator)[0] for k in range(start, stop)]\n", "    rows = [simulate_run(spec, k - start, simulator)[0] | {\"run\": k} for k in range(start, stop)]\n"),),  # noqa: E501
+        ("tests/test_dispersion.py::test_one_and_two_workers_give_identical_datasets",),
     ),
 )
 

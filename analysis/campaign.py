@@ -1,0 +1,335 @@
+"""Dispersion campaigns: independent runs of the loop as implemented with the scenario's
+``[dispersion]`` drawn anew for each, judged by the margins criterion, and what the runs say
+with a stated confidence.
+
+Run ``K`` draws its values from ``numpy.random.SeedSequence(seed, spawn_key=(K,))``: the dataset
+does not depend on the workers or the batch sizes, and any run replays alone
+(``dvfc simulate SCENARIO --campaign-run K``). The runs are written one Parquet file per batch
+in ``DIR/runs`` with a state file (``campaign.json``) saved after each: an interrupted campaign
+resumes with the batches already written (the grid's pattern, :mod:`dvfc.analysis.grid`).
+
+The statistics are of simulated runs of the loop as implemented (measurements, not
+certificates): the binomial bound speaks of the runs' distribution as drawn, under the model
+of the plant and its errors, nothing beyond it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from contextlib import closing
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from scipy import stats
+
+from dvfc.analysis.case import Case
+from dvfc.analysis.dispersion import Dispersion, base_values, with_values
+from dvfc.analysis.grid import batches
+from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_error
+from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
+from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
+from dvfc.analysis.scenario import ScenarioError
+from dvfc.analysis.simulate import Settings, Trajectory
+from dvfc.analysis.tasks import run_tasks
+from dvfc.models.errors import PlantErrors
+
+RUNS = "runs"
+"""Folder of a campaign's dataset in its output directory: one Parquet file per batch."""
+
+BOUND = "clopper-pearson, one-sided"
+
+
+@dataclass(frozen=True)
+class CampaignSpec:
+    """What every run of a campaign shares: the case (its ``errors`` set, so that every run uses
+    the same compiled functions), the dispersion, the tracking bound of the criterion, the seed."""
+
+    case: Case
+    dispersion: Dispersion
+    bound: TrackingBound
+    seed: int = 0
+
+    @staticmethod
+    def of(case: Case, bound: TrackingBound, seed: int = 0) -> CampaignSpec:
+        """The campaign of a case's ``[dispersion]`` (:class:`ScenarioError` where it cannot run)."""
+        settings = case.settings
+        if settings.implementation is None:
+            raise ScenarioError("implementation: a campaign runs the loop as implemented; add an [implementation]")
+        image = [k for k in case.scenario.dispersion if k.startswith(("plant.camera", "plant.mount", "plant.target"))]
+        if image and case.loop.mode != "image":
+            raise ScenarioError(f'dispersion."{image[0]}": acts through the image; needs e_e = "image"')
+        if any(k.startswith("plant.friction") for k in case.scenario.dispersion) and (
+            settings.implementation.integrator != "rk4"
+        ):
+            raise ScenarioError('dispersion: friction needs integrator = "rk4"')
+        base = base_values(case.scenario, campaign_settings(case), case.s0, case.loop.robot.n)
+        return CampaignSpec(case, Dispersion(dict(case.scenario.dispersion), base), bound, seed)
+
+    def values(self, run: int) -> dict[str, np.ndarray]:
+        """Run ``run``'s drawn values."""
+        return self.dispersion.draw(np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(run,))))
+
+    def run_settings(self, run: int, values: dict[str, np.ndarray] | None = None) -> tuple[Settings, np.ndarray]:
+        """The settings and start of run ``run`` (with ``values``, else its drawn ones); its
+        pixel noise and faults seeded from the run's own seed sequence."""
+        values = self.values(run) if values is None else values
+        settings, s0 = with_values(campaign_settings(self.case), self.case.s0, self.case.loop, self.case.scenario,
+                                   values)  # fmt: skip
+        noise_seed = int(np.random.SeedSequence(self.seed, spawn_key=(run, 1)).generate_state(1, np.uint64)[0])
+        return replace(settings, implementation=replace(settings.implementation, seed=noise_seed)), s0
+
+    def replay(self, run: int | None = None, values: Path | None = None) -> str:
+        """The command that replays run ``run``, or run 0's noise with the values in the file ``values``."""
+        path = self.case.path or "SCENARIO"
+        which = f"--campaign-run {run}" if values is None else f"--campaign-values {values}"
+        return f"dvfc simulate {path} {which}" + (f" --campaign-seed {self.seed}" if self.seed else "")
+
+
+def campaign_settings(case: Case) -> Settings:
+    """The case's settings with plant errors (none when the scenario gives none): the code path
+    of every campaign run."""
+    settings = case.settings
+    if settings.errors is not None:
+        return settings
+    return replace(settings, errors=PlantErrors.none(case.loop.camera, case.loop.robot.n))
+
+
+def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, values: dict[str, np.ndarray]) -> dict:
+    """One run's dataset row: outcome, tracking error, peak ratios, drawn values, wall time."""
+    loop = spec.case.loop
+    holds, reason = judge(traj, loop, settings, spec.bound)
+    position, angle = tracking_error(traj)
+    ratio = max(position / spec.bound.position, angle / spec.bound.angle_deg) if traj.status == "ok" else math.inf
+    record = limit_record(traj, robot_limits(loop, settings))
+    limits = [max(record["speed_ratio"]), max(record["position_ratio"])]
+    if not settings.implementation.saturate:
+        limits.append(max(record["torque_commanded_ratio"]))
+    out = {
+        "run": run, "holds": holds, "reason": reason, "status": traj.status,
+        "tracking_position": position, "tracking_angle_deg": angle, "tracking_ratio": ratio,
+        "peak_torque_ratio": max(record["torque_commanded_ratio"]), "peak_speed_ratio": max(record["speed_ratio"]),
+        "position_ratio": max(record["position_ratio"]), "closeness": max(ratio, *limits),
+        "wall_time": traj.wall_time,
+    }  # fmt: skip
+    for key in spec.dispersion.keys:
+        columns = spec.dispersion.columns_of(key)
+        out.update(zip(columns, map(float, values[key]), strict=True))
+    return out
+
+
+def simulate_run(spec: CampaignSpec, run: int, simulator: SampledSimulator | None = None) -> tuple[dict, Trajectory]:
+    """Run ``run`` of the campaign (on ``simulator``'s compiled functions when given): its row
+    and trajectory."""
+    values = spec.values(run)
+    settings, s0 = spec.run_settings(run, values)
+    sim = as_implemented(spec.case.loop, settings) if simulator is None else simulator.for_run(settings)
+    traj = sim.run(s0)
+    return row(spec, run, traj, settings, values), traj
+
+
+def campaign_batch(spec: CampaignSpec, start: int, stop: int) -> dict[str, list]:
+    """Runs ``start .. stop - 1`` (a task): their rows as columns."""
+    simulator = as_implemented(spec.case.loop, campaign_settings(spec.case))
+    rows = [simulate_run(spec, k, simulator)[0] for k in range(start, stop)]
+    return {key: [r[key] for r in rows] for key in rows[0]}
+
+
+def part_path(directory: Path, start: int) -> Path:
+    """The Parquet file of the batch starting at run ``start`` (names sort by it)."""
+    return directory / RUNS / f"part-{start:09d}.parquet"
+
+
+def read_runs(directory: Path) -> pa.Table:
+    """Every run of a campaign in ``directory``, in run order."""
+    return pq.read_table(directory / RUNS).sort_by("run")
+
+
+def run_campaign(
+    spec: CampaignSpec,
+    directory: Path,
+    runs: int,
+    *,
+    batch_size: int = 25,
+    workers: int = 1,
+    scheduler: str | None = None,
+    resume: bool = False,
+    progress: Callable[[int], None] | None = None,
+    scenario_sha256: str = "",
+) -> int:
+    """Make runs ``0 .. runs - 1``, one Parquet file per batch in ``directory / runs``, saving
+    ``campaign.json`` (runs done) after each; with ``resume``, from the runs done. Returns the
+    runs done."""
+    state_path, folder = directory / "campaign.json", directory / RUNS
+    folder.mkdir(parents=True, exist_ok=True)
+    done = 0
+    if resume and state_path.exists():
+        saved = json.loads(state_path.read_text())
+        if saved["scenario_sha256"] != scenario_sha256 or saved["seed"] != spec.seed or saved["runs"] != runs:
+            raise ValueError("--resume: the campaign in this directory has another scenario, seed or number of runs")
+        done = saved["done"]
+    for part in folder.glob("part-*.parquet"):  # batches past the recorded runs (or of an old campaign)
+        if int(part.stem.removeprefix("part-")) >= done:
+            part.unlink()
+
+    def save() -> None:
+        data = {"scenario_sha256": scenario_sha256, "seed": spec.seed, "runs": runs, "done": done}
+        atomic_write(state_path, lambda h: h.write(json_text(data).encode()))
+
+    save()
+    ranges = list(batches(done, runs, batch_size))
+    with closing(run_tasks(campaign_batch, ranges, workers, scheduler, shared=spec)) as results:
+        for result in results:
+            raise_if_interrupted()  # keep nothing of this batch
+            table = pa.table(result)
+            atomic_write(part_path(directory, result["run"][0]), lambda h, t=table: pq.write_table(t, h))
+            done = result["run"][-1] + 1
+            save()
+            if progress is not None:
+                progress(done)
+    return done
+
+
+def clopper_pearson_upper(failures: int, runs: int, confidence: float) -> float:
+    """The one-sided Clopper-Pearson upper bound on P(fail) from ``failures`` of ``runs``:
+    ``Beta.ppf(confidence, k + 1, n - k)`` (1 when every run fails)."""
+    if failures >= runs:
+        return 1.0
+    return float(stats.beta.ppf(confidence, failures + 1, runs - failures))
+
+
+def zero_failure_runs(p: float, confidence: float) -> int:
+    """The fewest runs that, all holding, bound P(fail) by ``p`` at ``confidence``:
+    ``N >= ln(1 - c) / ln(1 - p)``."""
+    return math.ceil(math.log(1 - confidence) / math.log(1 - p) - 1e-12)
+
+
+def tolerance_rank(runs: int, quantile: float, confidence: float) -> int | None:
+    """The smallest rank ``r`` (1-based, ascending) whose order statistic bounds the ``quantile``
+    of the distribution from above with ``confidence``: ``P(Binomial(n, q) <= r - 1) >= c``;
+    None when ``runs`` are too few."""
+    ranks = np.arange(1, runs + 1)
+    ok = stats.binom.cdf(ranks - 1, runs, quantile) >= confidence
+    return int(ranks[ok][0]) if ok.any() else None
+
+
+def summarize(spec: CampaignSpec, table: pa.Table, confidence: float, p: float, quantile: float) -> dict:
+    """The campaign's statement and statistics (JSON-ready; see the module's description)."""
+    data = table.to_pydict()
+    n = len(data["run"])
+    holds = np.asarray(data["holds"], dtype=bool)
+    k = int((~holds).sum())
+    upper = clopper_pearson_upper(k, n, confidence)
+    criterion = CRITERION.format(bound=spec.bound.text)
+    ratio = np.asarray(data["tracking_ratio"], dtype=float)
+    tolerance = {"quantile": quantile, "confidence": confidence, "rank": None, "tracking_position": None,
+                 "tracking_angle_deg": None, "tracking_ratio": None,
+                 "note": "runs that did not complete count as an infinite tracking error"}  # fmt: skip
+    if (rank := tolerance_rank(n, quantile, confidence)) is not None:
+        tolerance["rank"] = rank
+        for name in ("tracking_position", "tracking_angle_deg", "tracking_ratio"):
+            values = np.where(np.asarray(data["status"]) == "ok", np.asarray(data[name], dtype=float), math.inf)
+            tolerance[name] = float(np.sort(values)[rank - 1])
+        tolerance["statement"] = (
+            f"with {confidence:.0%} confidence at least {quantile:.0%} of runs drawn like these have a tracking error "
+            f"at most the order statistic of rank {rank} of {n} (distribution-free)"
+        )
+    else:
+        tolerance["statement"] = f"{n} runs are too few to bound the {quantile:.0%} quantile at {confidence:.0%}"
+    sensitivity = sensitivities(spec, data, ratio, holds)
+    closeness = np.nan_to_num(np.asarray(data["closeness"], dtype=float), posinf=np.finfo(float).max)
+    order = np.lexsort((np.asarray(data["run"]), -closeness, holds))  # failures first, then the closest to failing
+    worst = [{"run": int(data["run"][i]), "holds": bool(holds[i]), "reason": data["reason"][i],
+              "tracking_ratio": float(ratio[i]), "closeness": float(data["closeness"][i]),
+              "replay": spec.replay(int(data["run"][i]))} for i in order[:5]]  # fmt: skip
+    statement = (
+        f"{k} failures in {n} runs: P(fail) <= {upper:.3g} at {confidence:.0%} confidence ({BOUND}), for runs drawn "
+        "from the stated dispersion of the loop as implemented, simulated (a measurement on the model, not a "
+        "certificate; it says nothing about errors outside the dispersion)"
+    )
+    return {
+        "runs": n, "failures": k, "confidence": confidence, "p_fail_upper": upper, "bound": BOUND,
+        "statement": statement, "criterion": criterion, "tracking_bound": spec.bound.as_dict(),
+        "zero_failure": {"p": p, "runs": zero_failure_runs(p, confidence),
+                         "statement": f"{zero_failure_runs(p, confidence)} runs without a failure bound P(fail) by "
+                                      f"{p:g} at {confidence:.0%} confidence"},
+        "tolerance": tolerance, "sensitivity": sensitivity, "worst": worst, "seed": spec.seed,
+        "wall_time_per_run": float(np.mean(data["wall_time"])) if n else None,
+    }  # fmt: skip
+
+
+BINS = 4
+"""Quantile bins of each drawn quantity for its failure rate."""
+
+
+def sensitivities(spec: CampaignSpec, data: dict, ratio: np.ndarray, holds: np.ndarray) -> list[dict]:
+    """Per drawn quantity, the Spearman rank correlation of the tracking ratio (tracking error over
+    its bound, infinite for a run that did not complete) with each entry, the quantity's the
+    largest in magnitude, and the failure rate per quantile bin of that entry; strongest first."""
+    out = []
+    for key in spec.dispersion.keys:
+        entries = []
+        for column in spec.dispersion.columns_of(key):
+            x = np.asarray(data[column], dtype=float)
+            rho = float(stats.spearmanr(x, ratio).statistic) if np.ptp(x) > 0 and np.ptp(ratio) > 0 else math.nan
+            edges = np.quantile(x, np.linspace(0, 1, BINS + 1))
+            which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, BINS - 1)
+            rates = [float((~holds[which == b]).mean()) if np.any(which == b) else None for b in range(BINS)]
+            entries.append({"column": column, "spearman": None if math.isnan(rho) else rho,
+                            "bin_edges": edges.tolist(), "failure_rate": rates})  # fmt: skip
+        known = [e for e in entries if e["spearman"] is not None]
+        strongest = max(known, key=lambda e: abs(e["spearman"])) if known else entries[0]
+        out.append({"quantity": key, "spearman": strongest["spearman"], "column": strongest["column"],
+                    "failure_rate": strongest["failure_rate"], "bin_edges": strongest["bin_edges"],
+                    "entries": entries})  # fmt: skip
+    return sorted(out, key=lambda e: -abs(e["spearman"]) if e["spearman"] is not None else 0.0)
+
+
+def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] | None = None) -> dict:
+    """A bounded search over the dispersion's box (:meth:`Dispersion.box`) for the run closest to
+    failing (the largest of the tracking ratio and the peak limit ratios; a run that stops
+    scores above any that completes): scipy's differential evolution within ``budget`` runs (the pixel noise and
+    faults of run 0's seed). The worst found is a lower bound on the worst case in the box, not
+    the worst case."""
+    from scipy.optimize import differential_evolution
+
+    box = spec.dispersion.box()
+    simulator = as_implemented(spec.case.loop, campaign_settings(spec.case))
+    best: dict = {"ratio": -math.inf}
+    evaluations = 0
+
+    def objective(x: np.ndarray) -> float:
+        nonlocal evaluations
+        values = spec.dispersion.split(x)
+        settings, s0 = spec.run_settings(0, values)
+        traj = simulator.for_run(settings).run(s0)
+        r = row(spec, 0, traj, settings, values)
+        # a run that stops: worse the earlier it stops (so the search climbs toward failure)
+        score = r["closeness"] if traj.status == "ok" else 1e3 * (2 - traj.t[-1] / settings.duration)
+        evaluations += 1
+        if score > best["ratio"]:
+            best.update(ratio=score, values={k: v.tolist() for k, v in values.items()}, holds=r["holds"],
+                        reason=r["reason"])  # fmt: skip
+        if progress is not None:
+            progress(evaluations)
+        return -score
+
+    fixed = [i for i, (lo, hi) in enumerate(box) if lo == hi]
+    start = time.perf_counter()
+    popsize = max(2, math.ceil(min(15, budget / max(1, len(box)) / 2)))
+    maxiter = max(0, budget // (popsize * len(box)) - 1)
+    bounds = [(lo, hi if hi > lo else lo + 1e-12) for lo, hi in box]
+    differential_evolution(objective, bounds, maxiter=maxiter, popsize=popsize, seed=spec.seed, polish=False,
+                           tol=0, init="latinhypercube")  # fmt: skip
+    return {
+        "method": f"scipy differential_evolution, popsize {popsize}, {maxiter} generations, no polish",
+        "budget": budget, "evaluations": evaluations, "seconds": time.perf_counter() - start,
+        "worst_closeness": best["ratio"], "holds": best["holds"], "reason": best["reason"], "values": best["values"],
+        "fixed_columns": len(fixed),
+        "statement": "the worst combination found: a lower bound on the worst case over the box, not the worst case",
+    }  # fmt: skip
