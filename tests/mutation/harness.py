@@ -286,8 +286,8 @@ MUTATIONS = (
         "each image's e_e is used one control period after its latency",
         "analysis/sampled.py",
         (
-            ("measure_through(k - lag)) is not", "measure_through(k - lag - 1)) is not"),
-            ("min(int(captures[measured]) + lag, steps)", "min(int(captures[measured]) + lag + 1, steps)"),
+            ("measure_through(k, arrivals)) is not", "measure_through(k - 1, arrivals)) is not"),
+            ("min(int(arrivals[measured]), steps)", "min(int(arrivals[measured]) + 1, steps)"),
         ),
         ("tests/test_sampled.py::test_sampled_run_equals_a_sample_by_sample_loop",),
     ),
@@ -295,7 +295,7 @@ MUTATIONS = (
         "last-images-unchecked",
         "the images captured in the last latency (arriving after T) are not checked for lost features",
         "analysis/sampled.py",
-        (("if stops else steps)", "if stops else steps - lag)"),),
+        (("if stops else steps, captures)", "if stops else steps - imp.latency_steps, captures)"),),
         ("tests/test_sampled.py::test_a_feature_lost_in_an_image_arriving_after_the_horizon_still_ends_the_run",),
     ),
     # --- the local certificate of the loop as implemented (fact 14) ------------------------
@@ -331,7 +331,8 @@ MUTATIONS = (
         "margins-torque-unchecked",
         "the margins' criterion ignores the torque limits when saturate is off",
         "analysis/margins.py",
-        (("        if ratio > 1:\n", "        if ratio > 1e9:\n"),),
+        (("    if ratio > 1 and not settings.implementation.saturate:\n",
+          "    if ratio > 1e9 and not settings.implementation.saturate:\n"),),
         ("tests/test_margins.py",),
     ),
     Mutation(
@@ -354,6 +355,8 @@ MUTATIONS = (
         "analysis/results.py",
         (('        if record["applies"] and not record["certified"]:', '        if False:'),),
         ("tests/test_windows.py",),
+    ),
+    Mutation(
         "distortion-tangential-swapped",
         "the true camera's tangential distortion terms p1 and p2 swapped",
         "models/errors.py",
