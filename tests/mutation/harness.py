@@ -219,8 +219,22 @@ MUTATIONS = (
         "depth-radius-added",
         "the smallest certified depth computed with the radius added instead of subtracted",
         "analysis/envelope.py",
-        (("np.min(desired[:, 2] - radius)", "np.min(desired[:, 2] + radius)"),),
+        (("np.min(centres[..., 2] - radius)", "np.min(centres[..., 2] + radius)"),),
         ("tests/test_envelope.py::test_a_design_whose_regions_reach_zero_depth_is_not_visible",),
+    ),
+    Mutation(
+        "radius-frobenius",
+        "fact 16.0's joint radius from the Frobenius norm ||R - I||_F = 2 sqrt(phi) instead of the spectral one",
+        "analysis/envelope.py",
+        (("(1.0 / w_rc + 1.0 / w_re)", "(2.0 / w_rc + 2.0 / w_re)"),),
+        ("tests/test_envelope.py::test_joint_radius_bounds_every_feature_offset_and_is_attained",),
+    ),
+    Mutation(
+        "cone-3d-distance",
+        "fact 16.0's cone interval with the 3-D distance |c_i| instead of the 2-D one per image axis",
+        "analysis/envelope.py",
+        (("    distance = np.hypot(lateral, depth)\n", "    distance = np.linalg.norm(centres, axis=-1)\n"),),
+        ("tests/test_envelope.py::test_cone_interval_contains_the_ball_and_touches_its_ends",),
     ),
     Mutation(
         "perron-vector-ones",
