@@ -37,6 +37,7 @@ from dvfc.analysis.output import json_text
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Settings, Trajectory
+from dvfc.analysis.start import planned_start
 from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, scaled
 from dvfc.analysis.verify import Claim, verify
 from dvfc.models.loop import ClosedLoop, Gains, Weights
@@ -188,11 +189,16 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
     design = design_of(point, None if planar else case.reference, loop.robot.mass_bounds)
     section = case.scenario.envelope
     theta = None if section is None or section.theta_bar_deg is None else math.radians(section.theta_bar_deg)
-    env = envelope(design, loop.camera, disturbance_bounds(section, loop), start_storage(loop, case.s0), theta,
-                   search=search)  # fmt: skip
+    disturbance = disturbance_bounds(section, loop)
+    env = envelope(design, loop.camera, disturbance, start_storage(loop, case.s0), theta, search=search)
     mass = loop.robot.mass_bounds
+    record = env.as_dict()
+    if loop.plan is not None:  # docs/math.md, fact 16b: the start statement of the planned reference
+        record["start"] = planned_start(design, loop.camera, disturbance, env, loop.plan)
+        if record["start"]["inside"]:
+            record["statement"] = record["start"]["statement"]
     return {
-        **env.as_dict(),
+        **record,
         "m_hi_method": mass.method_hi,
         "m_lo_method": mass.method_lo,
         "K_e": "isotropic: R_ec = I decides (fact 2)" if planar or point.isotropic

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import casadi as cs
@@ -20,10 +21,11 @@ from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.messages import one_line
 from dvfc.analysis.schema import DisturbancesSection, PlantSection, RobotSection, Scenario, ScenarioError
 from dvfc.analysis.simulate import Settings
+from dvfc.analysis.start import image_start
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
 from dvfc.models.lie import SE3
-from dvfc.models.loop import ClosedLoop, Gains, Weights
+from dvfc.models.loop import ClosedLoop, Gains, ReferencePlan, Weights
 from dvfc.models.planar import TASK, PlanarLoop
 from dvfc.models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, Payload, Robot, RobotModelError, builtin_urdf
 from dvfc.models.target import TargetMotion
@@ -187,8 +189,9 @@ def build(
         mode=mode or _implementation_mode(scenario),
         disturbances=disturbances(scenario.disturbance, n),
     )
-    o = scenario.observer
-    s0 = loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
+    s0 = _initial_state(scenario, loop, q0, qd0)
+    if scenario.start.reference == "planned":
+        loop = replace(loop, plan=ReferencePlan(_estimate(loop, s0), loop.reference, scenario.start.duration))
     if check_view:
         _check_initial_view(loop, s0, scenario.simulation.sigma_min)
         if scenario.loop == "paper":
@@ -206,6 +209,27 @@ def build(
         plant=_plant(scenario.plant, robot),
     )
     return loop, s0, settings
+
+
+def _initial_state(scenario: Scenario, loop: ClosedLoop, q0: np.ndarray, qd0: np.ndarray) -> np.ndarray:
+    """``s(0)``: the observer from ``[observer]``'s error, or from the first image (``[start]
+    observer = "image"``, with the implementation's pixel noise and seed; docs/math.md, fact 16)."""
+    start = scenario.start
+    if scenario.loop == "planar" and (start.reference != "constant" or start.observer != "scenario"):
+        field = "reference" if start.reference != "constant" else "observer"
+        raise ScenarioError(f"start.{field}: the planar loop starts with the paper's constant reference and the "
+                            "[observer] error")  # fmt: skip
+    if start.observer == "image":
+        imp = scenario.implementation
+        noise, seed = (0.0, 0) if imp is None else (imp.pixel_noise, imp.seed)
+        return image_start(loop, q0, qd0, noise, seed)
+    o = scenario.observer
+    return loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
+
+
+def _estimate(loop: ClosedLoop, s0: np.ndarray) -> SE3:
+    """``gbar(0)`` of the start ``s0`` (numeric)."""
+    return SE3.from_matrix(cs.Function("gbar0", [loop.state], [loop.estimate.as_matrix()])(s0))
 
 
 def _implementation_mode(scenario: Scenario) -> str:

@@ -1,0 +1,225 @@
+"""A start the certificate covers (docs/math.md, fact 16): the observer started from the first
+image, and the fixed-level certificate of a planned reference ``g_d(t)``.
+
+With the paper's start an arm at rest has ``xi(0) = -qd_d(0)``, so ``V(0)`` is mostly kinetic
+and lies outside every certified set. With the planned reference of
+:class:`dvfc.models.loop.ReferencePlan` (from the estimate ``gbar(0)`` to the scenario's ``g_d``)
+and its feedforward ``-Ad_(g_d) V_d``, ``e_c(0) = 0`` and ``u_d(0) = V_d(0) = 0``: ``xi(0) = 0`` and
+``V(0) = V_e(0)``. Along the ideal continuous loop (16b.1)
+``dV/dt = -x^T N(t)^T K N(t) x + x^T G w`` exactly.
+
+The fixed-level form (16b.3), for isotropic ``K_c`` and block-isotropic ``K_e`` (else ``K_min``):
+
+- the rate of fact 7 at ``(s, theta_bar)`` depends on ``g_d`` only through ``|p_d|`` (16b.2); on
+  the path ``|p_d| in [r_lo, r_hi]``, cut into cells of width ``h``, it is at least
+  ``min_j k(r_j) - L h / 2`` over the cells' ends ``r_j``,
+  ``L = max(k_c) max(w_pc, w_rc)^2 (2 r_hi + 1) / min(D_ce)`` (Weyl after the ``D^-1/2`` scaling),
+  re-checked a posteriori at every ``r_j`` as ``lambda_min(Q - (kappa + L h / 2) D) >= 0``;
+- ``c = max(V(0), c_inf,path)``, ``c_inf,path = wbar^2 / (4 s kappa_path)``, below the
+  self-consistent ``c_max(theta_bar)``: by the first-exit argument ``V(t) <= c`` for all ``t >= 0``
+  (``c`` lies strictly above ``b / k`` of the unshrunk rate: the shrink gives it);
+- every feature is in the image for all ``t >= 0`` when the regions (16.0) of the balls
+  ``B(g_d(tau) p_oi, rho_i(c) + drift_i)`` fit for ``tau`` on a grid of the path, ``drift_i``
+  half a grid step of ``(|dp| + |omega| |p_oi|) dtau`` (how far a centre moves between two grid
+  points), ``tau = 1`` included (the scenario's ``g_d`` from ``T_r`` on).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import casadi as cs
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from dvfc.analysis.envelope import (
+    SHRINK,
+    THETA_GRID,
+    Design,
+    DisturbanceBounds,
+    Envelope,
+    cone_interval,
+    decays,
+    design_of,
+    feature_boxes,
+    joint_radius,
+    rates,
+    recheck,
+)
+from dvfc.models.camera import Camera
+from dvfc.models.lie import SE3, SO3
+from dvfc.models.loop import ClosedLoop, ReferencePlan
+
+PATH_STEPS = 2000
+"""Grid steps in the plan's progress ``tau`` for the visibility check along the path."""
+
+SLACK = 0.005
+"""The Lipschitz slack of the path's rate (16b.2), relative to the rate at the scenario's ``g_d``:
+the range of ``|p_d|`` is cut into cells fine enough (at most :data:`MAX_CELLS`)."""
+
+MAX_CELLS = 400
+
+PLANNED_ASSUMPTIONS = (
+    "the ideal continuous loop with the planned reference g_d(t) and its feedforward -Ad_(g_d) V_d "
+    "(docs/math.md, fact 16b), qdd_d its total time derivative",
+    "V(0) as computed from the scenario's start (the observer's error e_e(0) known or bounded by it)",
+    "J_b nonsingular along the run (not implied by V <= c)",
+    "K_c isotropic (the rate depends on g_d only through |p_d|)",
+)
+
+
+def image_pose(camera: Camera, features: np.ndarray) -> SE3:
+    """A pose ``g = (p, R)`` (camera to object) from one image of the 4+ feature points: OpenCV's
+    ``solvePnP`` (``SOLVEPNP_IPPE`` for a planar target, ``SOLVEPNP_ITERATIVE`` otherwise) on the
+    centred image coordinates ``f_i = lambda [x/z, y/z]`` (11), with the camera matrix
+    ``diag(lambda, lambda, 1)``. ``features`` (2m,)."""
+    points = np.asarray(camera.points, dtype=float)
+    flat = np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-9) < 3
+    method = cv2.SOLVEPNP_IPPE if flat else cv2.SOLVEPNP_ITERATIVE
+    matrix = np.diag([camera.focal_length, camera.focal_length, 1.0])
+    ok, rvec, tvec = cv2.solvePnP(points, np.asarray(features, dtype=float).reshape(-1, 1, 2), matrix, None,
+                                  flags=method)  # fmt: skip
+    if not ok:
+        raise ValueError("the pose estimate from the first image failed (solvePnP)")
+    rotation = Rotation.from_rotvec(rvec.ravel()).as_matrix()
+    return SE3(cs.DM(tvec.ravel()), SO3(cs.DM(rotation)))
+
+
+def image_start(loop: ClosedLoop, q0: np.ndarray, qd0: np.ndarray, noise_px: float, seed: int) -> np.ndarray:
+    """``s(0)`` with the observer started from the first image: ``gbar(0)`` the pose estimate
+    (:func:`image_pose`) of the image at ``t = 0``, with Gaussian pixel noise of standard
+    deviation ``noise_px`` (the implementation's, 0 for the ideal loop) drawn from ``seed``."""
+    image = cs.Function("f0", [loop.q, loop.t], [loop.features])
+    features = np.asarray(image(q0, 0.0)).ravel()
+    features = features + np.random.default_rng(seed).normal(0.0, noise_px, features.shape)
+    pose = cs.Function("g0", [loop.q, loop.t], [loop.relative_pose.as_matrix()])
+    g0 = SE3.from_matrix(pose(q0, 0.0))
+    return loop.initial_state(q0, qd0, image_pose(loop.camera, features).inverse() @ g0)
+
+
+def path_centres(plan: ReferencePlan, points: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """``g_d(tau) p_oi`` (K, m, 3) at the plan's progress values ``tau`` (K,)."""
+    dp, omega = plan.step
+    p0 = np.asarray(cs.DM(plan.start.translation)).ravel()
+    r0 = np.asarray(cs.DM(plan.start.rotation.matrix))
+    r_d = r0 @ Rotation.from_rotvec(tau[:, None] * omega).as_matrix()
+    return np.einsum("kij,mj->kmi", r_d, points) + (p0 + tau[:, None] * dp)[:, None, :]
+
+
+def path_progress(plan: ReferencePlan, t: np.ndarray) -> np.ndarray:
+    """``tau(t)`` (numeric) of the quintic time law."""
+    u = np.clip(np.asarray(t, dtype=float) / plan.duration, 0.0, 1.0)
+    return 10 * u**3 - 15 * u**4 + 6 * u**5
+
+
+def path_range(plan: ReferencePlan) -> tuple[float, float]:
+    """``[min, max]`` of ``|p_d|`` over the plan (``p_d`` runs along a segment)."""
+    dp, _ = plan.step
+    p0 = np.asarray(cs.DM(plan.start.translation)).ravel()
+    closest = float(np.clip(-(p0 @ dp) / (dp @ dp), 0.0, 1.0)) if dp @ dp > 0 else 0.0
+    return float(np.linalg.norm(p0 + closest * dp)), float(max(np.linalg.norm(p0), np.linalg.norm(p0 + dp)))
+
+
+def _axis_design(design: Design, radius: float) -> Design:
+    """The design at the reference ``(radius e_z, I)``: the rate at every ``g_d`` with ``|p_d| = radius``."""
+    return design_of(design.point, SE3(cs.DM([0.0, 0.0, radius]), SO3.identity()), design.mass)
+
+
+@dataclass(frozen=True)
+class PathRate:
+    """The rate certified along a path at one ``(s, theta_bar)`` (16b.2): ``kappa`` (shrunk, the
+    Lipschitz slack subtracted), the cells of ``|p_d|``, the slack and the a posteriori margin."""
+
+    theta_bar: float
+    s: float
+    kappa: float
+    cells: int
+    slack: float
+    margin: float
+
+
+def path_rate(design: Design, radii: tuple[float, float], s: float, theta_bar: float) -> PathRate:
+    """Fact 16b.2 at ``(s, theta_bar)`` over ``|p_d| in radii`` (module text), re-checked a
+    posteriori at every cell end on the literal matrices (:func:`dvfc.analysis.envelope.recheck`)."""
+    r_lo, r_hi = radii
+    w, k_c = design.point.weights, design.point.k_c
+    lipschitz = float(np.max(k_c)) * max(w.w_pc, w.w_rc) ** 2 * (2 * r_hi + 1) / float(
+        design.d_diagonal(np.array([theta_bar]))[0].min())
+    k_goal = float(rates(design, np.array([s]), np.array([theta_bar]))[0])
+    cells = int(min(MAX_CELLS, max(1, math.ceil(lipschitz * (r_hi - r_lo) / (2 * SLACK * max(k_goal, 1e-12))))))
+    designs = [_axis_design(design, r) for r in np.linspace(r_lo, r_hi, cells + 1)]
+    slack = lipschitz * (r_hi - r_lo) / cells / 2
+    kappa = float(min(rates(d, np.array([s]), np.array([theta_bar]))[0] for d in designs)) * (1 - SHRINK) - slack
+    margin = min(recheck(d, s, theta_bar, kappa + slack) for d in designs)
+    return PathRate(theta_bar, s, kappa, cells, slack, margin)
+
+
+def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, env: Envelope,
+                  plan: ReferencePlan) -> dict:  # fmt: skip
+    """The start record of fact 16b's fixed-level form (module text): ``{"V0", "kinetic", "pose",
+    "method": "planned", "inside", "level", "visible", ...}``; ``inside`` true means
+    ``V(t) <= level`` is certified for all ``t >= 0``. ``theta_bar`` runs up the 1-degree grid from
+    the envelope's until ``max(V(0), c_inf,path)`` lies below its self-consistent level (``s``
+    the best one at the scenario's ``g_d`` for that ``theta_bar``)."""
+    record = {**env.start, "method": "planned", "duration": plan.duration, "inside": False, "level": None,
+              "visible": None, "assumptions": list(PLANNED_ASSUMPTIONS)}  # fmt: skip
+    if env.rate is None:
+        return {**record, "reason": "no rate certified at the scenario's reference"}
+    if np.ptp(design.point.k_c) > 0:
+        return {**record, "reason": "K_c is not isotropic: the rate along the path is not derived (fact 16b.2)"}
+    radii = path_range(plan)
+    record["path_radius_m"] = list(radii)
+    for decay in decays(design, THETA_GRID[THETA_GRID >= math.radians(env.theta_bar_deg) - 1e-9]):
+        rate = path_rate(design, radii, decay.s, decay.theta_bar)
+        if rate.kappa <= 0 or rate.margin < 0:
+            continue
+        c_inf = disturbance.wbar**2 / (4 * rate.s * rate.kappa)
+        level = max(record["V0"], c_inf)
+        if level < decay.c_max:
+            break
+    else:
+        return {**record, "reason": "no theta_bar with a positive rate along the path (fact 16b.2) keeps "
+                                    "max(V(0), c_inf,path) below its self-consistent level"}  # fmt: skip
+    record.update({"inside": True, "level": level, "rate": rate.kappa, "gamma_prime": 1 / math.sqrt(2 * rate.s),
+                   "theta_bar_deg": math.degrees(rate.theta_bar), "radius_cells": rate.cells,
+                   "lipschitz_slack": rate.slack, "recheck_margin": rate.margin, "ultimate_V_path": c_inf,
+                   "invariant_V": decay.c_max})  # fmt: skip
+    if camera.has_image:
+        boxes = path_boxes(design, camera, plan, level)
+        record.update({"visible": boxes.visible, "image_margin_px": boxes.margin_px, "depth_min": boxes.depth_min})
+    record["statement"] = _statement(record)
+    return record
+
+
+def path_boxes(design: Design, camera: Camera, plan: ReferencePlan, level: float):
+    """The regions (16.0) at ``level`` along the whole plan: balls about ``g_d(tau) p_oi`` on a grid of
+    :data:`PATH_STEPS` steps in ``tau``, each radius grown by half a step's drift of its centre."""
+    dp, omega = plan.step
+    tau = np.linspace(0.0, 1.0, PATH_STEPS + 1)
+    drift = (np.linalg.norm(dp) + np.linalg.norm(omega) * np.linalg.norm(camera.points, axis=1)) / PATH_STEPS / 2
+    return feature_boxes(design, camera, path_centres(plan, camera.points, tau), level, drift)
+
+
+def run_regions(loop: ClosedLoop, t: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """The regions (16.0) at ``level`` about ``g_d(t) p_oi`` at the output times ``t``: lower and
+    upper pixel corners (K, m, 2), to compare with a run's features."""
+    w = loop.weights
+    radius = joint_radius((w.w_pc, w.w_rc, w.w_pe, w.w_re), True, loop.camera.points, level)
+    centres = path_centres(loop.plan, loop.camera.points, path_progress(loop.plan, t))
+    ends = [cone_interval(centres, axis, np.broadcast_to(radius, centres.shape[:2])) for axis in (0, 1)]
+    scale, centre = loop.camera.focal_length, loop.camera.centre
+    return (scale * np.stack([ends[0][0], ends[1][0]], axis=-1) + centre,
+            scale * np.stack([ends[0][1], ends[1][1]], axis=-1) + centre)  # fmt: skip
+
+
+def _statement(record: dict) -> str:
+    """One sentence: what the planned start certifies, for which loop, from when."""
+    when = (f"for all t >= 0 (ideal continuous loop with the planned reference over {record['duration']:g} s: "
+            f"V(t) <= {record['level']:.4g}, V(0) = {record['V0']:.3g})")  # fmt: skip
+    if record["visible"] is True:
+        return f"every feature stays in the image {when}"
+    if record["visible"] is False:
+        return f"errors bounded {when}; visibility NOT certified: a region along the path leaves the image"
+    return f"errors bounded {when}; no image size given"
