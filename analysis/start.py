@@ -171,7 +171,7 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
         return {**record, "reason": "K_c is not isotropic: the rate along the path is not derived (fact 16b.2)"}
     radii = path_range(plan)
     record["path_radius_m"] = list(radii)
-    for decay in decays(design, THETA_GRID[THETA_GRID >= math.radians(env.theta_bar_deg) - 1e-9]):
+    for decay in decays(design, THETA_GRID[math.radians(env.theta_bar_deg) - 1e-9 <= THETA_GRID]):
         rate = path_rate(design, radii, decay.s, decay.theta_bar)
         if rate.kappa <= 0 or rate.margin < 0:
             continue
