@@ -219,7 +219,7 @@ def _statement(record: dict) -> str:
     when = (f"for all t >= 0 (ideal continuous loop with the planned reference over {record['duration']:g} s: "
             f"V(t) <= {record['level']:.4g}, V(0) = {record['V0']:.3g})")  # fmt: skip
     if record["visible"] is True:
-        return f"every feature stays in the image {when}"
+        return f"every feature stays in the image {when}, at least {record['image_margin_px']:.3g} px inside"
     if record["visible"] is False:
         return f"errors bounded {when}; visibility NOT certified: a region along the path leaves the image"
     return f"errors bounded {when}; no image size given"
