@@ -697,11 +697,12 @@ def disturbance_bounds(section, loop) -> DisturbanceBounds:
 def start_storage(loop, s0: np.ndarray) -> dict:
     """``V(0)`` (38) at the initial state and its parts: the kinetic term ``xi^T M xi / 2``
     (large when ``qd0`` differs from ``qd_d(0) = pinv(J_b) u_d(0)``) and the pose errors; and how
-    the reference starts (``"constant"``, or ``"planned"``: docs/math.md, fact 16b)."""
+    the run starts (``"constant"``, ``"planned"``: docs/math.md, fact 16b, or ``"ramp"``: fact 16a)."""
     kinetic = loop.xi.T @ loop.robot.mass_matrix @ loop.xi / 2
     values = cs.Function("V0", [loop.t, loop.state], [loop.storage, kinetic])(0.0, s0)
     total, kin = (float(v) for v in values)
-    return {"V0": total, "kinetic": kin, "pose": total - kin, "method": "constant" if loop.plan is None else "planned"}
+    method = "planned" if loop.plan is not None else ("ramp" if loop.ramp is not None else "constant")
+    return {"V0": total, "kinetic": kin, "pose": total - kin, "method": method}
 
 
 GRID_GOLDEN_STEPS = 8

@@ -37,7 +37,7 @@ from dvfc.analysis.output import json_text
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Settings, Trajectory
-from dvfc.analysis.start import planned_start
+from dvfc.analysis.start import planned_start, ramp_start
 from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, scaled
 from dvfc.analysis.verify import Claim, verify
 from dvfc.models.loop import ClosedLoop, Gains, Weights
@@ -195,8 +195,10 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
     record = env.as_dict()
     if loop.plan is not None:  # docs/math.md, fact 16b: the start statement of the planned reference
         record["start"] = planned_start(design, loop.camera, disturbance, env, loop.plan)
-        if record["start"]["inside"]:
-            record["statement"] = record["start"]["statement"]
+    elif loop.ramp is not None:  # fact 16a: the ramp's bound from t = 0
+        record["start"] = ramp_start(design, loop.camera, disturbance, env, loop.ramp)
+    if record["start"]["method"] != "constant" and record["start"]["inside"]:
+        record["statement"] = record["start"]["statement"]
     return {
         **record,
         "m_hi_method": mass.method_hi,

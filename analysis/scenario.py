@@ -192,6 +192,7 @@ def build(
     s0 = _initial_state(scenario, loop, q0, qd0)
     if scenario.start.reference == "planned":
         loop = replace(loop, plan=ReferencePlan(_estimate(loop, s0), loop.reference, scenario.start.duration))
+    loop = replace(loop, ramp=scenario.start.ramp)
     if check_view:
         _check_initial_view(loop, s0, scenario.simulation.sigma_min)
         if scenario.loop == "paper":
@@ -215,10 +216,12 @@ def _initial_state(scenario: Scenario, loop: ClosedLoop, q0: np.ndarray, qd0: np
     """``s(0)``: the observer from ``[observer]``'s error, or from the first image (``[start]
     observer = "image"``, with the implementation's pixel noise and seed; docs/math.md, fact 16)."""
     start = scenario.start
-    if scenario.loop == "planar" and (start.reference != "constant" or start.observer != "scenario"):
-        field = "reference" if start.reference != "constant" else "observer"
-        raise ScenarioError(f"start.{field}: the planar loop starts with the paper's constant reference and the "
-                            "[observer] error")  # fmt: skip
+    changed = [name for name, paper in (("reference", "constant"), ("observer", "scenario"), ("ramp", None))
+               if getattr(start, name) != paper]  # fmt: skip
+    if scenario.loop == "planar" and changed:
+        field = changed[0]
+        raise ScenarioError(f"start.{field}: the planar loop starts with the paper's constant reference, the "
+                            "[observer] error and no ramp")  # fmt: skip
     if start.observer == "image":
         imp = scenario.implementation
         noise, seed = (0.0, 0) if imp is None else (imp.pixel_noise, imp.seed)

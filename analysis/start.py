@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from dvfc.analysis.certify import GainPoint
 from dvfc.analysis.envelope import (
     SHRINK,
     THETA_GRID,
@@ -43,10 +44,15 @@ from dvfc.analysis.envelope import (
     cone_interval,
     decays,
     design_of,
+    desired_features,
     feature_boxes,
     joint_radius,
+    kinetic_diagonal,
+    rate_margin,
     rates,
     recheck,
+    visible_level,
+    xi_rates,
 )
 from dvfc.models.camera import Camera
 from dvfc.models.lie import SE3, SO3
@@ -222,4 +228,144 @@ def _statement(record: dict) -> str:
         return f"every feature stays in the image {when}, at least {record['image_margin_px']:.3g} px inside"
     if record["visible"] is False:
         return f"errors bounded {when}; visibility NOT certified: a region along the path leaves the image"
+    return f"errors bounded {when}; no image size given"
+
+
+RAMP_STEP = 0.01
+"""Time step ``h`` (s) of fact 16a's recursion."""
+
+RAMP_S = 60
+"""Candidates for ``s_j`` per step (log-spaced in ``[1e-4, min k_xi)``): only tightness depends on them."""
+
+RAMP_GROWTH = 1.05
+"""Factor between the trial levels ``Y_j`` of a step (from just above ``Vbar_j``)."""
+
+RAMP_ASSUMPTIONS = (
+    "the ideal continuous loop with the ramp u_d = -sigma(t) K_c nu_c (smoothstep; docs/math.md, fact 16a), "
+    "qdd_d its total time derivative",
+    "V(0) as computed from the scenario's start",
+    "J_b nonsingular along the run (not implied by V <= c)",
+)
+
+
+@dataclass(frozen=True)
+class RampDesign:
+    """``N^T K(sigma) N = A_0 + sigma A_1`` (linear in ``K_c``), on ``(e_c, e_e)`` (``pose``) and
+    literally on the whole ``x`` (``full``), at ``R_ec = I`` with ``K_min`` (fact 5)."""
+
+    pose: tuple[np.ndarray, np.ndarray]
+    full: tuple[np.ndarray, np.ndarray]
+
+    @staticmethod
+    def of(design: Design) -> RampDesign:
+        p = design.point
+        held = design_of(GainPoint(p.k_xi, np.zeros_like(p.k_c), p.k_e, p.weights), design.reference, design.mass)
+        return RampDesign((held.nkn, design.nkn - held.nkn), (held.full[0], design.full[0] - held.full[0]))
+
+
+def _ramp_rates(design: Design, ramp: RampDesign, sigma: float, s: np.ndarray, y: float
+                ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Fact 16a.2's rate ``k(sigma, s, y)`` for each ``s`` (S,) and the diagonal ``D`` it holds
+    against (S, n + 12): ``lam_up`` against ``diag(D_M/2, D_y)`` when nonnegative, else ``lam_lo``
+    against ``diag(m_lo/2, D_lo)``."""
+    nkn = ramp.pose[0] + sigma * ramp.pose[1]
+    w_pc, w_rc, w_pe, w_re = design.weights
+    third = [w_pc / 2, w_rc / (2 - y / w_rc), w_pe / 2, w_re / (2 - y / w_re)]
+    d_y, d_lo = np.repeat(third, 3), np.repeat([w_pc / 2, w_rc / 2, w_pe / 2, w_re / 2], 3)
+    eye = np.eye(len(d_y))
+
+    def pose_rate(d: np.ndarray) -> np.ndarray:
+        inv = 1 / np.sqrt(d)
+        scaled = inv[:, None] * nkn * inv[None, :]
+        return np.linalg.eigvalsh(scaled - s[:, None, None] * (design.w * inv**2 * eye))[:, 0]
+
+    upper = np.minimum(xi_rates(design.mass, design.k_xi, s), pose_rate(d_y))
+    k = np.where(upper >= 0, upper, pose_rate(d_lo))
+    d_m = kinetic_diagonal(design.mass, design.k_xi, s)
+    lower = np.full_like(d_m, design.mass.m_lo)
+    d = np.where((upper >= 0)[:, None], np.concatenate([d_m / 2, np.broadcast_to(d_y, d_m.shape[:1] + d_y.shape)], 1),
+                 np.concatenate([lower / 2, np.broadcast_to(d_lo, lower.shape[:1] + d_lo.shape)], 1))  # fmt: skip
+    return k, d
+
+
+def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, env: Envelope,
+               ramp: float) -> dict:  # fmt: skip
+    """Fact 16a.3's recursion from ``Vbar_0 = V(0)`` on the grid ``t_j = j h``: on each step
+    ``sigma >= sigma(t_j)``, ``s_j`` minimises ``Vbar_(j+1) = e^(-k h) Vbar_j + (b/k)(1 - e^(-k h))``
+    (``b = wbar^2 / (4 s_j)``) and ``Y_j`` is the first trial level above ``max(Vbar_j, Vbar_(j+1))``;
+    every step's rate is re-checked a posteriori on the literal matrices. It runs past the ramp
+    until ``Vbar`` falls within 1% of its own limit. ``V(t) <= c = max_j Vbar_j`` for all ``t >= 0``;
+    every feature is in the image from ``t_vis``, the first grid time after which ``Vbar`` stays at
+    most the visible level (16.0)."""
+    record = {**env.start, "method": "ramp", "ramp": ramp, "inside": False, "level": None, "visible": None,
+              "assumptions": list(RAMP_ASSUMPTIONS)}  # fmt: skip
+    if env.rate is None:
+        return {**record, "reason": "no rate certified at the scenario's reference"}
+    wbar2 = disturbance.wbar**2
+    ceiling = 2 * min(design.weights[1], design.weights[3])
+    s = np.geomspace(1e-4, design.k_xi_min * (1 - 1e-9), RAMP_S)
+    ramp_design = RampDesign.of(design)
+    bound, times, worst = [record["V0"]], [0.0], math.inf
+    t = 0.0
+    while True:
+        u = min(t / ramp, 1.0)
+        sigma = u**2 * (3 - 2 * u)
+        v, y = bound[-1], bound[-1] * RAMP_GROWTH + 1e-12
+        while y < ceiling:
+            k, d = _ramp_rates(design, ramp_design, sigma, s, y)
+            k = k - SHRINK * np.abs(k)
+            b = wbar2 / (4 * s)
+            decay = np.exp(-k * RAMP_STEP)
+            moving = np.abs(k) > 1e-12
+            nxt = np.where(moving, decay * v + b / np.where(moving, k, 1.0) * (1 - decay), v + b * RAMP_STEP)
+            j = int(np.argmin(nxt))
+            if max(v, nxt[j]) < y:
+                break
+            y *= RAMP_GROWTH
+        else:
+            return {**record, "reason": f"the recursion leaves the level 2 min(w_rc, w_re) = {ceiling:.3g} at "
+                                        f"t = {t:.3g} s (a rotation of pi allowed)"}  # fmt: skip
+        nkn = ramp_design.full[0] + sigma * ramp_design.full[1]
+        worst = min(worst, float(rate_margin(nkn[None], design.full[1][None], d[j][None], s[j:j + 1], k[j:j + 1])[0]))
+        bound.append(float(nxt[j]))
+        t = (len(bound) - 1) * RAMP_STEP
+        times.append(t)
+        limit = b[j] / k[j] if k[j] > 0 else math.inf
+        if sigma == 1.0 and k[j] > 0 and bound[-1] <= limit * 1.01:
+            break
+    if worst < 0:
+        return {**record, "reason": f"an a posteriori check of a step's rate fails ({worst:.3g})"}
+    level = max(bound)
+    record.update({"inside": True, "level": level, "ultimate_V_ramp": bound[-1], "recheck_margin": worst,
+                   "steps": len(bound) - 1, "step_s": RAMP_STEP})  # fmt: skip
+    if camera.has_image:
+        desired = desired_features(camera, design.reference)
+        c_vis = visible_level(design, camera, desired)
+        above = np.flatnonzero(np.asarray(bound) > c_vis)
+        record["visible_level"] = c_vis
+        record["visible_boxes_px"] = feature_boxes(design, camera, desired, c_vis).boxes
+        record["visible"] = level <= c_vis
+        if not above.size:
+            record["visible_from_s"] = 0.0
+        elif above[-1] + 1 < len(bound):
+            record["visible_from_s"] = times[above[-1] + 1]
+        else:
+            record["visible_from_s"] = None
+        if not record["visible"]:
+            record["reason"] = (f"visibility NOT certified from t = 0: the bound on V reaches {level:.4g} above the "
+                                f"visible level {c_vis:.4g} of fact 16.0 (a sublevel set about the fixed g_d); "
+                                + ("certified from t = " f"{record['visible_from_s']:.3g} s"
+                                   if record["visible_from_s"] is not None else "not certified at all"))
+    record["statement"] = _ramp_statement(record)
+    return record
+
+
+def _ramp_statement(record: dict) -> str:
+    """One sentence: what the ramp certifies, for which loop, from when."""
+    when = (f"for all t >= 0 (ideal continuous loop with a {record['ramp']:g} s ramp of u_d: V(t) <= "
+            f"{record['level']:.4g}, V(0) = {record['V0']:.3g})")  # fmt: skip
+    if record["visible"] is True:
+        return f"every feature stays in the image {when}"
+    if record["visible"] is False:
+        return f"errors bounded {when}; {record['reason']}"
     return f"errors bounded {when}; no image size given"

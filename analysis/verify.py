@@ -380,6 +380,8 @@ def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: d
     start = env["start"]
     if start.get("method") == "planned":
         return [*claims, *_planned_claims(loop, traj, env, tol)]
+    if start.get("method") == "ramp":
+        return [*claims, *_ramp_claims(loop, traj, env, tol)]
     kappa, gamma = env["rate"], env["gamma_prime"]
     cap = env["level"] if env["start"]["inside"] else env["invariant_V"]
     entered = np.flatnonzero(v <= cap)
@@ -434,6 +436,29 @@ def _planned_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -
                              out, "<= 0 px (distance outside the region)", out <= 0,
                              f"regions of the balls B(g_d(t) p_oi, rho_i(c)), c = {level:.4g}"))  # fmt: skip
     claims.extend(_ultimate_errors(loop, traj, env, bound, 0))
+    return claims
+
+
+def _ramp_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -> list[Claim]:
+    """Fact 16a's start statement on the run with the ramp: ``V(t) <= c`` at every step from
+    ``t = 0``, and every feature inside its region (16.0) at the visible level at every step from
+    ``t_vis`` on."""
+    start = env["start"]
+    if not start["inside"]:
+        return [Claim("the ramp's start is certified", "fact 16a", float("nan"), "a start statement", None,
+                      f"not certified: {start.get('reason')}")]  # fmt: skip
+    t, v, level = traj.t, traj["V"][:, 0], start["level"]
+    excess = float(np.max(v - level))
+    claims = [on_run("V(t) <= c at every step from t = 0 (ramp)", "fact 16a", traj, excess,
+                     f"<= {tol:.1e} (c = {level:.4g})", excess <= tol, f"V(0) = {v[0]:.4g}, max V = {v.max():.4g}")]
+    since = start.get("visible_from_s")
+    if start.get("visible_boxes_px") is not None and since is not None:
+        boxes = np.asarray(start["visible_boxes_px"])
+        pixels = (traj["f"].reshape(len(t), -1, 2) + loop.camera.centre)[t >= since - 1e-9]
+        out = float(np.maximum(boxes[None, :, :2] - pixels, pixels - boxes[None, :, 2:]).max())
+        claims.append(on_run(f"every feature inside its region at the visible level from t = {since:.3g} s",
+                             "fact 16a, 16.0", traj, out, "<= 0 px (distance outside the region)", out <= 0,
+                             f"c_vis = {start['visible_level']:.4g}"))  # fmt: skip
     return claims
 
 

@@ -180,6 +180,9 @@ class ClosedLoop:
         A planned reference ``g_d(t)`` ending at ``reference`` (docs/math.md, fact 16): the law uses
         ``g_d(t)`` everywhere and adds the feedforward ``-Ad_(g_d) V_d`` to the camera-velocity
         command; None: the paper's constant ``g_d``.
+    ramp
+        Seconds of the ramp ``u_d = -sigma(t) K_c nu_c`` (docs/math.md, fact 16a; :attr:`ramp_level`);
+        None: no ramp.
     weights, gains
         ``W_c, W_e`` and ``K`` of (35), (42).
     mode
@@ -212,6 +215,7 @@ class ClosedLoop:
     plant: Robot | None = None
     sampled: bool = False
     plan: ReferencePlan | None = None
+    ramp: float | None = None
 
     task_dim = 6
     """Entries of ``e_c``, ``e_e``, ``u_d`` and ``u_e``."""
@@ -314,7 +318,23 @@ class ClosedLoop:
             u = self.inputs(self.t)
             return u[n : n + 6], u[n + 6 : n + 12]
         nu_ce = self.output_matrix[n:, n:] @ cs.vertcat(self.e_c, self.e_e_law)
-        return -cs.DM(self.gains.k_c) * nu_ce[0:6], -cs.DM(self.gains.k_e) * nu_ce[6:12]
+        return -self.ramp_level * cs.DM(self.gains.k_c) * nu_ce[0:6], -cs.DM(self.gains.k_e) * nu_ce[6:12]
+
+    @cached_property
+    def ramp_level(self) -> Matrix:
+        """``sigma(t)`` of the ramp (docs/math.md, fact 16a): the smoothstep ``3u^2 - 2u^3``,
+        ``u = min(t / ramp, 1)``, C^1, so the command ``u_d = -sigma K_c nu_c`` starts at rest;
+        1 without a ramp."""
+        if self.ramp is None:
+            return cs.DM(1.0)
+        u = cs.fmin(cs.fmax(self.t / self.ramp, 0), 1)
+        return 3 * u**2 - 2 * u**3
+
+    @cached_property
+    def gain_matrix(self) -> Matrix:
+        """``K(sigma(t)) = diag(K_xi, sigma K_c, K_e)``: the feedback (42) with the ramp's ``sigma``."""
+        k = self.gains
+        return cs.diag(cs.vertcat(cs.DM(k.k_xi), self.ramp_level * cs.DM(k.k_c), cs.DM(k.k_e)))
 
     @cached_property
     def hold(self) -> cs.SX:
@@ -467,7 +487,7 @@ class ClosedLoop:
     def quadratures(self) -> Matrix:
         """Integrands of :data:`QUADRATURES`."""
         nu, x, w = self.nu, self.x, self.w
-        k = self.gains.matrix
+        k = self.gain_matrix
         return cs.vertcat(
             self.u.T @ nu,
             x.T @ self.disturbance_matrix @ w,

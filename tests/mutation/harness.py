@@ -242,7 +242,7 @@ MUTATIONS = (
         "models/loop.py",
         (("command = command - self.desired.adjoint() @ self.desired_velocity",
           "command = command - self.desired.inverse().adjoint() @ self.desired_velocity"),),
-        ("tests/test_start.py::test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_a_planned_run",),
+        ("tests/test_start.py::test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_the_start",),
     ),
     Mutation(
         "feedforward-sign",
@@ -250,14 +250,22 @@ MUTATIONS = (
         "models/loop.py",
         (("command = command - self.desired.adjoint() @ self.desired_velocity",
           "command = command + self.desired.adjoint() @ self.desired_velocity"),),
-        ("tests/test_start.py::test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_a_planned_run",),
+        ("tests/test_start.py::test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_the_start",),
     ),
     Mutation(
         "qdd-d-without-time",
         "qdd_d without the explicit time derivative (through g_d(t) and the target): rate of t taken as 0",
         "models/loop.py",
         (("rates = cs.vertcat(self.qd, 1, self.estimate_rate)", "rates = cs.vertcat(self.qd, 0, self.estimate_rate)"),),
-        ("tests/test_start.py::test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_a_planned_run",),
+        ("tests/test_start.py::test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_the_start",),
+    ),
+    Mutation(
+        "ramp-dissipation-fixed-k",
+        "fact 16a's dissipation nu^T K nu with the fixed K_c instead of sigma(t) K_c",
+        "models/loop.py",
+        (("cs.vertcat(cs.DM(k.k_xi), self.ramp_level * cs.DM(k.k_c), cs.DM(k.k_e))",
+          "cs.vertcat(cs.DM(k.k_xi), cs.DM(k.k_c), cs.DM(k.k_e))"),),
+        ("tests/test_start.py::test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_the_start",),
     ),
     Mutation(
         "perron-vector-ones",
