@@ -118,6 +118,8 @@ BAD_SCENARIOS.update({
     "unknown start reference": (setter("start.reference", "ramp"), "start.reference"),
     "zero plan duration": (setter("start.duration", 0.0), "start.duration"),
     "unknown start observer": (setter("start.observer", "pnp"), "start.observer"),
+    "negative ramp": (setter("start.ramp", -1.0), "start.ramp"),
+    "ramp with a planned reference": (lambda d: d.update(start={"reference": "planned", "ramp": 1.0}), "start: ramp"),
     "missing weight": (remover("weights.w_re"), "weights.w_re: required key missing"),
     "disturbance of wrong length": (
         setter("disturbance.torque", [{"kind": "sine", "amplitude": [1.0, 2.0], "frequency": 1.0}]),
