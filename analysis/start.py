@@ -195,6 +195,9 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
     if camera.has_image:
         boxes = path_boxes(design, camera, plan, level)
         record.update({"visible": boxes.visible, "image_margin_px": boxes.margin_px, "depth_min": boxes.depth_min})
+    record["tube"] = tube = tube_start(design, camera, disturbance, plan, record["V0"])
+    if record["visible"] is False and tube["inside"] and tube.get("visible"):
+        record["visible"] = True  # the tube form's regions fit where the fixed level's do not
     record["statement"] = _statement(record)
     return record
 
@@ -225,7 +228,11 @@ def _statement(record: dict) -> str:
     when = (f"for all t >= 0 (ideal continuous loop with the planned reference over {record['duration']:g} s: "
             f"V(t) <= {record['level']:.4g}, V(0) = {record['V0']:.3g})")  # fmt: skip
     if record["visible"] is True:
-        return f"every feature stays in the image {when}, at least {record['image_margin_px']:.3g} px inside"
+        tube = record["tube"]
+        margins = f"at least {record['image_margin_px']:.3g} px inside (fixed level)"
+        if tube["inside"] and tube.get("visible"):
+            margins += f", {tube['image_margin_px']:.3g} px (tube, V(t) <= {tube['level']:.4g})"
+        return f"every feature stays in the image {when}, {margins}"
     if record["visible"] is False:
         return f"errors bounded {when}; visibility NOT certified: a region along the path leaves the image"
     return f"errors bounded {when}; no image size given"
@@ -294,7 +301,8 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
     ``sigma >= sigma(t_j)``, ``s_j`` minimises ``Vbar_(j+1) = e^(-k h) Vbar_j + (b/k)(1 - e^(-k h))``
     (``b = wbar^2 / (4 s_j)``) and ``Y_j`` is the first trial level above ``max(Vbar_j, Vbar_(j+1))``;
     every step's rate is re-checked a posteriori on the literal matrices. It runs past the ramp
-    until ``Vbar`` falls within 1% of its own limit. ``V(t) <= c = max_j Vbar_j`` for all ``t >= 0``;
+    until ``Vbar`` is within 1% of its own limit (:func:`_settled`). ``V(t) <= c`` for all ``t >= 0``,
+    ``c`` the largest ``Vbar_j`` and that limit;
     every feature is in the image from ``t_vis``, the first grid time after which ``Vbar`` stays at
     most the visible level (16.0)."""
     record = {**env.start, "method": "ramp", "ramp": ramp, "inside": False, "level": None, "visible": None,
@@ -330,12 +338,11 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
         bound.append(float(nxt[j]))
         t = (len(bound) - 1) * RAMP_STEP
         times.append(t)
-        limit = b[j] / k[j] if k[j] > 0 else math.inf
-        if sigma == 1.0 and k[j] > 0 and bound[-1] <= limit * 1.01:
+        if sigma == 1.0 and _settled(bound[-1], b[j], k[j], y):
             break
     if worst < 0:
         return {**record, "reason": f"an a posteriori check of a step's rate fails ({worst:.3g})"}
-    level = max(bound)
+    level = max(*bound, b[j] / k[j])
     record.update({"inside": True, "level": level, "ultimate_V_ramp": bound[-1], "recheck_margin": worst,
                    "steps": len(bound) - 1, "step_s": RAMP_STEP})  # fmt: skip
     if camera.has_image:
@@ -360,6 +367,13 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
     return record
 
 
+def _settled(v: float, b: float, k: float, y: float) -> bool:
+    """Whether a recursion can stop at ``Vbar = v`` with the rate ``k > 0``, ``b = wbar^2 / (4 s)``,
+    valid on ``{V <= y}``: ``v`` within 1% of its limit ``b / k``, both below ``y``. Fact 7's first
+    exit then keeps ``V <= max(v, b / k)`` for all later times."""
+    return k > 0 and abs(v - b / k) <= 0.01 * b / k and max(v, b / k) < y
+
+
 def _ramp_statement(record: dict) -> str:
     """One sentence: what the ramp certifies, for which loop, from when."""
     when = (f"for all t >= 0 (ideal continuous loop with a {record['ramp']:g} s ramp of u_d: V(t) <= "
@@ -369,3 +383,85 @@ def _ramp_statement(record: dict) -> str:
     if record["visible"] is False:
         return f"errors bounded {when}; {record['reason']}"
     return f"errors bounded {when}; no image size given"
+
+
+def _segment_radii(plan: ReferencePlan, tau: tuple[float, float]) -> tuple[float, float]:
+    """``[min, max]`` of ``|p_d|`` for the plan's progress in ``[tau_0, tau_1]`` (a piece of a segment)."""
+    dp, _ = plan.step
+    p0 = np.asarray(cs.DM(plan.start.translation)).ravel()
+    ends = [float(np.linalg.norm(p0 + a * dp)) for a in tau]
+    closest = float(np.clip(-(p0 @ dp) / (dp @ dp), *tau)) if dp @ dp > 0 else tau[0]
+    return min(*ends, float(np.linalg.norm(p0 + closest * dp))), max(ends)
+
+
+def tube_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, plan: ReferencePlan,
+               v0: float) -> dict:  # fmt: skip
+    """Fact 16b.4, the tube form: fact 16a.3's recursion at ``sigma = 1`` with, on each step, the rate
+    of (16b.2) over the step's range of ``|p_d|`` (the smaller of its ends' rates, upper branch only,
+    minus the Lipschitz slack ``L (r_hi - r_lo) / 2``, re-checked a posteriori at both ends), and
+    the regions (16.0) of ``B(g_d(tau_j) p_oi, rho_i(max(Vbar_j, Vbar_(j+1))) + drift_j)``,
+    ``drift_j = (tau_(j+1) - tau_j)(|dp| + |omega| |p_oi|)``. Runs past the plan until ``Vbar`` is
+    within 1% of its limit (:func:`_settled`); the level is the largest ``Vbar_j`` and that limit.
+    Returns ``{"inside", "level", "visible", "image_margin_px", ...}``."""
+    wbar2 = disturbance.wbar**2
+    ceiling = 2 * min(design.weights[1], design.weights[3])
+    s = np.geomspace(1e-4, design.k_xi_min * (1 - 1e-9), RAMP_S)
+    dp, omega = plan.step
+    spread = np.linalg.norm(dp) + np.linalg.norm(omega) * np.linalg.norm(camera.points, axis=1)
+    w, k_c = design.point.weights, design.point.k_c
+    cache: dict[float, tuple[Design, RampDesign]] = {}
+
+    def at(radius: float) -> tuple[Design, RampDesign]:
+        if radius not in cache:
+            d = _axis_design(design, radius)
+            cache[radius] = d, RampDesign((d.nkn, np.zeros_like(d.nkn)), (d.full[0], np.zeros_like(d.full[0])))
+        return cache[radius]
+
+    bound, worst, margin, depth = [v0], math.inf, math.inf, math.inf
+    while True:
+        t0 = (len(bound) - 1) * RAMP_STEP
+        tau = tuple(float(v) for v in path_progress(plan, np.array([t0, t0 + RAMP_STEP])))
+        radii = _segment_radii(plan, tau)
+        v, y = bound[-1], bound[-1] * RAMP_GROWTH + 1e-12
+        while y < ceiling:
+            ends = [at(r) for r in radii]
+            d_min = min(w.w_pc / 2, w.w_rc / (2 - y / w.w_rc), w.w_pe / 2, w.w_re / (2 - y / w.w_re))
+            lipschitz = float(np.max(k_c)) * max(w.w_pc, w.w_rc) ** 2 * (2 * radii[1] + 1) / d_min
+            slack = lipschitz * (radii[1] - radii[0]) / 2
+            rated = [_ramp_rates(d, r, 1.0, s, y) for d, r in ends]
+            upper = np.minimum(*[np.where(k >= 0, k, -np.inf) for k, _ in rated])
+            k = upper - SHRINK * np.abs(upper) - slack
+            usable = np.where(k > 0, k, 1.0)  # a step needs a positive rate here (upper branch only)
+            decay = np.exp(-usable * RAMP_STEP)
+            nxt = np.where(k > 0, decay * v + wbar2 / (4 * s) / usable * (1 - decay), np.inf)
+            j = int(np.argmin(nxt))
+            if max(v, nxt[j]) < y:
+                break
+            y *= RAMP_GROWTH
+        else:
+            return {"inside": False, "reason": f"the tube leaves the level {ceiling:.3g} at t = {t0:.3g} s"}
+        for (d, r), (_, dd) in zip(ends, rated, strict=True):
+            nkn = r.full[0]
+            worst = min(worst, float(rate_margin(nkn[None], d.full[1][None], dd[j][None], s[j:j + 1],
+                                                 k[j:j + 1] + slack)[0]))  # fmt: skip
+        bound.append(float(nxt[j]))
+        if camera.has_image:
+            boxes = feature_boxes(design, camera, path_centres(plan, camera.points, np.array([tau[0]])),
+                                  max(v, nxt[j]), (tau[1] - tau[0]) * spread)  # fmt: skip
+            depth = min(depth, boxes.depth_min)
+            margin = min(margin, -math.inf if boxes.margin_px is None else boxes.margin_px)
+        if tau[0] >= 1.0 and _settled(bound[-1], wbar2 / (4 * s[j]), k[j], y):
+            break
+    level = max(*bound, wbar2 / (4 * s[j] * k[j]))
+    if camera.has_image:  # from the last step on: the goal's regions at the final level
+        boxes = feature_boxes(design, camera, path_centres(plan, camera.points, np.array([1.0])), level)
+        depth = min(depth, boxes.depth_min)
+        margin = min(margin, -math.inf if boxes.margin_px is None else boxes.margin_px)
+    record = {"inside": worst >= 0, "level": level, "recheck_margin": worst, "steps": len(bound) - 1,
+              "step_s": RAMP_STEP, "ultimate_V": bound[-1]}  # fmt: skip
+    if worst < 0:
+        record["reason"] = f"an a posteriori check of a step's rate fails ({worst:.3g})"
+    if camera.has_image:
+        record.update({"visible": bool(worst >= 0 and depth > 0 and margin >= 0), "image_margin_px": margin,
+                       "depth_min": depth})  # fmt: skip
+    return record

@@ -70,18 +70,27 @@ def test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_the_start(edit):
 
 def _start_holds(case: Case) -> tuple[bool, dict]:
     """The start statement on the case's own run (ideal continuous loop): ``V(t)`` below the level
-    the statement covers at every step and, for a planned start, every feature in its region."""
+    the statement covers at every step and, for a planned start, every feature in its region; for
+    a planned start also at the tube form's level (``holds`` true only when both hold)."""
     env = envelope_record(case, search=False)
     start = env["start"]
     level = start["level"] if start["inside"] else env["invariant_V"]
     traj = run(case.loop, case.s0, case.settings, duration=4.0)
-    v = traj["V"][:, 0]
-    holds = bool(np.all(v <= level * (1 + 1e-9)))
-    if start["method"] == "planned" and start["inside"]:
+    holds = _within(case, traj, level, start["method"] == "planned" and start["inside"])
+    if start["method"] == "planned" and start["tube"]["inside"]:
+        holds &= _within(case, traj, start["tube"]["level"], True)
+    return holds, env
+
+
+def _within(case: Case, traj, level: float, regions: bool) -> bool:
+    """``V(t) <= level`` at every step and, with ``regions``, every feature in its region (16.0) at
+    ``level`` about ``g_d(t) p_oi``."""
+    holds = bool(np.all(traj["V"][:, 0] <= level * (1 + 1e-9)))
+    if regions:
         lo, hi = run_regions(case.loop, traj.t, level)
         pixels = traj["f"].reshape(len(traj.t), -1, 2) + case.loop.camera.centre
         holds &= bool(np.all((pixels >= lo) & (pixels <= hi)))
-    return holds, env
+    return holds
 
 
 @pytest.mark.slow
@@ -106,14 +115,17 @@ def test_ramp_bounds_v_from_the_start_and_visibility_from_t_vis(seconds):
 @pytest.mark.slow
 @pytest.mark.parametrize(("duration", "observer"), [(1.0, "scenario"), (2.0, "scenario"), (2.0, "image")])
 def test_planned_start_is_certified_and_holds_on_runs_from_rest(duration, observer):
-    """(16b.3): from rest with the planned reference the start statement covers the run from t = 0,
-    with every feature in view; on the run ``V(t) <= c`` at every step and every feature stays in
-    its region about ``g_d(t)``; verify's claims on it all hold."""
+    """(16b.3), (16b.4): from rest with the planned reference the start statement covers the run
+    from t = 0, with every feature in view, in the fixed-level and the tube form (its level no
+    higher); on the run ``V(t)`` stays below both levels at every step and every feature stays in
+    its region about ``g_d(t)`` at both; verify's claims on it all hold."""
     case = Case(Scenario.model_validate(scenario_dict(planned(duration, observer))), DEFAULT_SCENARIO.parent)
     holds, env = _start_holds(case)
     start = env["start"]
     assert start["method"] == "planned" and start["inside"] and start["visible"]
     assert start["kinetic"] == 0.0 and start["recheck_margin"] >= 0
+    tube = start["tube"]
+    assert tube["inside"] and tube["visible"] and tube["level"] <= start["level"] * (1 + 1e-12)
     assert holds
     claims = envelope_claims(case.loop, case.s0, case.settings, env)
     assert all(c.passed is not False for c in claims), [(c.name, c.detail) for c in claims if c.passed is False]
