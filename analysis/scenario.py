@@ -225,7 +225,10 @@ def _initial_state(scenario: Scenario, loop: ClosedLoop, q0: np.ndarray, qd0: np
     if start.observer == "image":
         imp = scenario.implementation
         noise, seed = (0.0, 0) if imp is None else (imp.pixel_noise, imp.seed)
-        return image_start(loop, q0, qd0, noise, seed)
+        try:
+            return image_start(loop, q0, qd0, noise, seed)
+        except ValueError as exc:
+            raise ScenarioError(f"start.observer: {exc}") from exc
     o = scenario.observer
     return loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
 

@@ -1,5 +1,6 @@
 """A start the certificate covers (docs/math.md, fact 16): the observer started from the first
-image, and the fixed-level certificate of a planned reference ``g_d(t)``.
+image, the certificates of a planned reference ``g_d(t)`` (fixed-level and tube forms, fact 16b)
+and of a ramp of the camera-velocity command (fact 16a), all for the ideal continuous loop.
 
 With the paper's start an arm at rest has ``xi(0) = -qd_d(0)``, so ``V(0)`` is mostly kinetic
 and lies outside every certified set. With the planned reference of
@@ -22,6 +23,9 @@ The fixed-level form (16b.3), for isotropic ``K_c`` and block-isotropic ``K_e`` 
   ``B(g_d(tau) p_oi, rho_i(c) + drift_i)`` fit for ``tau`` on a grid of the path, ``drift_i``
   half a grid step of ``(|dp| + |omega| |p_oi|) dtau`` (how far a centre moves between two grid
   points), ``tau = 1`` included (the scenario's ``g_d`` from ``T_r`` on).
+
+The tube form (16b.4, :func:`tube_start`) and the ramp (16a, :func:`ramp_start`) run fact 16a.3's
+recursion on a time grid instead of one level.
 """
 
 from __future__ import annotations
@@ -66,6 +70,7 @@ SLACK = 0.005
 the range of ``|p_d|`` is cut into cells fine enough (at most :data:`MAX_CELLS`)."""
 
 MAX_CELLS = 400
+"""Most cells of ``|p_d|`` in the fixed-level form (the slack then exceeds :data:`SLACK` on long paths)."""
 
 PLANNED_ASSUMPTIONS = (
     "the ideal continuous loop with the planned reference g_d(t) and its feedforward -Ad_(g_d) V_d "
@@ -342,7 +347,7 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
             break
     if worst < 0:
         return {**record, "reason": f"an a posteriori check of a step's rate fails ({worst:.3g})"}
-    level = max(*bound, b[j] / k[j])
+    level = float(max(*bound, b[j] / k[j]))
     record.update({"inside": True, "level": level, "ultimate_V_ramp": bound[-1], "recheck_margin": worst,
                    "steps": len(bound) - 1, "step_s": RAMP_STEP})  # fmt: skip
     if camera.has_image:
@@ -452,7 +457,7 @@ def tube_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, p
             margin = min(margin, -math.inf if boxes.margin_px is None else boxes.margin_px)
         if tau[0] >= 1.0 and _settled(bound[-1], wbar2 / (4 * s[j]), k[j], y):
             break
-    level = max(*bound, wbar2 / (4 * s[j] * k[j]))
+    level = float(max(*bound, wbar2 / (4 * s[j] * k[j])))
     if camera.has_image:  # from the last step on: the goal's regions at the final level
         boxes = feature_boxes(design, camera, path_centres(plan, camera.points, np.array([1.0])), level)
         depth = min(depth, boxes.depth_min)
