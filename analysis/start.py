@@ -42,6 +42,7 @@ from dvfc.analysis.certify import GainPoint
 from dvfc.analysis.envelope import (
     SHRINK,
     THETA_GRID,
+    Boxes,
     Design,
     DisturbanceBounds,
     Envelope,
@@ -60,7 +61,7 @@ from dvfc.analysis.envelope import (
 )
 from dvfc.models.camera import Camera
 from dvfc.models.lie import SE3, SO3
-from dvfc.models.loop import ClosedLoop, ReferencePlan
+from dvfc.models.loop import ClosedLoop, ReferencePlan, quintic, smoothstep
 
 PATH_STEPS = 2000
 """Grid steps in the plan's progress ``tau`` for the visibility check along the path."""
@@ -121,8 +122,7 @@ def path_centres(plan: ReferencePlan, points: np.ndarray, tau: np.ndarray) -> np
 
 def path_progress(plan: ReferencePlan, t: np.ndarray) -> np.ndarray:
     """``tau(t)`` (numeric) of the quintic time law."""
-    u = np.clip(np.asarray(t, dtype=float) / plan.duration, 0.0, 1.0)
-    return 10 * u**3 - 15 * u**4 + 6 * u**5
+    return quintic(np.clip(np.asarray(t, dtype=float) / plan.duration, 0.0, 1.0))
 
 
 def path_range(plan: ReferencePlan) -> tuple[float, float]:
@@ -207,7 +207,7 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
     return record
 
 
-def path_boxes(design: Design, camera: Camera, plan: ReferencePlan, level: float):
+def path_boxes(design: Design, camera: Camera, plan: ReferencePlan, level: float) -> Boxes:
     """The regions (16.0) at ``level`` along the whole plan: balls about ``g_d(tau) p_oi`` on a grid of
     :data:`PATH_STEPS` steps in ``tau``, each radius grown by half a step's drift of its centre."""
     dp, omega = plan.step
@@ -321,8 +321,7 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
     bound, times, worst = [record["V0"]], [0.0], math.inf
     t = 0.0
     while True:
-        u = min(t / ramp, 1.0)
-        sigma = u**2 * (3 - 2 * u)
+        sigma = smoothstep(min(t / ramp, 1.0))
         v, y = bound[-1], bound[-1] * RAMP_GROWTH + 1e-12
         while y < ceiling:
             k, d = _ramp_rates(design, ramp_design, sigma, s, y)

@@ -122,6 +122,18 @@ def pseudo_inverse(j: Matrix) -> Matrix:
     return cs.inv(j.T @ j) @ j.T
 
 
+def quintic(u: Matrix | np.ndarray | float) -> Matrix | np.ndarray | float:
+    """The quintic time law ``10 u^3 - 15 u^4 + 6 u^5`` of a planned reference (C^2, at rest at
+    ``u = 0`` and ``u = 1``), for CasADi or NumPy ``u`` in ``[0, 1]``."""
+    return 10 * u**3 - 15 * u**4 + 6 * u**5
+
+
+def smoothstep(u: Matrix | np.ndarray | float) -> Matrix | np.ndarray | float:
+    """The ramp's ``sigma = 3 u^2 - 2 u^3`` (C^1, nondecreasing from 0 to 1), for CasADi or NumPy
+    ``u`` in ``[0, 1]``."""
+    return 3 * u**2 - 2 * u**3
+
+
 @dataclass(frozen=True)
 class ReferencePlan:
     """A planned reference ``g_d(t)`` (docs/math.md, fact 16): from ``start`` (the controller's own
@@ -145,19 +157,13 @@ class ReferencePlan:
     def progress(self, t: Matrix) -> tuple[Matrix, Matrix]:
         """``(tau(t), dtau/dt)`` of the quintic time law."""
         u = cs.fmin(cs.fmax(t / self.duration, 0), 1)
-        return 10 * u**3 - 15 * u**4 + 6 * u**5, 30 * u**2 * (1 - u) ** 2 / self.duration
+        return quintic(u), 30 * u**2 * (1 - u) ** 2 / self.duration
 
     def pose(self, t: Matrix) -> SE3:
         """``g_d(t)``."""
         dp, omega = self.step
         tau, _ = self.progress(t)
         return SE3(self.start.translation + tau * cs.DM(dp), self.start.rotation @ SO3.exp(tau * cs.DM(omega)))
-
-    def pose_at(self, tau: float) -> SE3:
-        """``g_d`` at the progress ``tau`` in ``[0, 1]`` (numeric)."""
-        dp, omega = self.step
-        return SE3(cs.DM(self.start.translation) + tau * cs.DM(dp),
-                   SO3(cs.DM(self.start.rotation.matrix) @ cs.DM(SO3.exp(tau * cs.DM(omega)).matrix)))  # fmt: skip
 
     def velocity(self, t: Matrix) -> Matrix:
         """The body velocity ``V_d = vee(g_d^-1 dg_d/dt) = tau' [R_d^T dp; omega]``."""
@@ -327,8 +333,7 @@ class ClosedLoop:
         1 without a ramp."""
         if self.ramp is None:
             return cs.DM(1.0)
-        u = cs.fmin(cs.fmax(self.t / self.ramp, 0), 1)
-        return 3 * u**2 - 2 * u**3
+        return smoothstep(cs.fmin(cs.fmax(self.t / self.ramp, 0), 1))
 
     @cached_property
     def gain_matrix(self) -> Matrix:
