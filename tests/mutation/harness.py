@@ -230,6 +230,13 @@ MUTATIONS = (
         ("tests/test_envelope.py::test_joint_radius_bounds_every_feature_offset_and_is_attained",),
     ),
     Mutation(
+        "radius-without-estimation",
+        "fact 16.0's joint radius without the estimation error's position term 1/w_pe (too small: unsound)",
+        "analysis/envelope.py",
+        (("    spread = 1.0 / w_pc + 1.0 / w_pe\n", "    spread = 1.0 / w_pc\n"),),
+        ("tests/test_envelope.py::test_joint_radius_bounds_every_feature_offset_and_is_attained",),
+    ),
+    Mutation(
         "cone-3d-distance",
         "fact 16.0's cone interval with the 3-D distance |c_i| instead of the 2-D one per image axis",
         "analysis/envelope.py",
