@@ -199,6 +199,8 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
         record["start"] = ramp_start(design, loop.camera, disturbance, env, loop.ramp)
     if record["start"]["method"] != "constant" and record["start"]["inside"]:
         record["statement"] = record["start"]["statement"]
+        if record["start"].get("boxes_px") is not None:  # the figure's regions: those of the whole run
+            record["boxes_px"] = record["start"]["boxes_px"]
     return {
         **record,
         "m_hi_method": mass.method_hi,

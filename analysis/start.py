@@ -199,7 +199,8 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
                    "invariant_V": decay.c_max})  # fmt: skip
     if camera.has_image:
         boxes = path_boxes(design, camera, plan, level)
-        record.update({"visible": boxes.visible, "image_margin_px": boxes.margin_px, "depth_min": boxes.depth_min})
+        record.update({"visible": boxes.visible, "image_margin_px": boxes.margin_px, "depth_min": boxes.depth_min,
+                       "boxes_px": boxes.boxes})  # fmt: skip
     record["tube"] = tube = tube_start(design, camera, disturbance, plan, record["V0"])
     if record["visible"] is False and tube["inside"] and tube.get("visible"):
         record["visible"] = True  # the tube form's regions fit where the fixed level's do not
@@ -209,7 +210,8 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
 
 def path_boxes(design: Design, camera: Camera, plan: ReferencePlan, level: float) -> Boxes:
     """The regions (16.0) at ``level`` along the whole plan: balls about ``g_d(tau) p_oi`` on a grid of
-    :data:`PATH_STEPS` steps in ``tau``, each radius grown by half a step's drift of its centre."""
+    :data:`PATH_STEPS` steps in ``tau``, each radius grown by half a step's drift of its centre; per
+    feature the box enclosing its regions over the whole path."""
     dp, omega = plan.step
     tau = np.linspace(0.0, 1.0, PATH_STEPS + 1)
     drift = (np.linalg.norm(dp) + np.linalg.norm(omega) * np.linalg.norm(camera.points, axis=1)) / PATH_STEPS / 2
