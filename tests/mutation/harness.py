@@ -354,6 +354,8 @@ MUTATIONS = (
         "analysis/results.py",
         (('        if record["applies"] and not record["certified"]:', '        if False:'),),
         ("tests/test_windows.py",),
+    ),
+    Mutation(
         "distortion-tangential-swapped",
         "the true camera's tangential distortion terms p1 and p2 swapped",
         "models/errors.py",
