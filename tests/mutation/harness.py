@@ -383,6 +383,13 @@ MUTATIONS = (
         (("    rows = [simulate_run(spec, k, simulator)[0] for k in range(start, stop)]\n", "    rows = [simulate_run(spec, k - start, simulator)[0] | {\"run\": k} for k in range(start, stop)]\n"),),  # noqa: E501
         ("tests/test_dispersion.py::test_one_and_two_workers_give_identical_datasets",),
     ),
+    Mutation(
+        "margin-focal-error-on-fx-only",
+        "the focal-length-error margin changes the true fx and leaves fy at the controller's",
+        "analysis/margins.py",
+        (("            errors = replace(errors, fx=fx, fy=fx * loop.camera.aspect)\n", "            errors = replace(errors, fx=fx)\n"),),  # noqa: E501
+        ("tests/test_margins.py::test_plant_error_parameters_change_their_own_entry_only",),
+    ),
 )
 
 
