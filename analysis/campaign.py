@@ -44,6 +44,10 @@ RUNS = "runs"
 
 BOUND = "clopper-pearson, one-sided"
 
+CONFIDENCE, P_FAIL, QUANTILE = 0.95, 0.01, 0.9
+"""The defaults of a campaign's statements: the confidence, the P(fail) whose zero-failure run
+count is stated, the quantile of the tracking error bounded."""
+
 
 @dataclass(frozen=True)
 class CampaignSpec:

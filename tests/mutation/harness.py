@@ -390,6 +390,13 @@ MUTATIONS = (
         (("            errors = replace(errors, fx=fx, fy=fx * loop.camera.aspect)\n", "            errors = replace(errors, fx=fx)\n"),),  # noqa: E501
         ("tests/test_margins.py::test_plant_error_parameters_change_their_own_entry_only",),
     ),
+    Mutation(
+        "report-campaign-own-confidence",
+        "the report's campaign stated at 90% confidence, not the campaign's default",
+        "reports/document.py",
+        (("    summary_ = summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)\n", "    summary_ = summarize_campaign(spec, table, 0.9, P_FAIL, QUANTILE)\n"),),  # noqa: E501
+        ("tests/test_report.py::test_dispersions_section_states_the_campaigns_statement",),
+    ),
 )
 
 
