@@ -20,7 +20,16 @@ from pathlib import Path
 import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
-from dvfc.analysis.campaign import CONFIDENCE, P_FAIL, QUANTILE, CampaignSpec, read_runs, run_campaign, simulate_run
+from dvfc.analysis.campaign import (
+    CONFIDENCE,
+    P_FAIL,
+    QUANTILE,
+    CampaignSpec,
+    read_runs,
+    run_campaign,
+    simulate_run,
+    true_pixels,
+)
 from dvfc.analysis.campaign import summarize as summarize_campaign
 from dvfc.analysis.case import Case
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
@@ -134,7 +143,8 @@ def measure_campaign(case: Case, cache: StageCache, envelope: dict) -> dict:
     with the default confidence, in this process, its batches kept in the cache's scratch
     directory so that a resumed report continues an interrupted campaign; then the worst run
     made again for its features. ``summary`` is the campaign's ``summary.json`` (without
-    provenance), ``runs`` its dataset as columns, ``worst`` the worst run's trajectory;
+    provenance), ``runs`` its dataset as columns, ``worst`` the worst run's trajectory and
+    ``worst_pixels`` the features its plant's camera saw (:func:`true_pixels`);
     ``{"reason": ...}`` when the scenario cannot run a campaign."""
     try:
         spec = CampaignSpec.of(case, tracking_bound(case, envelope))
@@ -147,8 +157,10 @@ def measure_campaign(case: Case, cache: StageCache, envelope: dict) -> dict:
                      scenario_sha256=cache.key)  # fmt: skip
         table = read_runs(directory)
     summary_ = summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)
-    worst = simulate_run(spec, summary_["worst"][0]["run"])[1]
-    return {"summary": summary_, "runs": table.to_pydict(), "worst": worst}
+    run = summary_["worst"][0]["run"]
+    worst = simulate_run(spec, run)[1]
+    pixels = true_pixels(case.loop, worst, spec.run_settings(run)[0].errors)
+    return {"summary": summary_, "runs": table.to_pydict(), "worst": worst, "worst_pixels": pixels}
 
 
 def assemble(
@@ -238,7 +250,8 @@ def _dispersion_figures(dispersion: dict | None, loop: ClosedLoop) -> dict[str, 
         figures.sensitivity_bars(summary_["sensitivity"]),
         figures.drivers_scatter(runs, summary_["sensitivity"]),
         figures.implemented_image(dispersion["worst"], camera.centre, (camera.width, camera.height),
-                                  f"Features of run {worst['run']} (the worst), in the image")
+                                  f"Features of run {worst['run']} (the worst) in the true image",
+                                  dispersion["worst_pixels"])
         if camera.has_image else None,
     ), strict=True))  # fmt: skip
 

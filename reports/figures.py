@@ -101,18 +101,23 @@ def implemented_image(
     centre: np.ndarray,
     size: tuple[float, float],
     title: str = "Features of the run as implemented, in the image",
+    pixels: np.ndarray | None = None,
 ) -> str:
-    """The feature tracks of a run as implemented inside the image border (pixels)."""
+    """The feature tracks of a run as implemented inside the image border (pixels): the model's
+    features about ``centre``, or ``pixels`` (``(T, m, 2)``, from the top-left corner) when given
+    (the plant's camera, :func:`dvfc.analysis.campaign.true_pixels`)."""
     fig, ax = plt.subplots(figsize=(6.0, 5.0))
-    _tracks_in_image(ax, traj, centre, size, title)
+    _tracks_in_image(ax, traj, centre, size, title, pixels)
     return svg(fig)
 
 
-def _tracks_in_image(ax, traj: Trajectory, centre: np.ndarray, size: tuple[float, float], title: str) -> None:
-    """The image border and the simulated feature tracks, in pixels (rows downwards)."""
+def _tracks_in_image(ax, traj: Trajectory, centre: np.ndarray, size: tuple[float, float], title: str,
+                     pixels: np.ndarray | None = None) -> None:  # fmt: skip
+    """The image border and the simulated feature tracks, in pixels (rows downwards): the
+    model's features about ``centre``, or ``pixels`` when given."""
     width, height = size
     ax.add_patch(Rectangle((0, 0), width, height, fill=False, color="black", lw=1.5, label="image border"))
-    f = traj["f"].reshape(len(traj.t), -1, 2) + centre
+    f = traj["f"].reshape(len(traj.t), -1, 2) + centre if pixels is None else pixels
     for i in range(f.shape[1]):
         ax.plot(f[:, i, 0], f[:, i, 1], color=BOUNDED, lw=1, label="simulated features" if i == 0 else None)
         ax.plot(*f[0, i], "o", color=BOUNDED, ms=3)

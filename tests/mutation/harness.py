@@ -397,6 +397,13 @@ MUTATIONS = (
         (("    summary_ = summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)\n", "    summary_ = summarize_campaign(spec, table, 0.9, P_FAIL, QUANTILE)\n"),),  # noqa: E501
         ("tests/test_report.py::test_dispersions_section_states_the_campaigns_statement",),
     ),
+    Mutation(
+        "true-pixels-nominal-centre",
+        "the worst run's true features drawn about the controller's principal point, not the plant's",
+        "analysis/campaign.py",
+        (("    return f.reshape(len(traj.t), -1, 2) + np.asarray(errors.principal_point, dtype=float)\n", "    return f.reshape(len(traj.t), -1, 2) + loop.camera.centre\n"),),  # noqa: E501
+        ("tests/test_dispersion.py::test_true_pixels_are_the_models_features_without_errors_and_shift_with_the_principal_point",),
+    ),
 )
 
 
