@@ -266,3 +266,14 @@ def test_true_pixels_are_the_models_features_without_errors_and_shift_with_the_p
     shift = np.array([12.0, -7.0])
     moved = replace(none, principal_point=none.principal_point + shift)
     assert np.allclose(true_pixels(loop, traj, moved), model + shift, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("runs", [0, 2.0, "100", True])
+def test_report_campaign_runs_is_a_strict_positive_integer(runs):
+    """``[report] campaign_runs``: an integer of at least 1, nothing coerced."""
+    data = copy.deepcopy(BASE)
+    data["report"] = {"campaign_runs": runs}
+    with pytest.raises(ValidationError, match="campaign_runs"):
+        Scenario.model_validate(data)
+    data["report"] = {"campaign_runs": 7}
+    assert Scenario.model_validate(data).report.campaign_runs == 7
