@@ -404,6 +404,20 @@ MUTATIONS = (
         (("    return f.reshape(len(traj.t), -1, 2) + np.asarray(errors.principal_point, dtype=float)\n", "    return f.reshape(len(traj.t), -1, 2) + loop.camera.centre\n"),),  # noqa: E501
         ("tests/test_dispersion.py::test_true_pixels_are_the_models_features_without_errors_and_shift_with_the_principal_point",),
     ),
+    Mutation(
+        "margin-mount-rotation-ignored",
+        "the mount-rotation margin leaves the mount as it is, whatever the angle",
+        "analysis/margins.py",
+        (("            errors = replace(errors, mount_rpy=np.array([np.radians(value), 0.0, 0.0]))\n", "            pass\n"),),  # noqa: E501
+        ("tests/test_margins.py::test_a_large_mount_rotation_breaks_the_loop_and_a_small_one_does_not",),
+    ),
+    Mutation(
+        "report-campaign-runs-unbounded",
+        "[report] campaign_runs accepts 0 runs",
+        "analysis/schema.py",
+        (("    campaign_runs: Annotated[int, Field(ge=1)] = 100\n", "    campaign_runs: int = 100\n"),),
+        ("tests/test_dispersion.py::test_report_campaign_runs_is_a_strict_positive_integer",),
+    ),
 )
 
 
