@@ -23,6 +23,7 @@ from contextlib import closing
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import casadi as cs
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -37,12 +38,17 @@ from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record
 from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory
 from dvfc.analysis.tasks import run_tasks
-from dvfc.models.errors import PlantErrors
+from dvfc.models.errors import PlantErrors, camera_size, true_features
+from dvfc.models.loop import ClosedLoop
 
 RUNS = "runs"
 """Folder of a campaign's dataset in its output directory: one Parquet file per batch."""
 
 BOUND = "clopper-pearson, one-sided"
+
+CONFIDENCE, P_FAIL, QUANTILE = 0.95, 0.01, 0.9
+"""The defaults of a campaign's statements: the confidence, the P(fail) whose zero-failure run
+count is stated, the quantile of the tracking error bounded."""
 
 
 @dataclass(frozen=True)
@@ -131,6 +137,18 @@ def simulate_run(spec: CampaignSpec, run: int, simulator: SampledSimulator | Non
     sim = as_implemented(spec.case.loop, settings) if simulator is None else simulator.for_run(settings)
     traj = sim.run(s0)
     return row(spec, run, traj, settings, values), traj
+
+
+def true_pixels(loop: ClosedLoop, traj: Trajectory, errors: PlantErrors) -> np.ndarray:
+    """The features the plant's camera sees along a run, without noise: ``(T, m, 2)`` pixels from
+    the image's top-left corner, by the true mount, intrinsics, distortion and points of
+    ``errors`` (:func:`dvfc.models.errors.true_features`) at each output sample."""
+    parameters = cs.SX.sym("errors", camera_size(loop.camera.m))
+    true = true_features(loop.camera, loop.relative_pose, parameters)[0]
+    function = cs.Function("true_pixels", [loop.t, loop.state, parameters], [true]).map(len(traj.t))
+    vector = np.repeat(errors.camera_vector(loop.camera)[:, None], len(traj.t), axis=1)
+    f = np.asarray(function(traj.t, traj["state"].T, vector)).T
+    return f.reshape(len(traj.t), -1, 2) + np.asarray(errors.principal_point, dtype=float)
 
 
 def campaign_batch(spec: CampaignSpec, start: int, stop: int) -> dict[str, list]:

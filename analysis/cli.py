@@ -24,7 +24,16 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from dvfc.analysis.campaign import CampaignSpec, read_runs, run_campaign, summarize, worst_case
+from dvfc.analysis.campaign import (
+    CONFIDENCE,
+    P_FAIL,
+    QUANTILE,
+    CampaignSpec,
+    read_runs,
+    run_campaign,
+    summarize,
+    worst_case,
+)
 from dvfc.analysis.campaign import row as campaign_row
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import (
@@ -844,9 +853,9 @@ def replayed_values(spec: CampaignSpec, path: Path | None) -> dict[str, np.ndarr
 def campaign_command(
     scenario: ScenarioArg = DEFAULT_SCENARIO,
     runs: Annotated[int, typer.Option(help="Runs to make (at least 1).")] = 100,
-    confidence: Annotated[float, typer.Option(help="Confidence of the statements, in (0, 1).")] = 0.95,
-    p_fail: Annotated[float, typer.Option("--p", help="P(fail) for the zero-failure run count, in (0, 1).")] = 0.01,
-    quantile: Annotated[float, typer.Option(help="Quantile of the tracking error bounded, in (0, 1).")] = 0.9,
+    confidence: Annotated[float, typer.Option(help="Confidence of the statements, in (0, 1).")] = CONFIDENCE,
+    p_fail: Annotated[float, typer.Option("--p", help="P(fail) for the zero-failure run count, in (0, 1).")] = P_FAIL,
+    quantile: Annotated[float, typer.Option(help="Quantile of the tracking error bounded, in (0, 1).")] = QUANTILE,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the campaign's seed sequence.")] = 0,
     search: Annotated[int, typer.Option(min=0, help="Runs of the worst-case search (0: none).")] = 0,
     workers: Annotated[int, typer.Option(min=1, help="Local worker processes.")] = 1,

@@ -33,6 +33,7 @@ from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory, rotation_angle
+from dvfc.models.errors import PlantErrors
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.robot import Payload, Robot
 
@@ -72,15 +73,45 @@ PARAMETERS = {
     "payload_mass": Parameter("payload_mass", "kg", "up", 20.0),
     "pixel_noise": Parameter("pixel_noise", "px", "up", 50.0),
     "torque_scale": Parameter("torque_scale", "x URDF effort", "down", 0.05),
+    "mount_rotation": Parameter("mount_rotation", "deg", "up", 45.0),
+    "focal_length_error": Parameter("focal_length_error", "relative", "up", 1.0),
+    "friction_scale": Parameter("friction_scale", "x reference friction", "up", 20.0),
+    "frame_drop": Parameter("frame_drop", "probability", "up", 0.95),
 }
+"""The searched parameters. ``mount_rotation``: the true camera mount turned about the nominal
+camera's x axis (a tilt of the optical axis) by this angle; ``focal_length_error``: the true
+``fx`` and ``fy`` this fraction above the controller's; ``friction_scale``: joint friction this
+multiple of the reference friction (:func:`reference_friction`); ``frame_drop``: the probability
+an image is lost. Each is an input of the compiled loop (no run recompiles) except the payload."""
+
+DEFAULT_FRICTION = (0.005, 0.02)
+"""Viscous (per rad/s or m/s) and Coulomb friction as fractions of each joint's effort limit: the
+reference friction where neither the scenario nor the URDF gives any (harmonic-drive joints lose a
+few percent of their rated torque to friction; an assumed magnitude, stated)."""
+
+
+def reference_friction(loop: ClosedLoop, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
+    """The friction ``friction_scale`` multiplies: the scenario's ``[plant] friction`` (its
+    viscous and Coulomb terms per joint) when it has any, else :data:`DEFAULT_FRICTION` of the
+    URDF's effort limits (0 on a joint without one)."""
+    e = settings.errors
+    if e is not None and (np.any(e.viscous) or np.any(e.coulomb)):
+        return np.asarray(e.viscous, float), np.asarray(e.coulomb, float)
+    effort = np.where(np.isfinite(loop.robot.limits.effort), loop.robot.limits.effort, 0.0)
+    return DEFAULT_FRICTION[0] * effort, DEFAULT_FRICTION[1] * effort
 
 
 def base_value(name: str, settings: Settings) -> float:
-    """The scenario's value of a parameter."""
-    imp = settings.implementation
+    """The scenario's value of a parameter (the plant-error parameters: 0, or 1 for the friction
+    scale of a scenario with friction)."""
+    imp, e = settings.implementation, settings.errors
     if name == "payload_mass":
         plant = settings.plant
         return 0.0 if plant is None or plant.payload is None else plant.payload.mass
+    if name == "friction_scale":
+        return float(e is not None and (np.any(e.viscous) or np.any(e.coulomb)))
+    if name in ("mount_rotation", "focal_length_error"):
+        return 0.0
     return float(getattr(imp, name))
 
 
@@ -90,7 +121,8 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
     A payload changes the plant's equations, so each mass is a new right-hand side: its runs
     are made in CasADi's virtual machine (``jit = False``) rather than compiling C code for
     every mass (see ``benchmarks/margins.py``). The other parameters are inputs of the
-    compiled code, or act between its calls."""
+    compiled code, or act between its calls; the plant-error parameters replace one entry of
+    the settings' ``errors`` (none: :meth:`PlantErrors.none`), keeping the others."""
     imp = settings.implementation
     if name == "payload_mass":
         plant = settings.plant
@@ -99,6 +131,17 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
         scale = 1.0 if plant is None else plant.mass_scale
         payload = Robot(r.urdf, r.frame, r.mount, r.armature, replace(old, mass=value), scale)
         return replace(settings, plant=payload, jit=False)
+    if name in ("mount_rotation", "focal_length_error", "friction_scale"):
+        errors = settings.errors or PlantErrors.none(loop.camera, loop.robot.n)
+        if name == "mount_rotation":
+            errors = replace(errors, mount_rpy=np.array([np.radians(value), 0.0, 0.0]))
+        elif name == "focal_length_error":
+            fx = loop.camera.focal_length * (1 + value)
+            errors = replace(errors, fx=fx, fy=fx * loop.camera.aspect)
+        else:
+            viscous, coulomb = reference_friction(loop, settings)
+            errors = replace(errors, viscous=value * viscous, coulomb=value * coulomb)
+        return replace(settings, errors=errors)
     if name == "latency":
         value = round(value * imp.control_rate) / imp.control_rate
     return replace(settings, implementation=replace(imp, **{name: value}))
@@ -248,8 +291,12 @@ def planned_runs() -> int:
 
 def applicable(name: str, settings: Settings, loop: ClosedLoop) -> str | None:
     """Why a parameter cannot be searched on this scenario, or None."""
-    if name == "pixel_noise" and loop.mode != "image":
-        return "pixel noise needs e_e = \"image\""
+    if name in ("pixel_noise", "mount_rotation", "focal_length_error") and loop.mode != "image":
+        return f'{name.replace("_", " ")} acts through the image: needs e_e = "image"'
+    if name == "friction_scale" and settings.implementation.integrator != "rk4":
+        return 'friction needs integrator = "rk4"'
+    if name == "mount_rotation" and settings.errors is not None and np.any(settings.errors.mount_rpy):
+        return "the scenario's [plant] mount is already rotated: the search turns it about one axis from none"
     return None
 
 

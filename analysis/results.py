@@ -370,11 +370,14 @@ def best_gamma(point: dict) -> tuple[float | None, str]:
     return paper, "the paper's P(gamma) >= 0 (Theorem 2)"
 
 
-def statements(certificate: dict, verification: dict, margins: dict | None = None) -> list[dict]:
+def statements(
+    certificate: dict, verification: dict, margins: dict | None = None, dispersion: dict | None = None
+) -> list[dict]:
     """Every statement a review makes, each with the loop it is about and its own status:
     ``CERTIFIED`` / ``NOT CERTIFIED`` (a certificate, re-checked), ``DOES NOT APPLY`` (its
     assumptions fail here), ``PASS`` / ``FAIL`` / ``INCONCLUSIVE`` (checks on simulated runs),
-    ``MEASURED`` (a measurement, not a certificate)."""
+    ``MEASURED`` (a measurement, not a certificate). ``margins`` and ``dispersion`` (the
+    report's campaign, its ``summary`` the campaign's ``summary.json``): when measured."""
     point = certificate["points"][0]
     gamma, which = best_gamma(point)
     out = [{
@@ -417,6 +420,11 @@ def statements(certificate: dict, verification: dict, margins: dict | None = Non
                 if m.get("holds_at") is not None]  # fmt: skip
         out.append({"statement": "margins of the loop as implemented", "loop": "sampled nonlinear loop, simulated",
                     "status": "MEASURED", "detail": "holds at " + ", ".join(held)})
+    if dispersion is not None and "summary" in dispersion:
+        campaign = dispersion["summary"]
+        loop = f"sampled nonlinear loop, simulated: {campaign['runs']} runs drawn from the [dispersion]"
+        out.append({"statement": "dispersion campaign", "loop": loop, "status": "MEASURED",
+                    "detail": campaign["statement"]})  # fmt: skip
     summary_ = verification["summary"]
     status = "FAIL" if summary_["failed"] else "INCONCLUSIVE" if summary_["inconclusive"] else "PASS"
     out.append({"statement": "the paper's claims and the limits, checked on runs", "loop": "simulated runs",

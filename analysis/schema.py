@@ -423,9 +423,11 @@ class EnvelopeSection(_Strict):
 
 class ReportSection(_Strict):
     """What the report's gain map shows: the certified gamma, or (with an ``[envelope]``) the
-    certified decay rate or the largest certified target speed."""
+    certified decay rate or the largest certified target speed; and the runs of the campaign
+    the report makes of the scenario's ``[dispersion]``."""
 
     map: Literal["gamma", "rate", "max_target_speed"] = "gamma"
+    campaign_runs: Annotated[int, Field(ge=1)] = 100
 
 
 Interval = Annotated[list[Positive], Field(min_length=2, max_length=2)]

@@ -2,8 +2,8 @@
 
 :func:`assemble` runs the jobs a review signs off on (simulation of (36), the
 Theorem 2 certificate with its lower bounds, the verification of every claim, the margins
-of the loop as implemented, the gain map); :func:`render` turns them into HTML (figures
-inline as SVG, CSS inline, nothing fetched); :func:`write` saves ``report.html`` and
+of the loop as implemented, the campaign of its ``[dispersion]``, the gain map); :func:`render`
+turns them into HTML (figures inline as SVG, CSS inline, nothing fetched); :func:`write` saves ``report.html`` and
 ``report.pdf`` (WeasyPrint) atomically.
 """
 
@@ -20,9 +20,20 @@ from pathlib import Path
 import numpy as np
 from jinja2 import Environment, PackageLoader, StrictUndefined
 
+from dvfc.analysis.campaign import (
+    CONFIDENCE,
+    P_FAIL,
+    QUANTILE,
+    CampaignSpec,
+    read_runs,
+    run_campaign,
+    simulate_run,
+    true_pixels,
+)
+from dvfc.analysis.campaign import summarize as summarize_campaign
 from dvfc.analysis.case import Case
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
-from dvfc.analysis.margins import MarginError, linear_margin_text, margins
+from dvfc.analysis.margins import MarginError, linear_margin_text, margins, tracking_bound
 from dvfc.analysis.output import atomic_write, raise_if_interrupted
 from dvfc.analysis.pose import xyz_rpy
 from dvfc.analysis.results import (
@@ -35,13 +46,13 @@ from dvfc.analysis.results import (
     verification_result,
 )
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import Scenario
+from dvfc.analysis.scenario import Scenario, ScenarioError
 from dvfc.analysis.simulate import Simulator, Trajectory, identity_residuals, summary
 from dvfc.analysis.tasks import run_tasks
 from dvfc.models.loop import ClosedLoop
 from dvfc.reports import figures
 
-STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "gain map", "figures")
+STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "dispersions", "gain map", "figures")
 """The stages of :func:`assemble`, in order (reported to ``progress``)."""
 
 
@@ -65,6 +76,9 @@ class ReportData:
     margins: dict | None
     """The margins of the loop as implemented (:func:`dvfc.analysis.margins.margins`), or
     ``{"reason": ...}`` when there are none to measure; None without an ``[implementation]``."""
+    dispersion: dict | None
+    """The campaign of the scenario's ``[dispersion]`` (:func:`measure_campaign`), or
+    ``{"reason": ...}`` when it cannot run; None without a ``[dispersion]``."""
 
 
 CACHE = ".dvfc-report"
@@ -123,6 +137,32 @@ def measure_margins(case: Case, cache: StageCache, envelope: dict, own_run: Traj
             return {"reason": str(exc)}
 
 
+def measure_campaign(case: Case, cache: StageCache, envelope: dict) -> dict:
+    """The campaign of the case's ``[dispersion]`` (:mod:`dvfc.analysis.campaign`): ``[report]
+    campaign_runs`` runs judged by the margins criterion (the tracking bound of ``envelope``),
+    with the default confidence, in this process, its batches kept in the cache's scratch
+    directory so that a resumed report continues an interrupted campaign; then the worst run
+    made again for its features. ``summary`` is the campaign's ``summary.json`` (without
+    provenance), ``runs`` its dataset as columns, ``worst`` the worst run's trajectory and
+    ``worst_pixels`` the features its plant's camera saw (:func:`true_pixels`);
+    ``{"reason": ...}`` when the scenario cannot run a campaign."""
+    try:
+        spec = CampaignSpec.of(case, tracking_bound(case, envelope))
+    except ScenarioError as exc:
+        return {"reason": str(exc)}
+    scratch = cache.scratch("campaign")
+    with tempfile.TemporaryDirectory() as tmp:
+        directory = scratch or Path(tmp)
+        run_campaign(spec, directory, case.scenario.report.campaign_runs, resume=scratch is not None,
+                     scenario_sha256=cache.key)  # fmt: skip
+        table = read_runs(directory)
+    summary_ = summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)
+    run = summary_["worst"][0]["run"]
+    worst = simulate_run(spec, run)[1]
+    pixels = true_pixels(case.loop, worst, spec.run_settings(run)[0].errors)
+    return {"summary": summary_, "runs": table.to_pydict(), "worst": worst, "worst_pixels": pixels}
+
+
 def assemble(
     case: Case,
     provenance: dict,
@@ -153,6 +193,10 @@ def assemble(
     if settings.implementation is not None:
         measured = stage("margins", lambda: measure_margins(case, stage, envelope, implemented))
     progress(STEPS[4])
+    dispersion = None
+    if spec.dispersion:
+        dispersion = stage("dispersions", lambda: measure_campaign(case, stage, envelope))
+    progress(STEPS[5])
     point = case.point
     axes = spec.grid.axes() if spec.grid is not None else None
     gamma_certified = certificate["points"][0]["gamma"]
@@ -166,7 +210,7 @@ def assemble(
             own = GridSpec.around(point, spec.reference.se3(), itself, None, context)
             design[quantity] = float(certify_batch(own, 0, 1)[quantity][0])
         design |= {name: axis_value(point, name) for name in (gmap.x_axis, gmap.y_axis) if name is not None}
-    progress(STEPS[5])
+    progress(STEPS[6])
     gamma = verification["gamma"]
     drawn = {
         "paths": figures.paths(trajectory),
@@ -180,7 +224,7 @@ def assemble(
         "envelope": _envelope_figure(trajectory, loop, certificate["points"][0].get("envelope")),
         "implemented": figures.implemented_image(implemented, loop.camera.centre, (loop.camera.width,
                                                  loop.camera.height)) if loop.camera.has_image else None,
-    }  # fmt: skip
+    } | _dispersion_figures(dispersion, loop)  # fmt: skip
     as_built = {
         "implementation": implementation_record(settings),
         "summary": summary(implemented),
@@ -188,8 +232,28 @@ def assemble(
     }
     return ReportData(
         spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance,
-        as_built, measured,
+        as_built, measured, dispersion,
     )  # fmt: skip
+
+
+def _dispersion_figures(dispersion: dict | None, loop: ClosedLoop) -> dict[str, str | None]:
+    """The campaign's figures (:func:`figures.campaign_ecdf`, :func:`figures.sensitivity_bars`,
+    :func:`figures.drivers_scatter`, the worst run's features in the image), None each when
+    there is no campaign."""
+    names = ("campaign_ecdf", "campaign_sensitivity", "campaign_drivers", "campaign_worst")
+    if dispersion is None or "summary" not in dispersion:
+        return dict.fromkeys(names)
+    summary_, runs, camera = dispersion["summary"], dispersion["runs"], loop.camera
+    worst = summary_["worst"][0]
+    return dict(zip(names, (
+        figures.campaign_ecdf(runs, summary_["tolerance"]),
+        figures.sensitivity_bars(summary_["sensitivity"]),
+        figures.drivers_scatter(runs, summary_["sensitivity"]),
+        figures.implemented_image(dispersion["worst"], camera.centre, (camera.width, camera.height),
+                                  f"Features of run {worst['run']} (the worst) in the true image",
+                                  dispersion["worst_pixels"])
+        if camera.has_image else None,
+    ), strict=True))  # fmt: skip
 
 
 def supply_facts(traj: Trajectory) -> dict[str, float | bool]:
@@ -243,7 +307,7 @@ def render(data: ReportData) -> str:
         assumptions=data.certificate["assumptions"],
         verification=data.verification,
         verdict=verdict(data.certificate, data.verification),
-        statements=statements(data.certificate, data.verification, data.margins),
+        statements=statements(data.certificate, data.verification, data.margins, data.dispersion),
         best_gamma=best_gamma(point),
         target_start=xyz_rpy(np.asarray(data.loop.target.start.as_matrix())),
         envelope=point.get("envelope"),
@@ -256,6 +320,7 @@ def render(data: ReportData) -> str:
         lemma2=supply_facts(data.trajectory),
         implemented=data.implemented,
         margins=data.margins,
+        dispersion=data.dispersion,
         linear_margin=linear_margin_text(data.margins) if data.margins and "margins" in data.margins else None,
         mode=data.loop.mode,
         camera_size=(data.loop.camera.width, data.loop.camera.height),

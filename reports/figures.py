@@ -96,18 +96,28 @@ def envelope_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, floa
     return svg(fig)
 
 
-def implemented_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, float]) -> str:
-    """The feature tracks of the run as implemented inside the image border (pixels)."""
+def implemented_image(
+    traj: Trajectory,
+    centre: np.ndarray,
+    size: tuple[float, float],
+    title: str = "Features of the run as implemented, in the image",
+    pixels: np.ndarray | None = None,
+) -> str:
+    """The feature tracks of a run as implemented inside the image border (pixels): the model's
+    features about ``centre``, or ``pixels`` (``(T, m, 2)``, from the top-left corner) when given
+    (the plant's camera, :func:`dvfc.analysis.campaign.true_pixels`)."""
     fig, ax = plt.subplots(figsize=(6.0, 5.0))
-    _tracks_in_image(ax, traj, centre, size, "Features of the run as implemented, in the image")
+    _tracks_in_image(ax, traj, centre, size, title, pixels)
     return svg(fig)
 
 
-def _tracks_in_image(ax, traj: Trajectory, centre: np.ndarray, size: tuple[float, float], title: str) -> None:
-    """The image border and the simulated feature tracks, in pixels (rows downwards)."""
+def _tracks_in_image(ax, traj: Trajectory, centre: np.ndarray, size: tuple[float, float], title: str,
+                     pixels: np.ndarray | None = None) -> None:  # fmt: skip
+    """The image border and the simulated feature tracks, in pixels (rows downwards): the
+    model's features about ``centre``, or ``pixels`` when given."""
     width, height = size
     ax.add_patch(Rectangle((0, 0), width, height, fill=False, color="black", lw=1.5, label="image border"))
-    f = traj["f"].reshape(len(traj.t), -1, 2) + centre
+    f = traj["f"].reshape(len(traj.t), -1, 2) + centre if pixels is None else pixels
     for i in range(f.shape[1]):
         ax.plot(f[:, i, 0], f[:, i, 1], color=BOUNDED, lw=1, label="simulated features" if i == 0 else None)
         ax.plot(*f[0, i], "o", color=BOUNDED, ms=3)
@@ -240,3 +250,55 @@ def gain_map(m: GainMap, design: dict[str, float]) -> str:
 def _spread(values: np.ndarray) -> bool:
     """Whether positive ``values`` span more than a decade (then a log axis reads better)."""
     return bool(values.min() > 0 and values.max() / values.min() > 10)
+
+
+def campaign_ecdf(runs: dict, tolerance: dict) -> str:
+    """The empirical distribution of a campaign's tracking ratio (the tracking error over the
+    criterion's bound, the larger of position and angle; 1 is the bound), the bound and the
+    tolerance bound's order statistic; runs that did not complete sit beyond the right edge."""
+    ratio = np.asarray(runs["tracking_ratio"], dtype=float)
+    done = np.isfinite(ratio) & (np.asarray(runs["status"]) == "ok")
+    x = np.sort(ratio[done])
+    fig, ax = plt.subplots(figsize=(6.4, 3.4))
+    ax.step(x, np.arange(1, len(x) + 1) / len(ratio), where="post", color=CONTROL,
+            label=f"runs ({len(ratio) - len(x)} not completed: beyond the right edge)")  # fmt: skip
+    ax.axvline(1.0, color=BOUNDED, lw=1.5, label="criterion's tracking bound")
+    if tolerance.get("rank") is not None and np.isfinite(tolerance["tracking_ratio"]):
+        ax.axvline(tolerance["tracking_ratio"], color=BOUND, ls="--",
+                   label=f"tolerance bound: rank {tolerance['rank']} of {len(ratio)}")  # fmt: skip
+    ax.set_xlabel("tracking error / bound (max of position and angle)")
+    ax.set_ylabel("fraction of runs")
+    ax.set_ylim(0, 1.02)
+    ax.legend(loc="lower right")
+    return svg(fig)
+
+
+def sensitivity_bars(sensitivity: list[dict]) -> str:
+    """The Spearman rank correlation of the tracking ratio with each drawn quantity (its
+    strongest entry), strongest on top."""
+    known = [e for e in sensitivity if e["spearman"] is not None]
+    fig, ax = plt.subplots(figsize=(6.4, 0.35 * len(known) + 1.0))
+    rho = np.array([e["spearman"] for e in known])
+    ax.barh(np.arange(len(known)), rho, color=np.where(rho > 0, BOUNDED, CONTROL))
+    ax.set_yticks(np.arange(len(known)), [e["column"] for e in known])
+    ax.invert_yaxis()
+    ax.axvline(0.0, color="black", lw=0.8)
+    ax.set_xlim(-1, 1)
+    ax.set_xlabel("Spearman rank correlation with the tracking ratio")
+    return svg(fig)
+
+
+def drivers_scatter(runs: dict, sensitivity: list[dict]) -> str:
+    """Each run at the values of the two strongest drivers (their strongest entries; with one
+    drawn quantity, it against the tracking ratio), the runs that fail marked."""
+    x_name = sensitivity[0]["column"]
+    y_name = sensitivity[1]["column"] if len(sensitivity) > 1 else "tracking_ratio"
+    x, y = np.asarray(runs[x_name], dtype=float), np.asarray(runs[y_name], dtype=float)
+    holds = np.asarray(runs["holds"], dtype=bool)
+    fig, ax = plt.subplots(figsize=(6.0, 4.4))
+    ax.scatter(x[holds], y[holds], s=10, color=CONTROL, label=f"holds ({holds.sum()})")
+    ax.scatter(x[~holds], y[~holds], s=28, marker="x", color=BOUNDED, label=f"fails ({(~holds).sum()})")
+    ax.set_xlabel(x_name)
+    ax.set_ylabel(y_name)
+    ax.legend(loc="best")
+    return svg(fig)

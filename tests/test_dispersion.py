@@ -19,7 +19,14 @@ from typer.testing import CliRunner
 
 from dvfc.analysis import campaign as campaign_module
 from dvfc.analysis.calibration import read_calibration
-from dvfc.analysis.campaign import CampaignSpec, clopper_pearson_upper, read_runs, run_campaign, simulate_run
+from dvfc.analysis.campaign import (
+    CampaignSpec,
+    clopper_pearson_upper,
+    read_runs,
+    run_campaign,
+    simulate_run,
+    true_pixels,
+)
 from dvfc.analysis.case import Case
 from dvfc.analysis.cli import app
 from dvfc.analysis.margins import tracking_bound
@@ -245,3 +252,29 @@ def test_a_30_degree_mount_rotation_error_fails_and_ranks_first(tmp_path):
     summary = campaign_module.summarize(spec, read_runs(tmp_path), 0.95, 0.01, 0.9)
     assert summary["failures"] > 0
     assert summary["sensitivity"][0]["quantity"] == "plant.mount.rpy"
+
+
+def test_true_pixels_are_the_models_features_without_errors_and_shift_with_the_principal_point():
+    """The features the plant's camera sees along a run (the report's worst-run figure): with no
+    plant error, the model's features about the image centre; with the true principal point
+    moved by ``d`` (and nothing else wrong), the same tracks moved by ``d``."""
+    case = case_of(lambda d: d["simulation"].update(jit=False), duration=0.2)
+    loop = case.loop
+    traj = as_implemented(loop, case.settings).run(case.s0)
+    none = PlantErrors.none(loop.camera, loop.robot.n)
+    model = traj["f"].reshape(len(traj.t), -1, 2) + loop.camera.centre
+    assert np.allclose(true_pixels(loop, traj, none), model, rtol=0, atol=1e-9)
+    shift = np.array([12.0, -7.0])
+    moved = replace(none, principal_point=none.principal_point + shift)
+    assert np.allclose(true_pixels(loop, traj, moved), model + shift, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("runs", [0, 2.0, "100", True])
+def test_report_campaign_runs_is_a_strict_positive_integer(runs):
+    """``[report] campaign_runs``: an integer of at least 1, nothing coerced."""
+    data = copy.deepcopy(BASE)
+    data["report"] = {"campaign_runs": runs}
+    with pytest.raises(ValidationError, match="campaign_runs"):
+        Scenario.model_validate(data)
+    data["report"] = {"campaign_runs": 7}
+    assert Scenario.model_validate(data).report.campaign_runs == 7

@@ -6,17 +6,29 @@ from __future__ import annotations
 
 import json
 import tomllib
-from dataclasses import replace
+from dataclasses import fields, replace
 
+import numpy as np
 import pytest
 import tomli_w
 from typer.testing import CliRunner
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.cli import app
-from dvfc.analysis.margins import PARAMETERS, linear_margin_text, search, tracking_bound, tracking_error, trial
+from dvfc.analysis.margins import (
+    DEFAULT_FRICTION,
+    PARAMETERS,
+    base_value,
+    linear_margin_text,
+    search,
+    tracking_bound,
+    tracking_error,
+    trial,
+    with_value,
+)
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.models.errors import PlantErrors
 
 
 @pytest.fixture(scope="module")
@@ -106,3 +118,39 @@ def test_a_run_over_the_effort_limits_does_not_hold_unless_clipped(short_default
     clipped = short_default.parent / "clipped.toml"
     clipped.write_text(tomli_w.dumps(data))
     assert not trial(Case.load(clipped), "torque_scale", 0.5, bound)["detail"].startswith("peak torque")
+
+
+def test_plant_error_parameters_change_their_own_entry_only(short_default):
+    """``with_value`` on a plant-error parameter sets exactly its entry of the plant errors (the
+    mount turned about the camera's x axis, ``fx`` and ``fy`` the fraction above the controller's,
+    friction the multiple of :data:`DEFAULT_FRICTION` of the effort limits when the scenario has
+    none) and the frame-drop probability its implementation entry; nothing else changes."""
+    case = Case.load(short_default)
+    loop, settings = case.loop, case.settings
+    none = PlantErrors.none(loop.camera, loop.robot.n)
+    effort = loop.robot.limits.effort
+    expected = {
+        "mount_rotation": (12.0, replace(none, mount_rpy=np.array([np.radians(12.0), 0.0, 0.0]))),
+        "focal_length_error": (0.05, replace(none, fx=840.0, fy=840.0)),
+        "friction_scale": (3.0, replace(none, viscous=3 * DEFAULT_FRICTION[0] * effort,
+                                        coulomb=3 * DEFAULT_FRICTION[1] * effort)),
+    }  # fmt: skip
+    for name, (value, errors) in expected.items():
+        assert base_value(name, settings) == 0.0
+        changed = with_value(loop, settings, name, value)
+        assert changed.implementation == settings.implementation, name
+        for field in fields(PlantErrors):
+            got, want = getattr(changed.errors, field.name), getattr(errors, field.name)
+            assert np.allclose(got, want, rtol=1e-15, atol=0), (name, field.name)
+    dropped = with_value(loop, settings, "frame_drop", 0.25)
+    assert dropped.implementation == replace(settings.implementation, frame_drop=0.25) and dropped.errors is None
+
+
+def test_a_large_mount_rotation_breaks_the_loop_and_a_small_one_does_not(short_default):
+    """The mount-rotation search point judged on its run: 45 deg of tilt puts a feature out of
+    the image at once; 2 deg holds."""
+    case = Case.load(short_default)
+    bound = tracking_bound(case)
+    broken = trial(case, "mount_rotation", 45.0, bound)
+    assert not broken["holds"] and broken["detail"].startswith("out_of_view"), broken
+    assert trial(case, "mount_rotation", 2.0, bound)["holds"]

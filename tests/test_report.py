@@ -10,12 +10,14 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from html import unescape
 from pathlib import Path
 
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
+import tomli_w
 from typer.testing import CliRunner
 
 from dvfc.analysis.margins import PARAMETERS
@@ -313,3 +315,28 @@ def test_as_implemented_section_says_which_statement_covers_which_part(report):
     assert "ideal continuous loop by Theorem 2 and the envelope (facts 7 and 10" in coverage
     assert "sampled loop as implemented by fact 14 (local" in coverage
     assert "measured margins and runs of this section, which are measurements, not certificates" in coverage
+
+
+def test_dispersions_section_states_the_campaigns_statement(tmp_path):
+    """A scenario with a [dispersion] (the cell example over 2 s, 6 runs): the report's section
+    "Dispersions" has its four figures, and its statement, the same on page 1's row "dispersion
+    campaign", equals the summary.json of ``dvfc campaign`` on the same scenario and runs."""
+    data = tomllib.loads((EXAMPLES / "ur5_cell.toml").read_text())
+    data["simulation"]["duration"] = 2.0
+    data["report"] = {"campaign_runs": 6}
+    scenario = tmp_path / "cell.toml"
+    scenario.write_text(tomli_w.dumps(data))
+    made = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(scenario), "--out", str(tmp_path / "r")],
+                          capture_output=True, text=True)  # fmt: skip
+    assert made.returncode in (0, 1), made.stderr
+    campaign = CliRunner().invoke(app, ["campaign", str(scenario), "--runs", "6", "--out", str(tmp_path / "c")])
+    assert campaign.exit_code in (0, 1), campaign.output
+    statement = json.loads((tmp_path / "c" / "summary.json").read_text())["statement"]
+    html = unescape((tmp_path / "r" / "report.html").read_text())
+    for figure in ("fig-campaign-ecdf", "fig-campaign-sensitivity", "fig-campaign-drivers", "fig-campaign-worst"):
+        assert re.search(rf'<figure id="{figure}"><svg', html), figure
+    shown = re.search(r'<p class="verdict measured" id="campaign-statement">(.*?)</p>', html, re.S)
+    assert shown and shown.group(1) == statement
+    row = re.search(r"<tr><td>dispersion campaign</td><td>[^<]*</td><td><span class=\"MEASURED\">MEASURED</span></td>"
+                    r"<td>(.*?)</td></tr>", html)  # fmt: skip
+    assert row and row.group(1) == statement

@@ -436,6 +436,41 @@ MUTATIONS = (
         (("    rows = [simulate_run(spec, k, simulator)[0] for k in range(start, stop)]\n", "    rows = [simulate_run(spec, k - start, simulator)[0] | {\"run\": k} for k in range(start, stop)]\n"),),  # noqa: E501
         ("tests/test_dispersion.py::test_one_and_two_workers_give_identical_datasets",),
     ),
+    Mutation(
+        "margin-focal-error-on-fx-only",
+        "the focal-length-error margin changes the true fx and leaves fy at the controller's",
+        "analysis/margins.py",
+        (("            errors = replace(errors, fx=fx, fy=fx * loop.camera.aspect)\n", "            errors = replace(errors, fx=fx)\n"),),  # noqa: E501
+        ("tests/test_margins.py::test_plant_error_parameters_change_their_own_entry_only",),
+    ),
+    Mutation(
+        "report-campaign-own-confidence",
+        "the report's campaign stated at 90% confidence, not the campaign's default",
+        "reports/document.py",
+        (("    summary_ = summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)\n", "    summary_ = summarize_campaign(spec, table, 0.9, P_FAIL, QUANTILE)\n"),),  # noqa: E501
+        ("tests/test_report.py::test_dispersions_section_states_the_campaigns_statement",),
+    ),
+    Mutation(
+        "true-pixels-nominal-centre",
+        "the worst run's true features drawn about the controller's principal point, not the plant's",
+        "analysis/campaign.py",
+        (("    return f.reshape(len(traj.t), -1, 2) + np.asarray(errors.principal_point, dtype=float)\n", "    return f.reshape(len(traj.t), -1, 2) + loop.camera.centre\n"),),  # noqa: E501
+        ("tests/test_dispersion.py::test_true_pixels_are_the_models_features_without_errors_and_shift_with_the_principal_point",),
+    ),
+    Mutation(
+        "margin-mount-rotation-ignored",
+        "the mount-rotation margin leaves the mount as it is, whatever the angle",
+        "analysis/margins.py",
+        (("            errors = replace(errors, mount_rpy=np.array([np.radians(value), 0.0, 0.0]))\n", "            pass\n"),),  # noqa: E501
+        ("tests/test_margins.py::test_a_large_mount_rotation_breaks_the_loop_and_a_small_one_does_not",),
+    ),
+    Mutation(
+        "report-campaign-runs-unbounded",
+        "[report] campaign_runs accepts 0 runs",
+        "analysis/schema.py",
+        (("    campaign_runs: Annotated[int, Field(ge=1)] = 100\n", "    campaign_runs: int = 100\n"),),
+        ("tests/test_dispersion.py::test_report_campaign_runs_is_a_strict_positive_integer",),
+    ),
 )
 
 
