@@ -199,7 +199,7 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
                    "invariant_V": decay.c_max})  # fmt: skip
     if camera.has_image:
         boxes = path_boxes(design, camera, plan, level)
-        record.update({"visible": boxes.visible, "image_margin_px": boxes.margin_px, "depth_min": boxes.depth_min,
+        record.update({"visible": bool(boxes.visible), "image_margin_px": boxes.margin_px, "depth_min": boxes.depth_min,
                        "boxes_px": boxes.boxes})  # fmt: skip
     record["tube"] = tube = tube_start(design, camera, disturbance, plan, record["V0"])
     if record["visible"] is False and tube["inside"] and tube.get("visible"):
@@ -357,7 +357,7 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
         above = np.flatnonzero(np.asarray(bound) > c_vis)
         record["visible_level"] = c_vis
         record["visible_boxes_px"] = feature_boxes(design, camera, desired, c_vis).boxes
-        record["visible"] = level <= c_vis
+        record["visible"] = bool(level <= c_vis)
         if not above.size:
             record["visible_from_s"] = 0.0
         elif above[-1] + 1 < len(bound):
