@@ -208,7 +208,8 @@ def test_interrupted_report_resumes(tmp_path):
     verification stages): exit 130 with one line naming --resume; the resumed report redoes
     nothing finished (the stages' files untouched, the margin runs logged before the
     interruption reused, none repeated) and completes."""
-    text = DEFAULT_SCENARIO.read_text().replace("duration = 10.0", "duration = 1.0")
+    # 4 s: past the default's 2 s planned start, so the scenario's own run holds and the margins run
+    text = DEFAULT_SCENARIO.read_text().replace("duration = 10.0", "duration = 4.0")
     scenario = tmp_path / "short.toml"
     scenario.write_text(text)
     out = tmp_path / "out"
