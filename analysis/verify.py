@@ -408,18 +408,35 @@ def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: d
     claims.append(on_run("V(t) <= exp(-kappa t) V(t0) + gamma'^2/(2 kappa) sup |w|^2", "fact 7", traj, excess,
                          f"<= {tol:.1e}", excess <= tol, f"from t0 = {t[k0]:.3g} s, kappa = {kappa:.4g} 1/s"))
     if env.get("boxes_px") is not None:
-        boxes = np.asarray(env["boxes_px"])
-        pixels = traj["f"].reshape(len(t), -1, 2) + loop.camera.centre
-        inside = v <= env["level"]
-        out = np.maximum(boxes[None, :, :2] - pixels, pixels - boxes[None, :, 2:]).max(axis=(1, 2))[inside]
-        worst = float(out.max()) if out.size else float("nan")
-        claims.append(on_run("every feature inside its certified box while V <= c", "fact 8", traj, worst,
-                             "<= 0 px (distance outside the box)", bool(out.size and worst <= 0),
-                             f"{int(inside.sum())} of {len(t)} steps have V <= c = {env['level']:.4g}"))  # fmt: skip
+        claims.append(feature_region_claim(traj, loop.camera.centre, env))
     claims.extend(_ultimate_errors(loop, traj, env, bound, k0))
     if not isinstance(loop, PlanarLoop):  # the search starts from the 6-D loop's equilibrium
         claims.append(adversarial_claim(loop, s0, env))
     return claims
+
+
+def feature_region_claim(traj: Trajectory, centre: np.ndarray, env: dict) -> Claim:
+    """Fact 8 on a run of the paper's loop: every feature inside its certified box (``env["boxes_px"]``,
+    pixels from the top-left corner; ``centre`` the principal point) at every step with ``V <= c``.
+    Vacuous, so MEASURED with the reason, when no step has ``V <= c`` or the boxes are not
+    certified visible (``env["visible"]``: a box crosses the image border or a depth can reach
+    zero), since being inside them then keeps no feature in view."""
+    name, bound = "every feature inside its certified box while V <= c", "<= 0 px (distance outside the box)"
+    boxes = np.asarray(env["boxes_px"])
+    pixels = traj["f"].reshape(len(traj.t), -1, 2) + centre
+    inside = traj["V"][:, 0] <= env["level"]
+    out = np.maximum(boxes[None, :, :2] - pixels, pixels - boxes[None, :, 2:]).max(axis=(1, 2))[inside]
+    steps = f"{int(inside.sum())} of {len(traj.t)} steps have V <= c = {env['level']:.4g}"
+    if not out.size:
+        return Claim(name, "fact 8", float("nan"), bound, None, f"vacuous: {steps}, so no step is checked")
+    worst = float(out.max())
+    if env.get("visible") is not True:
+        margin = env.get("image_margin_px")
+        where = "a depth can reach zero" if margin is None else f"image margin {margin:.4g} px"
+        return Claim(name, "fact 8", worst, bound, None,
+                     f"vacuous: the certified boxes are not within the image ({where}), so being inside them "
+                     f"keeps no feature in view; {steps}")  # fmt: skip
+    return on_run(name, "fact 8", traj, worst, bound, worst <= 0, steps)
 
 
 SEARCH_STOPPED = (
