@@ -4,8 +4,11 @@ certified visible, or on a run with no step inside the certified level, is vacuo
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from dvfc.analysis.scenario import Scenario, load
 from dvfc.analysis.simulate import Trajectory
 from dvfc.analysis.verify import ClaimStatus, feature_region_claim
 from dvfc.reports.figures import envelope_image
@@ -61,3 +64,12 @@ def test_regions_wholly_outside_the_view_are_said_so():
 def test_regions_inside_the_image_carry_no_note():
     svg = envelope_image(still_run(0.5), CENTRE, SIZE, envelope(TIGHT, True, 100.0))
     assert "outside the view" not in svg and "clipped" not in svg
+
+
+def test_a_target_placed_relative_to_the_camera_survives_its_own_dump():
+    """The validated scenario a worker or ``with_gains`` rebuilds from (its JSON dump, with the
+    defaults written out) is accepted again when the target is placed ``relative_to_camera``."""
+    scenario, _ = load(Path(__file__).parents[1] / "examples" / "xarm7_circle.toml")
+    again = Scenario.model_validate_json(scenario.model_dump_json())
+    assert again.target.relative_to_camera == scenario.target.relative_to_camera
+    assert Scenario.model_validate(scenario.model_dump()).target.xyz is None
