@@ -51,7 +51,7 @@ from dvfc.analysis.output import (
     raise_if_interrupted,
     write_json,
 )
-from dvfc.analysis.pose import initial_view
+from dvfc.analysis.pose import initial_view, solution_record
 from dvfc.analysis.results import (
     certificate_result,
     design_recheck,
@@ -69,7 +69,7 @@ from dvfc.analysis.results import (
     verification_result,
 )
 from dvfc.analysis.sampled import as_implemented
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, ScenarioError, auto_q0
 from dvfc.analysis.synthesize import designer, scenario_text, search_within_limits
 from dvfc.analysis.tasks import run_tasks
 from dvfc.analysis.windows import case_windows
@@ -252,24 +252,61 @@ def simulate(
 
 
 @app.command()
-def pose(scenario: ScenarioArg = DEFAULT_SCENARIO, json_target: JsonOpt = None) -> None:
+def pose(
+    scenario: ScenarioArg = DEFAULT_SCENARIO,
+    json_target: JsonOpt = None,
+    solve: Annotated[bool, typer.Option("--solve", help="Solve for q0 (as [robot] q0 = \"auto\") and show "
+                                        "the start from there, with the line to paste.")] = False,
+) -> None:
     """Show where everything is at the start: the camera's pose at q0, the target's pose (in the
     world and from the camera) and each feature point's image position and depth, for placing
-    the target in view (see [target] relative_to_camera). Exit 1 when a point is out of view."""
+    the target in view (see [target] relative_to_camera). With --solve, q0 is first solved for
+    the camera at the reference pose relative to the target, within the position limits, and
+    printed with its conditioning, pose error and limits. Exit 1 when a point is out of view."""
     case = load_case(scenario, check_view=False)
     check_json_target(json_target)
     warn_fewer_than_six(case)
+    solution = None
+    if solve:
+        case, solution = solved_case(case)
     warn_windows(case)
     windows = case_windows(case)
-    result = {"scenario": case.name, **initial_view(case.loop, case.s0),
+    result = {"scenario": case.name, "solution": solution, **initial_view(case.loop, case.s0),
               "gain_windows": None if windows is None else windows.as_dict()}  # fmt: skip
     emit(result, None, json_target, show_pose)
     if not all(f["in_view"] for f in result["features"]):
         raise typer.Exit(1)
 
 
+def solved_case(case: Case) -> tuple[Case, dict]:
+    """The case started at the configuration ``dvfc pose --solve`` solves for
+    (:func:`dvfc.analysis.scenario.auto_q0`), and its record (:func:`dvfc.analysis.pose.solution_record`)."""
+    robot = case.loop.robot
+    try:
+        config = auto_q0(case.scenario, robot, "pose --solve")
+        data = case.scenario.model_dump()
+        data["robot"]["q0"] = config.q.tolist()
+        solved = case.with_scenario(Scenario.model_validate(data))
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    return solved, solution_record(config, robot.limits)
+
+
+def show_solution(solution: dict) -> None:
+    """The configuration of ``pose --solve``: the line to paste, then its conditioning and errors."""
+    limits = "every joint within its position limits" if solution["within_position_limits"] else (
+        "joint(s) " + ", ".join(str(j + 1) for j, ok in enumerate(solution["joints_within_limits"]) if not ok)
+        + " OUTSIDE their position limits")  # fmt: skip
+    out.print(solution["q0_toml"], markup=False, soft_wrap=True)
+    out.print(f"sigma_min(J_b) = {solution['sigma_min_body_jacobian']:.4g}, condition number "
+              f"{solution['condition_number']:.4g}; pose error {solution['position_error_m']:.2e} m, "
+              f"{solution['rotation_error_rad']:.2e} rad; {limits}", markup=False, soft_wrap=True)  # fmt: skip
+
+
 def show_pose(result: dict) -> None:
     """Human output of ``pose``."""
+    if (solution := result["solution"]) is not None:
+        show_solution(solution)
     vec = lambda v: "[" + ", ".join(f"{x:.4g}" for x in v) + "]"  # noqa: E731
     for label, key in (("camera g_wc(q0)", "camera_in_world"), ("target g_wo(0)", "target_in_world"),
                        ("target from the camera g(0)", "target_in_camera")):  # fmt: skip

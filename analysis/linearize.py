@@ -174,6 +174,31 @@ def run_from_rest(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[c
     return float(np.sqrt(traj.integrals["x_squared"][-1] / traj.integrals["w_squared"][-1])), traj
 
 
+def sharpest_from_rest(
+    loop: ClosedLoop, lin: Linearization, horizon: float, *, tolerance: float = 0.01, longest: float = 1280.0
+) -> tuple[float, Trajectory, bool]:
+    """:func:`run_from_rest` under :func:`peak_sinusoid`, its horizon doubled from ``horizon``
+    until the measured gain has converged: from rest the transient costs a fixed energy, so
+    the gain's shortfall from its steady value decays like ``1/T`` and equals, to first order,
+    its rise from ``T/2`` to ``T``; the search stops when that rise is at most ``tolerance``
+    of the gain (within about ``tolerance`` of the run's sharpness), or at ``longest`` seconds.
+    A longer run that stops (the disturbance, a constant target velocity say, drives the arm to
+    a singularity) is dropped for the last one that completed. Returns the gain of the run kept,
+    that run, and whether its gain had converged."""
+    kept: tuple[float, Trajectory] | None = None
+    while True:
+        ratio, traj = run_from_rest(loop, lin, peak_sinusoid(lin), horizon)
+        if traj.status != "ok":
+            return (*kept, False) if kept is not None else (ratio, traj, False)
+        half = int(np.searchsorted(traj.t, traj.t[-1] / 2))
+        rise = ratio - float(np.sqrt(traj.integrals["x_squared"][half] / traj.integrals["w_squared"][half]))
+        if rise <= tolerance * ratio:
+            return ratio, traj, True
+        if 2 * horizon > longest:
+            return ratio, traj, False
+        kept, horizon = (ratio, traj), 2 * horizon
+
+
 def newton(step: cs.Function, q0: np.ndarray, iterations: int) -> tuple[np.ndarray, float]:
     """Newton's method ``q += dq`` with ``step(q) = (dq, error)``, from ``q0``, until
     ``|error| < 1e-13`` or ``iterations``: the joint angles and the final residual ``|error|``."""

@@ -8,7 +8,9 @@ import casadi as cs
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from dvfc.analysis.ik import Configuration
 from dvfc.models.loop import ClosedLoop
+from dvfc.models.robot import JointLimits
 
 
 def xyz_rpy(matrix: np.ndarray) -> dict[str, list[float]]:
@@ -41,4 +43,23 @@ def initial_view(loop: ClosedLoop, s0: np.ndarray) -> dict:
         "image_coordinates": "pixels from the top-left corner" if cam.has_image else "pixels about the principal point",
         "image_size": [cam.width, cam.height] if cam.has_image else None,
         "features": features,
+    }
+
+
+def solution_record(config: Configuration, limits: JointLimits) -> dict:
+    """A configuration of :func:`dvfc.analysis.ik.solve_configuration` for ``dvfc pose --solve``:
+    ``q0`` (every digit, so that pasting it gives the same pose), the conditioning of ``J_b``
+    there, the pose error left and, per joint, whether ``q0`` lies within the URDF's position
+    limits (``limits``; no limit: within)."""
+    q = np.asarray(config.q, dtype=float)
+    within = (q >= limits.lower) & (q <= limits.upper)
+    return {
+        "q0": q.tolist(),
+        "q0_toml": "q0 = [" + ", ".join(repr(float(x)) for x in q) + "]",
+        "sigma_min_body_jacobian": config.sigma_min,
+        "condition_number": config.condition,
+        "position_error_m": config.position_error,
+        "rotation_error_rad": config.rotation_error,
+        "within_position_limits": bool(within.all()),
+        "joints_within_limits": within.tolist(),
     }

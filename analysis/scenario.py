@@ -179,20 +179,21 @@ def _check_planar(scenario: Scenario, robot: Robot, q0: np.ndarray) -> None:
         raise ScenarioError(f"robot: the planar loop needs at least {TASK} joints, the arm has {robot.n}")
 
 
-def auto_q0(scenario: Scenario, robot: Robot) -> Configuration:
+def auto_q0(scenario: Scenario, robot: Robot, asked_by: str = 'robot.q0: "auto"') -> Configuration:
     """The configuration of :func:`dvfc.analysis.ik.solve_configuration` for the camera at the
-    reference pose relative to the target's ``g_wo(0)`` (given in the world frame)."""
+    reference pose relative to the target's ``g_wo(0)`` (given in the world frame); ``asked_by``
+    begins the one line of a :class:`ScenarioError` (the field or option that asked)."""
     t = scenario.target
     if t.relative_to_camera is not None:
         raise ScenarioError(
-            'robot.q0: "auto" needs the target placed in the world (target.xyz, target.rpy); '
+            f"{asked_by} needs the target placed in the world (target.xyz, target.rpy); "
             "target.relative_to_camera follows the camera wherever q0 puts it"
         )
     goal = SE3.from_xyz_rpy(t.xyz, t.rpy) @ scenario.reference.se3().inverse()
     try:
         return solve_configuration(robot, np.asarray(cs.DM(goal.as_matrix())))
     except NoConfigurationError as exc:
-        raise ScenarioError(f'robot.q0: "auto": {exc}') from exc
+        raise ScenarioError(f"{asked_by}: {exc}") from exc
 
 
 def build(

@@ -143,7 +143,8 @@ class TargetSection(_Strict):
 
     @model_validator(mode="after")
     def _one_placement(self) -> TargetSection:
-        if self.relative_to_camera is not None and {"xyz", "rpy"} & self.model_fields_set:
+        placed = self.xyz is not None or ("rpy" in self.model_fields_set and any(self.rpy))  # a dump has rpy 0
+        if self.relative_to_camera is not None and placed:
             raise ValueError("give either xyz/rpy (world frame) or relative_to_camera, not both")
         if self.relative_to_camera is None and self.xyz is None:
             raise ValueError("give xyz (the target's position in the world) or relative_to_camera = {xyz, rpy}")

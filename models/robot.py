@@ -31,13 +31,16 @@ _SHIPPED = Path(__file__).parent / "urdf"
 BUILTIN_URDF = {
     "ur5": f"{_ERD}/ur_description/urdf/ur5_robot.urdf",
     "panda": f"{_ERD}/panda_description/urdf/panda.urdf",
+    "xarm7": f"{_ERD}/xarm_description/urdf/xarm7.urdf",
     "puma560": _SHIPPED / "puma560.urdf",
     "planar2dd": _SHIPPED / "planar2dd.urdf",
 }
 """Built-in arms: name -> URDF, a path inside the example-robot-data distribution (``str``)
 or a file shipped with this package (``Path``)."""
 
-BUILTIN_CAMERA_FRAME = {"ur5": "tool0", "panda": "panda_link8", "puma560": "link6", "planar2dd": "camera_link"}
+BUILTIN_CAMERA_FRAME = {
+    "ur5": "tool0", "panda": "panda_link8", "xarm7": "link_eef", "puma560": "link6", "planar2dd": "camera_link",
+}  # fmt: skip
 
 BUILTIN_ARMATURE = {
     "puma560": tuple(

@@ -87,11 +87,26 @@ def envelope_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, floa
     """The image (its border), the certified feature regions of docs/math.md, facts 8 and 16.0 (boxes at the
     certified level, and at the ultimate level ``c_inf``) and the simulated feature tracks."""
     fig, ax = plt.subplots(figsize=(6.0, 5.0))
-    for name, style, label in (("boxes_px", "-", "certified region (V <= c; over the whole plan when planned)"),
-                               ("ultimate_boxes_px", ":", "ultimate region (V <= c_inf)")):  # fmt: skip
-        for i, (u0, v0, u1, v1) in enumerate(envelope.get(name) or []):
-            ax.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, color=BOUND, ls=style,
-                                   label=label if i == 0 else None))  # fmt: skip
+    width, height = size
+    view = np.array([-0.05 * width, -0.05 * height, 1.05 * width, 1.05 * height])
+    notes = []
+    for name, style, kind, level in (("boxes_px", "-", "certified region", "V <= c; over the whole plan when planned"),
+                                     ("ultimate_boxes_px", ":", "ultimate region", "V <= c_inf")):  # fmt: skip
+        boxes = np.asarray(envelope.get(name) or [], dtype=float).reshape(-1, 4)
+        shown = np.concatenate([np.maximum(boxes[:, :2], view[:2]), np.minimum(boxes[:, 2:], view[2:])], axis=1)
+        drawn = shown[(shown[:, 2] > shown[:, 0]) & (shown[:, 3] > shown[:, 1])]
+        for i, (u0, v0, u1, v1) in enumerate(drawn):
+            ax.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=True, alpha=0.12, color=BOUND, ls=style, lw=1.5,
+                                   label=f"{kind} ({level})" if i == 0 else None))  # fmt: skip
+        if len(drawn) < len(boxes):
+            notes.append(f"{len(boxes) - len(drawn)} of {len(boxes)} {kind}s lie wholly outside the view")
+        elif np.any(shown != boxes):
+            notes.append(f"the {kind}s extend beyond the view: drawn clipped to it")
+    if notes and envelope.get("image_margin_px") is not None:
+        notes.append(f"image margin {envelope['image_margin_px']:.4g} px: visibility not certified")
+    if notes:
+        ax.text(0.5, 0.02, "\n".join(notes), transform=ax.transAxes, ha="center", va="bottom", fontsize=7,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})  # fmt: skip
     _tracks_in_image(ax, traj, centre, size, "Certified feature regions (facts 8, 16.0) and the simulated tracks")
     return svg(fig)
 

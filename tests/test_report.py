@@ -343,3 +343,14 @@ def test_dispersions_section_states_the_campaigns_statement(tmp_path):
     row = re.search(r"<tr><td>dispersion campaign</td><td>[^<]*</td><td><span class=\"MEASURED\">MEASURED</span></td>"
                     r"<td>(.*?)</td></tr>", html)  # fmt: skip
     assert row and row.group(1) == statement
+
+
+def test_scenario_table_describes_the_loop_that_was_run(report):
+    """The scenario table's simulation row of the default example names the loop as implemented
+    (500 Hz, 60 Hz camera, 20 ms, e_e from the image, RK4) and the paper's continuous loop of
+    sections 3-5, never the bare "e_e ideal, CVODES" of a loop that was not run."""
+    html = report[0].read_text()
+    cell = re.search(r'<td id="loop-run">(.*?)</td>', html, re.S).group(1)
+    assert "e_e ideal" not in cell
+    assert "torques at 500 Hz held, images at 60 Hz, latency 20 ms, e_e from the image (21)" in cell
+    assert "RK4 with 2 steps per control period" in cell and "the paper's continuous loop" in cell

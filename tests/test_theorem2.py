@@ -5,11 +5,14 @@ lower bound, so a certifier that under-reports gamma by more than that fails her
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify, tight_gamma
 from dvfc.analysis.linearize import linearize, piecewise_constant, run_from_rest, worst_case_disturbance
 from dvfc.analysis.simulate import identity_residuals
@@ -72,11 +75,43 @@ def test_verify_claims_hold_at_gamma_and_fail_below_the_measured_gain(worst):
 
 
 def test_verify_runs_theorem_2_from_rest(worst):
-    """``verify``'s own run (the linearisation's worst sinusoid, 20 s from rest) attains 95% of
-    the H-infinity norm and its claims fail for a gamma 5% under the norm."""
+    """``verify``'s own run (the linearisation's worst sinusoid from rest, 20 s or longer until
+    its gain converges) attains 95% of the H-infinity norm and its claims fail for a gamma 5%
+    under the norm."""
     loop, s0, settings = worst["loop"], worst["s0"], worst["settings"]
     short = replace(settings, duration=2.0, jit=False)
     claims = {c.name: c for c in theorem_2(loop, s0, short, 0.95 * worst["lin"].peak_gain)}
     gain = claims["measured gain sqrt(int |x|^2 / int |w|^2) <= gamma"]
-    assert gain.passed is False and gain.detail.endswith(f"{FROM_REST_HORIZON:g} s")
+    horizon = float(re.search(r"disturbance, (\S+) s$", gain.detail).group(1))
+    assert gain.passed is False and horizon >= FROM_REST_HORIZON
     assert next(c for n, c in claims.items() if n.startswith("the measured gain attains")).passed
+
+
+@pytest.mark.slow
+def test_from_rest_check_is_conclusive_on_a_seven_joint_arm(tmp_path):
+    """The shipped xArm 7 design with ``k_c = 1.5``: slow enough that 20 s from rest reach only
+    0.94 of the H-infinity norm; the run is lengthened until its gain converges, and the check
+    then bites (at least 95%) instead of ending INCONCLUSIVE on a healthy design."""
+    source = Path(__file__).parents[1] / "examples" / "xarm7_circle.toml"
+    path = tmp_path / "xarm7.toml"
+    path.write_text(re.sub(r"^k_c = .*$", "k_c = 1.5", source.read_text(), flags=re.M))
+    case = Case.load(path)
+    assert case.loop.robot.n == 7
+    short = replace(case.settings, duration=1.0, jit=False)
+    gamma = certify(case.point, case.reference).gamma
+    claims = theorem_2(case.loop, case.s0, short, gamma)
+    attained = next(c for c in claims if c.name.startswith("the measured gain attains"))
+    assert attained.passed is True and attained.value >= ATTAINED, attained.as_dict()
+    assert all(c.passed for c in claims if c.reference.startswith("Theorem 2")), [c.as_dict() for c in claims]
+
+
+@pytest.mark.slow
+def test_a_longer_run_that_stops_is_dropped_for_the_last_that_completed():
+    """On the shipped Puma 560 the run from rest reaches 80 s only by driving the arm to a
+    singularity (its worst disturbance is a constant target velocity): the 40 s run that
+    completed is kept, and every Theorem 2 claim on it is conclusive."""
+    case = Case.load(Path(__file__).parents[1] / "examples" / "puma560_circle.toml")
+    short = replace(case.settings, duration=1.0, jit=False)
+    claims = [c for c in theorem_2(case.loop, case.s0, short, certify(case.point, case.reference).gamma)
+              if c.reference.startswith("Theorem 2") or c.reference == "lower bound"]  # fmt: skip
+    assert len(claims) == 4 and all(c.passed is True for c in claims), [c.as_dict() for c in claims]
