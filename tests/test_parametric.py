@@ -7,7 +7,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import build_loop
 
 from dvfc.analysis import compile as compile_module
 from dvfc.analysis import parametric
@@ -16,6 +15,8 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
 from dvfc.analysis.simulate import Simulator, dynamics_function
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Gains, Weights
+
+from conftest import build_loop
 
 
 def other_design(loop):
