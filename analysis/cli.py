@@ -451,7 +451,8 @@ def show_envelope(e: dict) -> None:
         ("ultimate |p_ee|, theta_ee", f"{fmt(b['p_ee'], ' m')}, {fmt(b['theta_ee_deg'], ' deg')}"),
         ("ultimate |xi|", fmt(b["xi"], " rad/s")),
         ("start V(0) (kinetic part)", f"{fmt(start['V0'])} ({fmt(start.get('kinetic'))}): "
-                                      f"{'inside' if start['inside'] else 'NOT inside'} the certified set"),
+                                      f"{'inside' if start['inside'] else 'NOT inside'} the certified set "
+                                      f"(reference {start.get('method', 'constant')})"),
         ("visible, margin to border, min depth", f"{e['visible']}, {fmt(e['image_margin_px'], ' px')}, "
                                                   f"{fmt(e['depth_min'], ' m')}"),
         ("largest certified target speed", fmt(e["max_target_speed"], " m/s")),
@@ -461,6 +462,9 @@ def show_envelope(e: dict) -> None:
         table.add_row(name, value)
     out.print(table)
     out.print(f"ENVELOPE: {e['statement']}. Assumes: {'; '.join(e['assumptions'])}.", markup=False)
+    if start.get("method") == "planned":
+        told = start.get("statement") or f"not certified: {start.get('reason')}"
+        out.print(f"START (fact 16b): {told}. Assumes: {'; '.join(start['assumptions'])}.", markup=False)
 
 
 PROGRESS_EVERY = 5.0

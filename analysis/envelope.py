@@ -27,10 +27,12 @@ same storage ``V`` (38):
   start (``V(0) <= c_max``).
 - Error bounds from ``V <= c``: ``|p_ec| <= sqrt(2c/w_pc)``, ``theta_ec <= arccos(1 - c/w_rc)``,
   the same for ``e_e``, ``|xi| <= sqrt(2c/m_lo)`` (``m_lo I <= M(q)``, the lower bound of fact 10).
-- Visibility (fact 8). ``p_ci - g_d p_oi = R_d [(R_ec R_ee - I) p_oi + R_ec p_ee + p_ec]`` has
-  length at most ``rho_i = 2 sin(min(pi, theta_ec + theta_ee)/2) |p_oi| + |p_ee| + |p_ec|``:
-  each feature lies in the image box spanned by the corners ``x in [x_i +- rho_i]``,
-  ``z in [z_i +- rho_i]`` (same for ``y``) when ``z_i - rho_i > 0``.
+- Visibility (fact 8 with the regions of docs/math.md, fact 16.0). ``p_ci - g_d p_oi =
+  R_d [(R_ec R_ee - I) p_oi + R_ec p_ee + p_ec]`` has length at most the joint radius
+  ``rho_i = sqrt(2 c S_i)``, ``S_i = 1/w_pc + 1/w_pe + |p_oi|^2 (1/w_rc + 1/w_re)``, on ``{V <= c}``;
+  each feature lies in the image box ``lambda [tan(phi - beta), tan(phi + beta)]`` per image axis
+  (``phi = atan2(x_i, z_i)``, ``beta = asin(rho_i / sqrt(x_i^2 + z_i^2))``, the same with ``y_i``),
+  the exact range of the ball ``B(g_d p_oi, rho_i)``, when ``z_i - rho_i > 0``.
 - The largest certified target speed and torque: ``c_inf`` grows as ``wbar^2`` and the
   boxes grow with the level, so the largest ``wbar^2`` keeping the statement is
   ``max over theta_bar of min(c_max, c_vis) / rho(theta_bar)`` (``c_vis`` the largest level
@@ -373,26 +375,54 @@ class Boxes:
         return self.depth_min > 0 and self.margin_px >= 0
 
 
-def feature_boxes(design: Design, camera: Camera, desired: np.ndarray, c: float) -> Boxes:
-    """Fact 8 at level ``c``. ``desired`` (m, 3): the features' camera-frame positions at the
-    reference, ``g_d p_oi``."""
-    bounds = error_bounds(design, c)
-    turn = 0.0
-    if design.rotational:
-        turn = 2 * math.sin(min(math.pi, math.radians(bounds["theta_ec_deg"] + bounds["theta_ee_deg"])) / 2)
-    radius = turn * np.linalg.norm(camera.points, axis=1) + bounds["p_ee"] + bounds["p_ec"]
-    depth_min = float(np.min(desired[:, 2] - radius))
+def joint_radius(weights: tuple[float, float, float, float], rotational: bool, points: np.ndarray,
+                 c: float) -> np.ndarray:
+    """docs/math.md, fact 16 (16.0.1): every state with ``V <= c`` has
+    ``|p_ci - g_d p_oi| <= rho_i = sqrt(2 c S_i)``, ``S_i = 1/w_pc + 1/w_pe + |p_oi|^2 (1/w_rc + 1/w_re)``
+    (the rotational term absent for the planar loop). ``points`` (m, 3): the features ``p_oi`` in
+    the object frame; returns ``rho_i`` (m,).
+
+    By fact 8, ``p_ci - g_d p_oi = R_d [(R_ec R_ee - I) p_oi + R_ec p_ee + p_ec]``; with the spectral
+    norm ``||R - I||_2 = 2 sin(theta/2)``, ``phi(R) = ||R - I||_2^2 / 2``, so ``V <= c`` bounds the
+    weighted squares of ``|p_ec|``, ``|p_ee|``, ``||R_ec - I||_2``, ``||R_ee - I||_2`` by ``2c`` in sum,
+    and Cauchy-Schwarz gives the radius (asymptotically attained as ``c -> 0``)."""
+    w_pc, w_rc, w_pe, w_re = weights
+    spread = 1.0 / w_pc + 1.0 / w_pe
+    if rotational:
+        spread = spread + np.sum(np.asarray(points) ** 2, axis=1) * (1.0 / w_rc + 1.0 / w_re)
+    return np.sqrt(2.0 * c * np.broadcast_to(spread, (len(points),)))
+
+
+def cone_interval(centres: np.ndarray, axis: int, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """docs/math.md, fact 16 (16.0.2): the exact range ``[tan(phi - beta), tan(phi + beta)]`` of
+    ``x/z`` (``axis`` 0) or ``y/z`` (``axis`` 1) over the balls of ``radius`` (...) about ``centres``
+    (..., 3): ``phi = atan2(x, z)``, ``beta = asin(radius / d)`` with the distance
+    ``d = sqrt(x^2 + z^2)`` in the plane of that axis and the optical axis (the ball's projection
+    onto it is a disk of the same radius; ``x/z`` is the tangent of the angle seen from the optical
+    centre). Valid where the depth exceeds the radius (then ``|phi| + beta < pi/2``)."""
+    lateral, depth = centres[..., axis], centres[..., 2]
+    distance = np.hypot(lateral, depth)
+    phi = np.arctan2(lateral, depth)
+    beta = np.arcsin(np.minimum(1.0, radius / distance))
+    return np.tan(phi - beta), np.tan(phi + beta)
+
+
+def feature_boxes(design: Design, camera: Camera, desired: np.ndarray, c: float, extra: float | np.ndarray = 0.0
+                  ) -> Boxes:  # fmt: skip
+    """The certified feature regions at level ``c`` (docs/math.md, fact 16.0: fact 8 with the joint
+    radius :func:`joint_radius` and the exact cone :func:`cone_interval`). ``desired`` (m, 3) or
+    (K, m, 3): the features' camera-frame positions at the reference, ``g_d p_oi`` (at ``K``
+    references along a path, the regions covering them all); ``extra``: a length added to every
+    radius (how far a centre may move between two references of a path)."""
+    centres = np.asarray(desired, dtype=float).reshape(-1, len(camera.points), 3)
+    radius = joint_radius(design.weights, design.rotational, camera.points, c) + extra
+    radius = np.broadcast_to(radius, centres.shape[:2])
+    depth_min = float(np.min(centres[..., 2] - radius))
     if not camera.has_image or depth_min <= 0:
         return Boxes(c, None, depth_min, None)
-    corners = []
-    for axis in (0, 1):
-        lateral = desired[:, axis, None] + np.array([-1.0, 1.0]) * radius[:, None]
-        depth = desired[:, 2, None] + np.array([-1.0, 1.0]) * radius[:, None]
-        ratios = camera.focal_length * lateral[:, :, None] / depth[:, None, :]
-        corners.append((ratios.min(axis=(1, 2)), ratios.max(axis=(1, 2))))
-    centre = camera.centre
-    lo = np.stack([corners[0][0], corners[1][0]], axis=1) + centre
-    hi = np.stack([corners[0][1], corners[1][1]], axis=1) + centre
+    ends = [cone_interval(centres, axis, radius) for axis in (0, 1)]
+    lo = camera.focal_length * np.stack([ends[0][0], ends[1][0]], axis=-1).min(axis=0) + camera.centre
+    hi = camera.focal_length * np.stack([ends[0][1], ends[1][1]], axis=-1).max(axis=0) + camera.centre
     size = np.array([camera.width, camera.height])
     margin = float(np.min(np.concatenate([lo, size - hi], axis=1)))
     return Boxes(c, np.concatenate([lo, hi], axis=1).tolist(), depth_min, margin)
@@ -666,11 +696,13 @@ def disturbance_bounds(section, loop) -> DisturbanceBounds:
 
 def start_storage(loop, s0: np.ndarray) -> dict:
     """``V(0)`` (38) at the initial state and its parts: the kinetic term ``xi^T M xi / 2``
-    (large when ``qd0`` differs from ``qd_d(0) = pinv(J_b) u_d(0)``) and the pose errors."""
+    (large when ``qd0`` differs from ``qd_d(0) = pinv(J_b) u_d(0)``) and the pose errors; and how
+    the run starts (``"constant"``, ``"planned"``: docs/math.md, fact 16b, or ``"ramp"``: fact 16a)."""
     kinetic = loop.xi.T @ loop.robot.mass_matrix @ loop.xi / 2
     values = cs.Function("V0", [loop.t, loop.state], [loop.storage, kinetic])(0.0, s0)
     total, kin = (float(v) for v in values)
-    return {"V0": total, "kinetic": kin, "pose": total - kin}
+    method = "planned" if loop.plan is not None else ("ramp" if loop.ramp is not None else "constant")
+    return {"V0": total, "kinetic": kin, "pose": total - kin, "method": method}
 
 
 GRID_GOLDEN_STEPS = 8

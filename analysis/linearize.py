@@ -77,9 +77,10 @@ class DrivenTargetLoop(DisturbanceDriven, ClosedLoop):
 def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX]) -> ClosedLoop:
     """``loop`` in ideal mode, its target at rest at ``g_wo(0)`` unless moved by
     ``disturbance_input``, which supplies all of ``w`` (a :class:`DrivenTargetLoop`, or a
-    :class:`DrivenPlanarLoop` for the planar loop)."""
+    :class:`DrivenPlanarLoop` for the planar loop), with the constant reference ``g_d`` (a planned
+    one ends there: the equilibrium and the L2 gain are those of the paper's loop)."""
     fields = {f: getattr(loop, f) for f in ClosedLoop.__dataclass_fields__}
-    fields.update(target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None)
+    fields.update(target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None, plan=None)
     kind = DrivenPlanarLoop if isinstance(loop, PlanarLoop) else DrivenTargetLoop
     return kind(**fields, disturbance_input=disturbance_input)
 

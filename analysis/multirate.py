@@ -105,8 +105,10 @@ class HeldLinearization:
 
 def rest_model(loop: ClosedLoop) -> ClosedLoop:
     """The sampled loop with its exogenous inputs at zero: target at rest at its start
-    pose, no torque disturbance, the plant the law's model."""
-    return replace(loop, target=TargetMotion(loop.target.start), disturbances=[], sampled=True, plant=None)
+    pose, no torque disturbance, the plant the law's model, the constant reference ``g_d`` (where
+    a planned one ends)."""
+    return replace(loop, target=TargetMotion(loop.target.start), disturbances=[], sampled=True, plant=None,
+                   plan=None)  # fmt: skip
 
 
 def rest_state(loop: ClosedLoop, q_eq: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ from dvfc.analysis.output import append_log, read_log
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory, summary
+from dvfc.analysis.start import planned_start, ramp_start
 from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, excess, scaled, within_limits
 from dvfc.analysis.verify import Claim, verify
 from dvfc.analysis.windows import case_windows
@@ -246,11 +247,20 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
     design = design_of(point, None if planar else case.reference, loop.robot.mass_bounds)
     section = case.scenario.envelope
     theta = None if section is None or section.theta_bar_deg is None else math.radians(section.theta_bar_deg)
-    env = envelope(design, loop.camera, disturbance_bounds(section, loop), start_storage(loop, case.s0), theta,
-                   search=search)  # fmt: skip
+    disturbance = disturbance_bounds(section, loop)
+    env = envelope(design, loop.camera, disturbance, start_storage(loop, case.s0), theta, search=search)
     mass = loop.robot.mass_bounds
+    record = env.as_dict()
+    if loop.plan is not None:  # docs/math.md, fact 16b: the start statement of the planned reference
+        record["start"] = planned_start(design, loop.camera, disturbance, env, loop.plan)
+    elif loop.ramp is not None:  # fact 16a: the ramp's bound from t = 0
+        record["start"] = ramp_start(design, loop.camera, disturbance, env, loop.ramp)
+    if record["start"]["method"] != "constant" and record["start"]["inside"]:
+        record["statement"] = record["start"]["statement"]
+        if record["start"].get("boxes_px") is not None:  # the figure's regions: those of the whole run
+            record["boxes_px"] = record["start"]["boxes_px"]
     return {
-        **env.as_dict(),
+        **record,
         "m_hi_method": mass.method_hi,
         "m_lo_method": mass.method_lo,
         "K_e": "isotropic: R_ec = I decides (fact 2)" if planar or point.isotropic

@@ -30,11 +30,12 @@ from dvfc.analysis.schema import (
     ScenarioError,
 )
 from dvfc.analysis.simulate import Settings
+from dvfc.analysis.start import image_start
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
 from dvfc.models.errors import PlantErrors
 from dvfc.models.lie import SE3
-from dvfc.models.loop import ClosedLoop, Gains, Weights
+from dvfc.models.loop import ClosedLoop, Gains, ReferencePlan, Weights
 from dvfc.models.planar import TASK, PlanarLoop
 from dvfc.models.robot import (
     BUILTIN_ARMATURE,
@@ -223,8 +224,10 @@ def build(
         mode=mode or _implementation_mode(scenario),
         disturbances=disturbances(scenario.disturbance, n),
     )
-    o = scenario.observer
-    s0 = loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
+    s0 = _initial_state(scenario, loop, q0, qd0)
+    if scenario.start.reference == "planned":
+        loop = replace(loop, plan=ReferencePlan(_estimate(loop, s0), loop.reference, scenario.start.duration))
+    loop = replace(loop, ramp=scenario.start.ramp)
     if check_view:
         _check_initial_view(loop, s0, scenario.simulation.sigma_min)
         if scenario.loop == "paper":
@@ -300,6 +303,32 @@ def plant_errors(scenario: Scenario, loop: ClosedLoop) -> PlantErrors | None:
         changes |= {"viscous": _vector(f.viscous, n, "plant.friction.viscous"),
                     "coulomb": _vector(f.coulomb, n, "plant.friction.coulomb"), "smoothing": f.smoothing}  # fmt: skip
     return replace(errors, **changes)
+
+
+def _initial_state(scenario: Scenario, loop: ClosedLoop, q0: np.ndarray, qd0: np.ndarray) -> np.ndarray:
+    """``s(0)``: the observer from ``[observer]``'s error, or from the first image (``[start]
+    observer = "image"``, with the implementation's pixel noise and seed; docs/math.md, fact 16)."""
+    start = scenario.start
+    changed = [name for name, paper in (("reference", "constant"), ("observer", "scenario"), ("ramp", None))
+               if getattr(start, name) != paper]  # fmt: skip
+    if scenario.loop == "planar" and changed:
+        field = changed[0]
+        raise ScenarioError(f"start.{field}: the planar loop starts with the paper's constant reference, the "
+                            "[observer] error and no ramp")  # fmt: skip
+    if start.observer == "image":
+        imp = scenario.implementation
+        noise, seed = (0.0, 0) if imp is None else (imp.pixel_noise, imp.seed)
+        try:
+            return image_start(loop, q0, qd0, noise, seed)
+        except ValueError as exc:
+            raise ScenarioError(f"start.observer: {exc}") from exc
+    o = scenario.observer
+    return loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
+
+
+def _estimate(loop: ClosedLoop, s0: np.ndarray) -> SE3:
+    """``gbar(0)`` of the start ``s0`` (numeric)."""
+    return SE3.from_matrix(cs.Function("gbar0", [loop.state], [loop.estimate.as_matrix()])(s0))
 
 
 def _implementation_mode(scenario: Scenario) -> str:

@@ -182,6 +182,27 @@ class ObserverSection(_Strict):
     error_rpy: Vector3 = [0.0, 0.0, 0.0]
 
 
+class StartSection(_Strict):
+    """How the run starts (docs/math.md, fact 16). ``reference``: ``"constant"`` (the paper's
+    ``g_d`` from ``t = 0``) or ``"planned"`` (``g_d(t)`` planned from the controller's estimate at
+    start to ``[reference]`` in ``duration`` seconds by the quintic time law, with the
+    feedforward ``-Ad_(g_d) V_d``). ``observer``: ``"scenario"`` (``gbar(0)`` from the
+    ``[observer]`` error) or ``"image"`` (``gbar(0)`` a pose estimate from the first image; the
+    ``[observer]`` error is then unused). ``ramp``: seconds of the smoothstep ramp of the
+    camera-velocity command ``u_d = -sigma(t) K_c nu_c`` (fact 16a), with the constant reference."""
+
+    reference: Literal["constant", "planned"] = "constant"
+    duration: Positive = 2.0
+    observer: Literal["scenario", "image"] = "scenario"
+    ramp: Positive | None = None
+
+    @model_validator(mode="after")
+    def _ramp_alone(self) -> StartSection:
+        if self.ramp is not None and self.reference == "planned":
+            raise ValueError("ramp: with reference = \"planned\" the command already starts at rest; give one")
+        return self
+
+
 class WeightsSection(_Strict):
     w_pc: Positive
     w_rc: Positive
@@ -511,6 +532,7 @@ class Scenario(_Strict):
     target: TargetSection
     reference: ReferenceSection
     observer: ObserverSection = ObserverSection()
+    start: StartSection = StartSection()
     weights: WeightsSection
     gains: GainsSection
     disturbance: DisturbancesSection = DisturbancesSection()

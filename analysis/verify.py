@@ -24,6 +24,7 @@ from dvfc.analysis.linearize import linearize, peak_sinusoid, run_from_rest
 from dvfc.analysis.quiet import silenced
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, rotation_angle
+from dvfc.analysis.start import run_regions
 from dvfc.models.disturbance import BandLimitedNoise
 from dvfc.models.kinematic import VisualFeedbackSystem
 from dvfc.models.lie import SE3
@@ -390,6 +391,11 @@ def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: d
     tol = 1e-9 * max(1.0, v[0])
     claims = [on_run("premise: |w(t)| <= wbar along the run", "fact 7", traj, float(np.sqrt(w2.max())),
                      f"<= {wbar:.4g}", bool(np.sqrt(w2.max()) <= wbar * (1 + 1e-12)))]  # fmt: skip
+    start = env["start"]
+    if start.get("method") == "planned":
+        return [*claims, *_planned_claims(loop, traj, env, tol)]
+    if start.get("method") == "ramp":
+        return [*claims, *_ramp_claims(loop, traj, env, tol)]
     kappa, gamma = env["rate"], env["gamma_prime"]
     cap = env["level"] if env["start"]["inside"] else env["invariant_V"]
     entered = np.flatnonzero(v <= cap)
@@ -421,6 +427,59 @@ SEARCH_STOPPED = (
     "the integrator stopped on the disturbed loop before the horizon (a disturbance within the bounds drove "
     "the state where the loop's right-hand side is not finite, or beyond the integrator's step budget)"
 )
+
+
+def _planned_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -> list[Claim]:
+    """Fact 16b's start statement on the run with the planned reference: ``V(t) <= c`` at every
+    step, fact 7's bound with the path's rate from ``t = 0``, every feature in its region (16.0)
+    about ``g_d(t) p_oi`` at every step, and the errors over the last quarter."""
+    start = env["start"]
+    if not start["inside"]:
+        return [Claim("the planned start is certified", "fact 16b", float("nan"), "a start statement", None,
+                      f"not certified: {start.get('reason')}")]  # fmt: skip
+    t, v, level = traj.t, traj["V"][:, 0], start["level"]
+    excess = float(np.max(v - level))
+    claims = [on_run("V(t) <= c at every step from t = 0 (planned reference)", "fact 16b", traj, excess,
+                     f"<= {tol:.1e} (c = {level:.4g})", excess <= tol,
+                     f"V(0) = {v[0]:.4g}, max V = {v.max():.4g}")]  # fmt: skip
+    kappa, gamma = start["rate"], start["gamma_prime"]
+    running = np.maximum.accumulate(np.sum(traj["w"] ** 2, axis=1))
+    bound = np.exp(-kappa * t) * v[0] + gamma**2 / (2 * kappa) * running
+    worst = float(np.max(v - bound))
+    claims.append(on_run("V(t) <= exp(-kappa t) V(0) + gamma'^2/(2 kappa) sup |w|^2 (the path's rate)", "fact 16b",
+                         traj, worst, f"<= {tol:.1e}", worst <= tol, f"kappa = {kappa:.4g} 1/s along the path"))
+    if start.get("visible") is not None and loop.camera.has_image:
+        lo, hi = run_regions(loop, t, level)
+        pixels = traj["f"].reshape(len(t), -1, 2) + loop.camera.centre
+        out = float(np.maximum(lo - pixels, pixels - hi).max())
+        claims.append(on_run("every feature inside its region about g_d(t) at every step", "fact 16b, 16.0", traj,
+                             out, "<= 0 px (distance outside the region)", out <= 0,
+                             f"regions of the balls B(g_d(t) p_oi, rho_i(c)), c = {level:.4g}"))  # fmt: skip
+    claims.extend(_ultimate_errors(loop, traj, env, bound, 0))
+    return claims
+
+
+def _ramp_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -> list[Claim]:
+    """Fact 16a's start statement on the run with the ramp: ``V(t) <= c`` at every step from
+    ``t = 0``, and every feature inside its region (16.0) at the visible level at every step from
+    ``t_vis`` on."""
+    start = env["start"]
+    if not start["inside"]:
+        return [Claim("the ramp's start is certified", "fact 16a", float("nan"), "a start statement", None,
+                      f"not certified: {start.get('reason')}")]  # fmt: skip
+    t, v, level = traj.t, traj["V"][:, 0], start["level"]
+    excess = float(np.max(v - level))
+    claims = [on_run("V(t) <= c at every step from t = 0 (ramp)", "fact 16a", traj, excess,
+                     f"<= {tol:.1e} (c = {level:.4g})", excess <= tol, f"V(0) = {v[0]:.4g}, max V = {v.max():.4g}")]
+    since = start.get("visible_from_s")
+    if start.get("visible_boxes_px") is not None and since is not None:
+        boxes = np.asarray(start["visible_boxes_px"])
+        pixels = (traj["f"].reshape(len(t), -1, 2) + loop.camera.centre)[t >= since - 1e-9]
+        out = float(np.maximum(boxes[None, :, :2] - pixels, pixels - boxes[None, :, 2:]).max())
+        claims.append(on_run(f"every feature inside its region at the visible level from t = {since:.3g} s",
+                             "fact 16a, 16.0", traj, out, "<= 0 px (distance outside the region)", out <= 0,
+                             f"c_vis = {start['visible_level']:.4g}"))  # fmt: skip
+    return claims
 
 
 def adversarial_claim(loop: ClosedLoop, s0: np.ndarray, env: dict) -> Claim:

@@ -132,6 +132,56 @@ def pseudo_inverse(j: Matrix) -> Matrix:
     return cs.inv(j.T @ j) @ j.T
 
 
+def quintic(u: Matrix | np.ndarray | float) -> Matrix | np.ndarray | float:
+    """The quintic time law ``10 u^3 - 15 u^4 + 6 u^5`` of a planned reference (C^2, at rest at
+    ``u = 0`` and ``u = 1``), for CasADi or NumPy ``u`` in ``[0, 1]``."""
+    return 10 * u**3 - 15 * u**4 + 6 * u**5
+
+
+def smoothstep(u: Matrix | np.ndarray | float) -> Matrix | np.ndarray | float:
+    """The ramp's ``sigma = 3 u^2 - 2 u^3`` (C^1, nondecreasing from 0 to 1), for CasADi or NumPy
+    ``u`` in ``[0, 1]``."""
+    return 3 * u**2 - 2 * u**3
+
+
+@dataclass(frozen=True)
+class ReferencePlan:
+    """A planned reference ``g_d(t)`` (docs/math.md, fact 16): from ``start`` (the controller's own
+    estimate ``gbar(0)``) to ``goal`` (the scenario's ``g_d``) in ``duration`` seconds, by the
+    decoupled interpolation ``p_d = p_0 + tau(t) dp``, ``R_d = R_0 exp(tau(t) omega)``
+    (``dp = p_goal - p_0``, ``omega = log(R_0^T R_goal)``) with the quintic time law
+    ``tau = 10 u^3 - 15 u^4 + 6 u^5``, ``u = min(t / duration, 1)``: C^2, at rest at both ends,
+    and ``g_d = goal`` from ``duration`` on. ``start`` and ``goal`` are numeric."""
+
+    start: SE3
+    goal: SE3
+    duration: float
+
+    @cached_property
+    def step(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(dp, omega)``: the translation and the rotation vector the plan covers."""
+        p0, p1 = (np.asarray(cs.DM(g.translation)).ravel() for g in (self.start, self.goal))
+        turn = (self.start.rotation.inverse() @ self.goal.rotation).log()
+        return p1 - p0, np.asarray(cs.DM(turn)).ravel()
+
+    def progress(self, t: Matrix) -> tuple[Matrix, Matrix]:
+        """``(tau(t), dtau/dt)`` of the quintic time law."""
+        u = cs.fmin(cs.fmax(t / self.duration, 0), 1)
+        return quintic(u), 30 * u**2 * (1 - u) ** 2 / self.duration
+
+    def pose(self, t: Matrix) -> SE3:
+        """``g_d(t)``."""
+        dp, omega = self.step
+        tau, _ = self.progress(t)
+        return SE3(self.start.translation + tau * cs.DM(dp), self.start.rotation @ SO3.exp(tau * cs.DM(omega)))
+
+    def velocity(self, t: Matrix) -> Matrix:
+        """The body velocity ``V_d = vee(g_d^-1 dg_d/dt) = tau' [R_d^T dp; omega]``."""
+        dp, omega = self.step
+        _, rate = self.progress(t)
+        return rate * cs.vertcat(self.pose(t).rotation.matrix.T @ cs.DM(dp), cs.DM(omega))
+
+
 @dataclass
 class ClosedLoop:
     """The dynamic visual feedback system of one scenario, as CasADi expressions.
@@ -141,7 +191,14 @@ class ClosedLoop:
     robot, camera, target
         The arm, the camera with the object's feature points, the target motion.
     reference
-        Desired relative pose ``g_d`` (constant).
+        Desired relative pose ``g_d`` (the goal of ``plan``, when one is given).
+    plan
+        A planned reference ``g_d(t)`` ending at ``reference`` (docs/math.md, fact 16): the law uses
+        ``g_d(t)`` everywhere and adds the feedforward ``-Ad_(g_d) V_d`` to the camera-velocity
+        command; None: the paper's constant ``g_d``.
+    ramp
+        Seconds of the ramp ``u_d = -sigma(t) K_c nu_c`` (docs/math.md, fact 16a; :attr:`ramp_level`);
+        None: no ramp.
     weights, gains
         ``W_c, W_e`` and ``K`` of (35), (42).
     mode
@@ -178,6 +235,8 @@ class ClosedLoop:
     plant: Robot | None = None
     sampled: bool = False
     parameters: cs.SX | None = None
+    plan: ReferencePlan | None = None
+    ramp: float | None = None
 
     task_dim = 6
     """Entries of ``e_c``, ``e_e``, ``u_d`` and ``u_e``."""
@@ -212,15 +271,26 @@ class ClosedLoop:
         return self.estimate.inverse() @ self.relative_pose
 
     @cached_property
+    def desired(self) -> SE3:
+        """``g_d`` the law uses: the plan's ``g_d(t)``, or the constant :attr:`reference`."""
+        return self.reference if self.plan is None else self.plan.pose(self.t)
+
+    @cached_property
+    def desired_velocity(self) -> Matrix:
+        """``V_d``, the body velocity of :attr:`desired` (zero without a plan)."""
+        return cs.DM.zeros(6) if self.plan is None else self.plan.velocity(self.t)
+
+    @cached_property
     def tracking_error(self) -> SE3:
-        """The true tracking error ``g_d^-1 g``: the relative pose against the desired one
-        (the identity when the camera holds its pose; ``e_c`` measures the estimate's)."""
+        """The true tracking error against the goal, ``g_d^-1 g`` with the scenario's ``g_d``
+        (the identity when the camera holds that pose; ``e_c`` measures the estimate's against
+        :attr:`desired`)."""
         return self.reference.inverse() @ self.relative_pose
 
     @cached_property
     def control_pose_error(self) -> SE3:
-        """``g_ec = g_d^-1 gbar`` (24)."""
-        return self.reference.inverse() @ self.estimate
+        """``g_ec = g_d^-1 gbar`` (24), with ``g_d(t)`` when planned."""
+        return self.desired.inverse() @ self.estimate
 
     @cached_property
     def e_c(self) -> Matrix:
@@ -253,7 +323,7 @@ class ClosedLoop:
     @cached_property
     def output_matrix(self) -> Matrix:
         """``N`` of Lemma 2 at the current ``R_ec``."""
-        return output_matrix(self.weights, self.reference, self.control_pose_error.rotation.matrix, self.robot.n)
+        return output_matrix(self.weights, self.desired, self.control_pose_error.rotation.matrix, self.robot.n)
 
     @cached_property
     def disturbance_matrix(self) -> Matrix:
@@ -269,7 +339,22 @@ class ClosedLoop:
             u = self.inputs(self.t)
             return u[n : n + 6], u[n + 6 : n + 12]
         nu_ce = self.output_matrix[n:, n:] @ cs.vertcat(self.e_c, self.e_e_law)
-        return -gain_column(self.gains.k_c) * nu_ce[0:6], -gain_column(self.gains.k_e) * nu_ce[6:12]
+        return -self.ramp_level * gain_column(self.gains.k_c) * nu_ce[0:6], -gain_column(self.gains.k_e) * nu_ce[6:12]
+
+    @cached_property
+    def ramp_level(self) -> Matrix:
+        """``sigma(t)`` of the ramp (docs/math.md, fact 16a): the smoothstep ``3u^2 - 2u^3``,
+        ``u = min(t / ramp, 1)``, C^1, so the command ``u_d = -sigma K_c nu_c`` starts at rest;
+        1 without a ramp."""
+        if self.ramp is None:
+            return cs.DM(1.0)
+        return smoothstep(cs.fmin(cs.fmax(self.t / self.ramp, 0), 1))
+
+    @cached_property
+    def gain_matrix(self) -> Matrix:
+        """``K(sigma(t)) = diag(K_xi, sigma K_c, K_e)``: the feedback (42) with the ramp's ``sigma``."""
+        k = self.gains
+        return cs.diag(cs.vertcat(gain_column(k.k_xi), self.ramp_level * gain_column(k.k_c), gain_column(k.k_e)))
 
     @cached_property
     def hold(self) -> cs.SX:
@@ -302,12 +387,18 @@ class ClosedLoop:
 
     @cached_property
     def qd_d(self) -> Matrix:
-        """Reference joint velocity ``qd_d = pinv(J_b) u_d`` (Section V-A)."""
-        return pseudo_inverse(self.robot.body_jacobian) @ self._camera_inputs[0]
+        """Reference joint velocity ``qd_d = pinv(J_b) u_d`` (Section V-A); with a plan,
+        ``pinv(J_b) (u_d - Ad_(g_d) V_d)`` (docs/math.md, fact 16: the feedforward makes
+        ``V_ec`` the constant-reference one, ``-Ad_(gbar^-1)(J_b xi + u_d) + u_e``)."""
+        command = self._camera_inputs[0]
+        if self.plan is not None:
+            command = command - self.desired.adjoint() @ self.desired_velocity
+        return pseudo_inverse(self.robot.body_jacobian) @ command
 
     @cached_property
     def qdd_d(self) -> Matrix:
-        """``d qd_d/dt`` by automatic differentiation along ``(qd, 1, dgbar/dt)``:
+        """``d qd_d/dt`` by automatic differentiation along ``(qd, 1, dgbar/dt)``, the explicit
+        time derivative included (the target's in the ideal ``e_e``, the plan's ``g_d(t)``):
         needs no target information beyond what ``u_e`` already uses."""
         args = cs.vertcat(self.q, self.t, self.pbar, self.quat)
         rates = cs.vertcat(self.qd, 1, self.estimate_rate)
@@ -342,9 +433,10 @@ class ClosedLoop:
 
     @cached_property
     def tau(self) -> Matrix:
-        """Torque law (35): ``M qdd_d + C qd_d + g + J_b^T Ad_{g_d^-1}^T W_c e_c + u_xi``."""
+        """Torque law (35): ``M qdd_d + C qd_d + g + J_b^T Ad_{g_d^-1}^T W_c e_c + u_xi`` (``g_d(t)``
+        when planned)."""
         r = self.robot
-        ad_d = self.reference.inverse().adjoint()
+        ad_d = self.desired.inverse().adjoint()
         feedforward = r.mass_matrix @ self.qdd_d + r.coriolis @ self.qd_d + r.gravity
         return feedforward + r.body_jacobian.T @ ad_d.T @ self.weights.control @ self.e_c + self.u[0 : r.n]
 
@@ -415,7 +507,7 @@ class ClosedLoop:
     def quadratures(self) -> Matrix:
         """Integrands of :data:`QUADRATURES`."""
         nu, x, w = self.nu, self.x, self.w
-        k = self.gains.matrix
+        k = self.gain_matrix
         return cs.vertcat(
             self.u.T @ nu,
             x.T @ self.disturbance_matrix @ w,

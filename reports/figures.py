@@ -84,15 +84,15 @@ def image_plane(traj: Trajectory, focal_length: float) -> str:
 
 
 def envelope_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, float], envelope: dict) -> str:
-    """The image (its border), the certified feature regions of docs/math.md, fact 8 (boxes at the
+    """The image (its border), the certified feature regions of docs/math.md, facts 8 and 16.0 (boxes at the
     certified level, and at the ultimate level ``c_inf``) and the simulated feature tracks."""
     fig, ax = plt.subplots(figsize=(6.0, 5.0))
-    for name, style, label in (("boxes_px", "-", "certified region (V <= c)"),
+    for name, style, label in (("boxes_px", "-", "certified region (V <= c; over the whole plan when planned)"),
                                ("ultimate_boxes_px", ":", "ultimate region (V <= c_inf)")):  # fmt: skip
         for i, (u0, v0, u1, v1) in enumerate(envelope.get(name) or []):
             ax.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, color=BOUND, ls=style,
                                    label=label if i == 0 else None))  # fmt: skip
-    _tracks_in_image(ax, traj, centre, size, "Certified feature regions (fact 8) and the simulated tracks")
+    _tracks_in_image(ax, traj, centre, size, "Certified feature regions (facts 8, 16.0) and the simulated tracks")
     return svg(fig)
 
 

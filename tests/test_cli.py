@@ -115,6 +115,11 @@ BAD_SCENARIOS.update({
     "qd0 wrong length": (setter("robot.qd0", [0.0] * 7), "robot.qd0: expected 6 entries, got 7"),
     "NaN in observer error": (setter("observer.error_rpy", [0.0, float("nan"), 0.0]), "observer.error_rpy"),
     "dt above duration": (setter("simulation.dt", 5.0), "simulation"),
+    "unknown start reference": (setter("start.reference", "ramp"), "start.reference"),
+    "zero plan duration": (setter("start.duration", 0.0), "start.duration"),
+    "unknown start observer": (setter("start.observer", "pnp"), "start.observer"),
+    "negative ramp": (setter("start.ramp", -1.0), "start.ramp"),
+    "ramp with a planned reference": (lambda d: d.update(start={"reference": "planned", "ramp": 1.0}), "start: ramp"),
     "missing weight": (remover("weights.w_re"), "weights.w_re: required key missing"),
     "disturbance of wrong length": (
         setter("disturbance.torque", [{"kind": "sine", "amplitude": [1.0, 2.0], "frequency": 1.0}]),

@@ -471,3 +471,93 @@ def test_target_speed_sdp_rate_is_the_envelope_rate(default_loop, k_xi):
     assert float(kappa.value) == pytest.approx(expected, rel=1e-6)
     xi = xi_rates(design.mass, design.k_xi, np.array([s_value]))[0]
     assert (expected == pytest.approx(xi, rel=1e-12)) == (k_xi < 1)
+
+
+def _rotations(rng, count: int, scale: float) -> np.ndarray:
+    """Random rotations (count, 3, 3) with angles up to ``scale`` (uniform axes)."""
+    from scipy.spatial.transform import Rotation
+
+    axes = rng.normal(size=(count, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    return Rotation.from_rotvec(axes * rng.uniform(0, scale, (count, 1))).as_matrix()
+
+
+def _phi(r: np.ndarray) -> np.ndarray:
+    return 1.0 - np.cos(angle(r))
+
+
+@pytest.mark.parametrize("weights", [(4.0, 1.0, 4.0, 1.0), (4.0, 0.02, 4.0, 0.05)])
+def test_joint_radius_bounds_every_feature_offset_and_is_attained(rng, weights):
+    """docs/math.md, fact 16 (16.0.1): on random states (``g = g_d g_ec g_ee``, small to large errors,
+    the kinetic term 0, ``c = V`` of the state), ``|p_ci - g_d p_oi| <= sqrt(2 c S_i)``; and the
+    bound is attained as ``c -> 0`` (the Cauchy-Schwarz equality state: the offsets and both
+    rotations aligned, ratio above ``1 - 1e-3``). Light rotational weights make the rotation
+    term dominate (a Frobenius-norm radius, ``sqrt(2)`` larger there, is then far from attained)."""
+    from dvfc.analysis.envelope import joint_radius
+
+    w_pc, w_rc, w_pe, w_re = weights
+    points = np.array([[0.05, 0.05, 0.0], [-0.05, 0.05, 0.0], [0.3, -0.1, 0.02]])
+    count = 4000
+    r_d = _rotations(rng, 1, math.pi)[0]
+    worst = 0.0
+    for scale in (0.01, 0.3, 3.0):
+        r_ec, r_ee = _rotations(rng, count, scale), _rotations(rng, count, scale)
+        p_ec, p_ee = rng.normal(size=(count, 3)) * scale / 10, rng.normal(size=(count, 3)) * scale / 10
+        v = w_pc * np.sum(p_ec**2, 1) / 2 + w_pe * np.sum(p_ee**2, 1) / 2 + w_rc * _phi(r_ec) + w_re * _phi(r_ee)
+        for i, p in enumerate(points):
+            offset = np.einsum("ij,bj->bi", r_d, np.einsum("bij,j->bi", r_ec @ r_ee, p) - p
+                               + np.einsum("bij,bj->bi", r_ec, p_ee) + p_ec)  # fmt: skip
+            rho = joint_radius(weights, True, points, 1.0)[i] * np.sqrt(v)  # rho_i(c) = rho_i(1) sqrt(c)
+            worst = max(worst, float((np.linalg.norm(offset, axis=1) / rho).max()))
+    assert worst <= 1 + 1e-9
+    small = 1e-8  # the equality state of Cauchy-Schwarz at a small level
+    for i, p in enumerate(points):
+        rho = joint_radius(weights, True, points, small)[i]
+        k = rho / (1 / w_pc + 1 / w_pe + p @ p * (1 / w_rc + 1 / w_re))
+        n = np.cross(p, [0.0, 0.0, 1.0]) if np.linalg.norm(p[:2]) else np.array([1.0, 0.0, 0.0])
+        n /= np.linalg.norm(n)
+        axis = np.cross(p, n) / np.linalg.norm(p)
+        turn = [2 * math.asin(k * np.linalg.norm(p) / w / 2) for w in (w_rc, w_re)]
+        r_ec, r_ee = (np.asarray(cs.DM(SO3.exp(axis * th).matrix)) for th in turn)
+        offset = (r_ec @ r_ee - np.eye(3)) @ p + r_ec @ (r_ec.T @ n * k / w_pe) + n * k / w_pc
+        rotation = w_rc * _phi(r_ec[None])[0] + w_re * _phi(r_ee[None])[0]
+        v = w_pc * (k / w_pc) ** 2 / 2 + w_pe * (k / w_pe) ** 2 / 2 + rotation
+        assert v == pytest.approx(small, rel=1e-6)
+        assert np.linalg.norm(offset) / rho > 1 - 1e-3
+
+
+def test_cone_interval_contains_the_ball_and_touches_its_ends(rng):
+    """docs/math.md, fact 16 (16.0.2): for random balls in front of the camera, the image ``x/z`` (and
+    ``y/z``) of random points of the ball lies in the interval, and the tangent points of the
+    ball (in the plane of that axis and the optical axis) map onto both ends exactly."""
+    from dvfc.analysis.envelope import cone_interval
+
+    for _ in range(200):
+        centre = np.array([*rng.uniform(-0.4, 0.4, 2), rng.uniform(0.2, 1.0)])
+        radius = rng.uniform(0.0, 0.95) * centre[2]
+        points = rng.normal(size=(3000, 3))
+        points *= (radius * rng.uniform(0, 1, (3000, 1)) ** (1 / 3)) / np.linalg.norm(points, axis=1, keepdims=True)
+        points += centre
+        for axis in (0, 1):
+            lo, hi = cone_interval(centre, axis, np.asarray(radius))
+            ratio = points[:, axis] / points[:, 2]
+            assert ratio.min() >= lo - 1e-12 and ratio.max() <= hi + 1e-12
+            phi, d = math.atan2(centre[axis], centre[2]), math.hypot(centre[axis], centre[2])
+            beta, length = math.asin(radius / d), math.sqrt(d**2 - radius**2)
+            for end, sign in ((lo, -1), (hi, 1)):
+                touch = np.array(centre)
+                touch[axis], touch[2] = length * math.sin(phi + sign * beta), length * math.cos(phi + sign * beta)
+                assert np.linalg.norm(touch - centre) == pytest.approx(radius, abs=1e-12)
+                assert touch[axis] / touch[2] == pytest.approx(end, rel=1e-9, abs=1e-12)
+
+
+def test_default_visible_level_grows_with_the_joint_radius_and_the_cone(default_loop):
+    """docs/math.md, fact 16 (16.0): on the default's design the largest visible level is 0.0211
+    (fact 8's corner boxes gave 0.00432)."""
+    from dvfc.analysis.envelope import visible_level
+
+    loop, _, _ = default_loop
+    design = design_of(gain_point(Scenario.model_validate(scenario_dict()), 6), loop.reference,
+                       loop.robot.mass_bounds)  # fmt: skip
+    assert visible_level(design, loop.camera, desired_features(loop.camera, loop.reference)) == pytest.approx(
+        0.02106, rel=2e-3)
