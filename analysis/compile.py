@@ -1,5 +1,7 @@
 """Compiled right-hand sides: C code generated from the symbolic loop, built once with
-the system C compiler and cached on disk by the hash of its source."""
+the system C compiler and cached on disk by the hash of its source; loaded once per process
+for each function (the same function built again, by another design of the same arm, is not
+generated again)."""
 
 from __future__ import annotations
 
@@ -21,6 +23,10 @@ CasADi's virtual machine. The function itself is optimised (-O1); the pragma swi
 the optimiser off from the Jacobian's body on. A function without Jacobian that runs
 thousands of times per run (the sampled loop's control period) is worth ``-O2``: about
 10 s more to build once, about 10% faster."""
+
+_loaded: dict[str, cs.Function] = {}
+"""The compiled functions loaded in this process, by the hash of the function's serialisation,
+the build's options and the cache directory."""
 
 
 def cache_dir() -> Path:
@@ -55,6 +61,15 @@ def compiled(function: cs.Function, *, jacobian: bool = True, level: str = "-O1"
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
         return function
+    key = hashlib.sha256(f"{function.serialize()} {jacobian} {level} {cache_dir()}".encode()).hexdigest()
+    if key not in _loaded:
+        _loaded[key] = _build(function, jacobian, level, compiler)
+    return _loaded[key]
+
+
+def _build(function: cs.Function, jacobian: bool, level: str, compiler: str) -> cs.Function:
+    """``function`` (and its Jacobian) generated, built by ``compiler`` unless its library is
+    in :func:`cache_dir`, and loaded."""
     name = function.name()
     with tempfile.TemporaryDirectory() as tmp:
         text = _source(function, jacobian, tmp)

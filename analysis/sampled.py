@@ -129,8 +129,9 @@ class SampledSimulator(Simulator):
         self.implementation = implementation
         self.limits = limits = implementation.limits(loop.robot.limits)
         self.stride = round(settings.dt * implementation.control_rate)
-        n = loop.robot.n
+        n, model = loop.robot.n, self.model
         t, s, e = cs.MX.sym("t"), cs.MX.sym("s", loop.n_state), cs.MX.sym("e", loop.task_dim)
+        design = [cs.MX.sym("p", v.size) for v in self.design]  # inputs after the others
         # The torque is clipped at the input ``effort`` (inf: not clipped), so that another
         # torque scale or saturate setting needs no new code; a NaN torque stays NaN.
         effort = cs.MX.sym("effort", n)
@@ -138,31 +139,31 @@ class SampledSimulator(Simulator):
         self.errors = settings.errors
         self._friction = (self.errors or PlantErrors.none(loop.camera, n)).friction_vector()
         self._effort = limits.effort if implementation.saturate else np.full(n, np.inf)
-        law = cs.Function("dvfc_law", [loop.t, loop.state, loop.hold], [loop.tau])
+        law = cs.Function("dvfc_law", model.arguments[0], [model.tau])
         if settings.jit and implementation.integrator == "cvodes":  # the RK4 period is compiled whole
             law = compiled(law, jacobian=False)
-        commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e))
+        commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e), *design)
         applied = cs.if_else(commanded > effort, effort, cs.if_else(commanded < -effort, -effort, commanded))
         if implementation.integrator == "rk4":
-            after, quad = self._rk4(t, s, applied, e, friction)
+            after, quad = self._rk4(t, s, applied, e, friction, design)
         else:
-            result = self._cvodes()(x0=s, p=cs.vertcat(t, applied, e))
+            result = self._cvodes()(x0=s, p=cs.vertcat(t, applied, e, *design))
             after, quad = result["xf"], result["qf"]
         for q in loop.quaternions:
             after[q] = after[q] / cs.norm_2(after[q])
-        period = cs.Function("dvfc_period", [s, t, e, effort, friction], [after, commanded, applied, quad])
-        last = cs.Function("dvfc_last", [t, s, e, effort], [commanded, applied])  # at t = T: the law, no integration
+        period = cs.Function("dvfc_period", [s, t, e, effort, friction, *design], [after, commanded, applied, quad])
+        last = cs.Function("dvfc_last", [t, s, e, effort, *design], [commanded, applied])  # at t = T: the law only
         if settings.jit and implementation.integrator == "rk4":
             period, last = compiled(period, jacobian=False, level="-O2"), compiled(last, jacobian=False)
         self._period, self._last = period, Buffered(last)
         self._chunks: dict[int, Buffered] = {}
-        noise = cs.SX.sym("noise", loop.features.numel())
+        noise = cs.SX.sym("noise", model.features.numel())  # the image does not depend on the design
         if self.errors is None:
-            self._camera = cs.Function("dvfc_camera", [loop.t, loop.state, noise], self._image(noise))
+            self._camera = cs.Function("dvfc_camera", [model.t, model.state, noise], self._image(noise))
         else:
             errors = cs.SX.sym("errors", camera_size(loop.camera.m))
             image = self._true_image(noise, errors)
-            self._camera = cs.Function("dvfc_true_camera", [loop.t, loop.state, noise, errors], image)
+            self._camera = cs.Function("dvfc_true_camera", [model.t, model.state, noise, errors], image)
             self._errors = self.errors.camera_vector(loop.camera)
         if settings.jit:
             self._camera = compiled(self._camera, jacobian=False)
@@ -192,20 +193,23 @@ class SampledSimulator(Simulator):
                 other._window = settings.errors.window(self.loop.camera)
         return other
 
-    def _rk4(self, t: cs.MX, s: cs.MX, applied: cs.MX, e: cs.MX, friction: cs.MX) -> tuple[cs.MX, cs.MX]:
+    def _rk4(
+        self, t: cs.MX, s: cs.MX, applied: cs.MX, e: cs.MX, friction: cs.MX, design: list[cs.MX]
+    ) -> tuple[cs.MX, cs.MX]:
         """The state after one control period from ``(t, s)`` with the torque ``applied`` and
         ``e`` held, less the plant's friction at each stage's joint speeds, and the
-        quadratures' increments: :attr:`Implementation.substeps` classical RK4 steps."""
-        loop, n = self.loop, self.loop.robot.n
-        held = cs.Function("dvfc_held", [loop.t, loop.state, loop.hold], [loop.state_rate, loop.quadratures])
-        syms = [cs.MX.sym(name, v.numel()) for name, v in (("t", t), ("x", s), ("tau", applied), ("e", e),
-                                                            ("friction", friction))]  # fmt: skip
-        t_, x, tau, e_, b = syms
+        quadratures' increments: :attr:`Implementation.substeps` classical RK4 steps (the
+        model's functions called with ``design``, :attr:`Simulator.design`)."""
+        model, n = self.model, self.loop.robot.n
+        held = cs.Function("dvfc_held", model.arguments[0], [model.state_rate, model.quadratures])
+        values = (("t", t), ("x", s), ("tau", applied), ("e", e), ("friction", friction), *(("p", d) for d in design))
+        syms = [cs.MX.sym(name, v.numel()) for name, v in values]
+        t_, x, tau, e_, b, *p = syms
         torque = tau - friction_torque(x[n : 2 * n], b, n)  # no friction: tau - 0, exactly tau
-        stage = cs.Function("dvfc_rate", syms, held(t_, x, cs.vertcat(torque, e_)))
+        stage = cs.Function("dvfc_rate", syms, held(t_, x, cs.vertcat(torque, e_), *p))
 
         def rate(time: cs.MX, state: cs.MX) -> list[cs.MX]:
-            return stage(time, state, applied, e, friction)
+            return stage(time, state, applied, e, friction, *design)
 
         step = self.implementation.period / self.implementation.substeps
         quad = cs.MX.zeros(len(QUADRATURES))
@@ -244,7 +248,7 @@ class SampledSimulator(Simulator):
         """What one image gives: the true features ``f`` (11), the exact ``e_e`` (15), the
         ``e_e`` of (21) from ``f`` plus ``noise`` rounded (half up) to the pixel grid, and
         the depths of the points."""
-        loop = self.loop
+        loop = self.model
         measured = self._quantized(loop.features + noise)
         return [loop.features, loop.e_e, loop.image_estimate(measured), loop.camera.depths(loop.relative_pose)]
 
@@ -262,7 +266,7 @@ class SampledSimulator(Simulator):
         the true features about the true principal point (for the true image's bounds), the
         exact ``e_e`` (15) of the nominal model, the ``e_e`` of (21) from the pixels plus
         ``noise`` read with the nominal intrinsics, and the true depths."""
-        loop = self.loop
+        loop = self.model
         true, about_nominal, depths = true_features(loop.camera, loop.relative_pose, errors)
         measured = controller_features(loop.camera, self._quantized(about_nominal + noise))
         return [true, loop.e_e, loop.image_estimate(measured), depths]
@@ -280,7 +284,7 @@ class SampledSimulator(Simulator):
 
     def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, str | None]:
         """The ``e_e`` of an image captured at ``(t, s)``, or the reason there is none."""
-        size = self.loop.features.numel()
+        size = self.model.features.numel()
         image = self.loop.mode == "image"
         noise = self.implementation.pixel_noise * rng.standard_normal(size) if image else np.zeros(size)
         if self.implementation.outlier_probability > 0:
@@ -355,7 +359,7 @@ class SampledSimulator(Simulator):
                 break
             end = min(int(arrivals[measured]), steps) if measured < len(captures) else steps
             try:
-                held = (np.repeat(v[:, None], end - k, 1) for v in (e_held, self._effort, self._friction))
+                held = (np.repeat(v[:, None], end - k, 1) for v in (e_held, self._effort, self._friction, *self.design))
                 after, commanded, applied, quad = self._chunk(end - k)(s, np.arange(k, end) * h, *held)
             except RuntimeError as exc:
                 if interrupted(exc):
@@ -394,7 +398,7 @@ class SampledSimulator(Simulator):
         # one ends the run there, though its image would arrive later.
         measure_through(min(stops).step if stops else steps, captures)
         if not stops:  # the law at t = T, no integration
-            commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held, self._effort))
+            commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held, self._effort, *self.design))
             history["tau"].append(np.abs(commanded[None, :]))
             history["tau_applied"].append(np.abs(applied[None, :]))
             if steps % self.stride == 0:
@@ -403,7 +407,8 @@ class SampledSimulator(Simulator):
         else:
             stop = min(stops)
         if not rows:  # stopped before the first period: the start is still a row (no torque counted)
-            rows.append((0, s, np.concatenate([self._last(0.0, s, e_held, self._effort)[1].ravel(), e_held])))
+            last = self._last(0.0, s, e_held, self._effort, *self.design)
+            rows.append((0, s, np.concatenate([last[1].ravel(), e_held])))
         rows = [r for r in rows if r[0] < max(stop.tau_end, 1)]  # the start is always a row
         if evaluated < len(rows):
             singular, kept_rows = self._evaluate(rows, evaluated, signal_chunks)

@@ -21,6 +21,7 @@ import numpy as np
 from dvfc.analysis.compile import compiled
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.output import interrupted
+from dvfc.analysis.parametric import parameter_vector, symbolic
 from dvfc.models.errors import PlantErrors
 from dvfc.models.loop import QUADRATURES, ClosedLoop
 from dvfc.models.robot import Robot
@@ -126,17 +127,25 @@ class Trajectory:
 def dynamics_function(loop: ClosedLoop) -> cs.Function:
     """The DAE of the loop in CasADi's integrator signature, with the time offset of the
     chunk as parameter ``p`` (the integrator's own clock starts at 0 every chunk), followed
-    by the held inputs of the sampled loop (:attr:`dvfc.models.loop.ClosedLoop.hold`)."""
+    by the loop's further arguments: the held inputs of the sampled loop
+    (:attr:`dvfc.models.loop.ClosedLoop.hold`), the design of a symbolic loop
+    (:attr:`dvfc.models.loop.ClosedLoop.parameters`).
+
+    The Jacobian of a symbolic loop is taken in forward mode, the mode CasADi chooses for the
+    loop with numbers: the design's inputs would tip its choice to reverse mode, whose round-off
+    differs (by about 1e-9 in the Jacobian, 1e-11 in the states CVODES's Newton steps reach)."""
     t_local, offset = cs.SX.sym("t"), cs.SX.sym("p")
     ode, quad = cs.substitute([loop.state_rate, loop.quadratures], [loop.t], [t_local + offset])
     empty = cs.SX(0, 1)
-    parameters = cs.vertcat(offset, loop.hold) if loop.sampled else offset
+    parameters = cs.vertcat(offset, *loop.arguments[0][2:])
+    forward = {} if loop.parameters is None else {"ad_weight": 0.0, "ad_weight_sp": 0.0}
     return cs.Function(
         "dvfc_dynamics_sampled" if loop.sampled else "dvfc_dynamics",
         [t_local, loop.state, empty, parameters, empty],
         [ode, empty, quad, empty],
         cs.dyn_in(),
         cs.dyn_out(),
+        forward,
     )
 
 
@@ -159,17 +168,26 @@ def conditioning_of(flat: np.ndarray, shapes) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Simulator:
-    """CVODES integrator and signal evaluator for one closed loop."""
+    """CVODES integrator and signal evaluator for one closed loop.
+
+    Its functions are built from :attr:`model`, the loop with its design symbolic (shared by
+    every design of the same arm and structure, :func:`dvfc.analysis.parametric.symbolic`),
+    and called with :attr:`design`, the numbers of :attr:`loop`."""
 
     def __init__(self, loop: ClosedLoop, settings: Settings) -> None:
         self.loop = loop
         self.settings = settings
+        self.model = model = symbolic(loop)
+        p = parameter_vector(loop)
+        self.design: list[np.ndarray] = [] if p is None else [p]
+        """The last arguments of the model's functions: ``[p]``, or none for a loop that keeps its
+        numbers (:func:`dvfc.analysis.parametric.parametrised`)."""
         self._integrators: dict[int, cs.Function] = {}
-        self.signal_names = list(loop.signals)
+        self.signal_names = list(model.signals)
         self._mapped: dict[int, tuple] = {}
-        signals = loop.signals_function()
+        signals = model.signals_function()
         self.signal_function = compiled(signals, jacobian=False) if settings.jit else signals
-        (arm, arm_jac), (image, image_jac) = loop.conditioning.items()
+        (arm, arm_jac), (image, image_jac) = model.conditioning.items()
         self._monitored = (arm, image)
         self._shapes = (arm_jac.shape, image_jac.shape)
 
@@ -177,7 +195,7 @@ class Simulator:
     def dae(self) -> cs.Function:
         """The DAE of :func:`dynamics_function`, compiled with its Jacobian under ``jit``
         (built at first use: the fixed-step sampled loop never needs it)."""
-        dae = dynamics_function(self.loop)
+        dae = dynamics_function(self.model)
         return compiled(dae) if self.settings.jit else dae
 
     def cvodes_options(self) -> dict:
@@ -206,12 +224,14 @@ class Simulator:
         per time), evaluated in one mapped call writing straight into NumPy arrays (CasADi's
         buffer interface)."""
         count = len(t)
-        if count not in self._mapped:
-            mapped = self.signal_function.map(count)
+        columns = [states] if holds is None else [states, holds]
+        if count not in self._mapped:  # the design is one column for every time
+            shared = list(range(1 + len(columns), 1 + len(columns) + len(self.design)))
+            mapped = self.signal_function.map("signals_map", "serial", count, shared, [])
             self._mapped[count] = (mapped, *mapped.buffer())
         mapped, buffer, trigger = self._mapped[count]
-        columns = [states] if holds is None else [states, holds]
-        inputs = [np.ascontiguousarray(t, dtype=float), *(np.ascontiguousarray(c.T, dtype=float) for c in columns)]
+        inputs = [np.ascontiguousarray(t, dtype=float), *(np.ascontiguousarray(c.T, dtype=float) for c in columns),
+                  *self.design]  # fmt: skip
         outputs = {k: np.empty((count, mapped.size1_out(i))) for i, k in enumerate(self.signal_names)}
         assert all(mapped.nnz_out(i) == v.size for i, v in enumerate(outputs.values())), "signals must be dense"
         for i, value in enumerate(inputs):
@@ -280,7 +300,7 @@ class Simulator:
             integrator = self.integrator(count)
             chunk_start = time.perf_counter()
             try:
-                result = integrator(x0=states[:, k], p=t[k])
+                result = integrator(x0=states[:, k], p=np.concatenate([t[k : k + 1], *self.design]))
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc

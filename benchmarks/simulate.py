@@ -6,12 +6,15 @@ side compiled to C, the same with CasADi's virtual machine, and a plain baseline
 function evaluated point by point) at the same tolerances. Then the loop as implemented
 (the scenario's ``[implementation]``: 500 Hz torques held, 60 Hz camera), integrated
 from sample to sample by RK4 and by CVODES, against the compiled continuous run, with the
-largest difference of the RK4 run's states from the CVODES run's. Prints the times, the
-ratios and the real-time factors.
+largest difference of the RK4 run's states from the CVODES run's. Last, a gain change end
+to end (the scenario built and run as implemented, compiled) against a first run that
+compiles into an empty cache. Prints the times, the ratios and the real-time factors.
 """
 
 from __future__ import annotations
 
+import os
+import tempfile
 import time
 from dataclasses import replace
 
@@ -20,7 +23,7 @@ from scipy.integrate import solve_ivp
 from timing import best_of
 
 from dvfc.analysis.sampled import SampledSimulator, as_implemented
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
 from dvfc.analysis.simulate import Simulator
 from dvfc.models.errors import PlantErrors
 
@@ -87,6 +90,36 @@ def main() -> None:
         t_faulty = best_of(lambda: faulty.run(s0))
         print(f"    every plant error and fault on   {t_faulty * 1e3:8.1f} ms   ratio to the nominal RK4 run "
               f"{t_faulty / t_sampled['rk4']:5.2f}x (at most 1.5x)")
+    first, change = gain_change(scenario, base)
+    print(f"  gain change end to end (build + compiled run as implemented, {horizon:g} s), empty cache")
+    print(f"    first run, compiling             {first:8.2f} s")
+    print(f"    gain change, no compilation      {change:8.2f} s   (target under 2 s)   ratio first / change "
+          f"{first / change:6.1f}x")
+
+
+def gain_change(scenario: Scenario, base) -> tuple[float, float]:
+    """Wall seconds of the default scenario built and run as implemented (10 s, compiled) into a
+    fresh ``DVFC_CACHE`` (the first run compiles), then of the same with ``k_c`` and ``k_xi``
+    changed (another design of the same arm: nothing compiles)."""
+
+    def build_and_run(scenario: Scenario) -> float:
+        start = time.perf_counter()
+        loop, s0, settings = build(scenario, base)
+        traj = as_implemented(loop, replace(settings, jit=True, duration=10.0)).run(s0)
+        assert traj.status == "ok", traj.message
+        return time.perf_counter() - start
+
+    gains = scenario.gains.model_copy(update={"k_c": (1.2 * np.asarray(scenario.gains.k_c)).tolist(), "k_xi": (0.9 * np.asarray(scenario.gains.k_xi)).tolist()})  # noqa: E501
+    saved = os.environ.get("DVFC_CACHE")
+    with tempfile.TemporaryDirectory() as cache:
+        os.environ["DVFC_CACHE"] = cache
+        try:
+            return build_and_run(scenario), build_and_run(scenario.model_copy(update={"gains": gains}))
+        finally:
+            if saved is None:
+                del os.environ["DVFC_CACHE"]
+            else:
+                os.environ["DVFC_CACHE"] = saved
 
 
 def with_every_error(loop, settings) -> SampledSimulator:

@@ -68,16 +68,22 @@ class Weights:
 
 @dataclass(frozen=True)
 class Gains:
-    """Diagonal gains of (42): ``K_xi`` (n entries), ``K_c`` and ``K_e`` (6 entries each)."""
+    """Diagonal gains of (42): ``K_xi`` (n entries), ``K_c`` and ``K_e`` (6 entries each), as
+    numbers or as CasADi symbols (columns)."""
 
-    k_xi: np.ndarray
-    k_c: np.ndarray
-    k_e: np.ndarray
+    k_xi: np.ndarray | cs.SX
+    k_c: np.ndarray | cs.SX
+    k_e: np.ndarray | cs.SX
 
     @property
-    def matrix(self) -> cs.DM:
+    def matrix(self) -> Matrix:
         """``K = diag(K_xi, K_c, K_e)`` (42)."""
-        return cs.diag(cs.DM(np.concatenate([self.k_xi, self.k_c, self.k_e])))
+        return cs.diag(cs.vertcat(*map(gain_column, (self.k_xi, self.k_c, self.k_e))))
+
+
+def gain_column(entries: np.ndarray | cs.SX) -> Matrix:
+    """Diagonal gains as a CasADi column: numbers as constants, symbols as they are."""
+    return entries if isinstance(entries, cs.SX) else cs.DM(entries)
 
 
 def output_matrix(weights: Weights, reference: SE3, r_ec: Matrix, n: int) -> Matrix:
@@ -211,6 +217,10 @@ class ClosedLoop:
         law and observer use are held inputs (:attr:`hold`), set at the samples by
         :class:`dvfc.analysis.sampled.SampledSimulator`, instead of (35) and (15)/(21) evaluated
         continuously.
+    parameters
+        The symbols ``reference``, ``weights`` and ``gains`` are expressions of, when they are
+        symbolic (:func:`dvfc.analysis.parametric.symbolic`): the last argument of every
+        function of the loop. None: they are numbers.
     """
 
     robot: Robot
@@ -224,6 +234,7 @@ class ClosedLoop:
     inputs: Callable[[cs.SX], Matrix] | None = None
     plant: Robot | None = None
     sampled: bool = False
+    parameters: cs.SX | None = None
     plan: ReferencePlan | None = None
     ramp: float | None = None
 
@@ -328,7 +339,7 @@ class ClosedLoop:
             u = self.inputs(self.t)
             return u[n : n + 6], u[n + 6 : n + 12]
         nu_ce = self.output_matrix[n:, n:] @ cs.vertcat(self.e_c, self.e_e_law)
-        return -self.ramp_level * cs.DM(self.gains.k_c) * nu_ce[0:6], -cs.DM(self.gains.k_e) * nu_ce[6:12]
+        return -self.ramp_level * gain_column(self.gains.k_c) * nu_ce[0:6], -gain_column(self.gains.k_e) * nu_ce[6:12]
 
     @cached_property
     def ramp_level(self) -> Matrix:
@@ -343,7 +354,7 @@ class ClosedLoop:
     def gain_matrix(self) -> Matrix:
         """``K(sigma(t)) = diag(K_xi, sigma K_c, K_e)``: the feedback (42) with the ramp's ``sigma``."""
         k = self.gains
-        return cs.diag(cs.vertcat(cs.DM(k.k_xi), self.ramp_level * cs.DM(k.k_c), cs.DM(k.k_e)))
+        return cs.diag(cs.vertcat(gain_column(k.k_xi), self.ramp_level * gain_column(k.k_c), gain_column(k.k_e)))
 
     @cached_property
     def hold(self) -> cs.SX:
@@ -408,7 +419,7 @@ class ClosedLoop:
         """Input ``u = [u_xi; u_d; u_e]``; ``u_xi = -K_xi xi`` under (42)."""
         u_d, u_e = self._camera_inputs
         feedback = self.inputs is None
-        u_xi = -cs.DM(self.gains.k_xi) * self.xi if feedback else self.inputs(self.t)[0 : self.robot.n]
+        u_xi = -gain_column(self.gains.k_xi) * self.xi if feedback else self.inputs(self.t)[0 : self.robot.n]
         return cs.vertcat(u_xi, u_d, u_e)
 
     @cached_property
@@ -540,19 +551,22 @@ class ClosedLoop:
 
     @property
     def arguments(self) -> tuple[list[cs.SX], list[str]]:
-        """The symbols every expression of the loop depends on: ``(t, s)``, and :attr:`hold`
-        for the sampled loop."""
+        """The symbols every expression of the loop depends on: ``(t, s)``, :attr:`hold` for the
+        sampled loop, then :attr:`parameters` when given."""
+        symbols, names = [self.t, self.state], ["t", "s"]
         if self.sampled:
-            return [self.t, self.state, self.hold], ["t", "s", "hold"]
-        return [self.t, self.state], ["t", "s"]
+            symbols, names = [*symbols, self.hold], [*names, "hold"]
+        if self.parameters is not None:
+            symbols, names = [*symbols, self.parameters], [*names, "p"]
+        return symbols, names
 
     def rhs_function(self) -> cs.Function:
-        """``(t, s[, hold]) -> (ds/dt, quadrature integrands)``."""
+        """``(t, s[, hold][, p]) -> (ds/dt, quadrature integrands)``."""
         symbols, names = self.arguments
         return cs.Function("rhs", symbols, [self.state_rate, self.quadratures], names, ["ode", "quad"])
 
     def signals_function(self) -> cs.Function:
-        """``(t, s[, hold]) -> signals``: one output per entry of :attr:`signals`."""
+        """``(t, s[, hold][, p]) -> signals``: one output per entry of :attr:`signals`."""
         names = list(self.signals)
         values = [cs.densify(v) for v in self.signals.values()]  # dense: structural zeros stored too
         symbols, arguments = self.arguments

@@ -1,0 +1,119 @@
+"""The design as an input of the simulators' functions: the same numbers as the per-design build,
+one build (and one compiled library) for every design of an arm."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dvfc.analysis import compile as compile_module
+from dvfc.analysis import parametric
+from dvfc.analysis.sampled import as_implemented
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.simulate import Simulator, dynamics_function
+from dvfc.models.lie import SE3
+from dvfc.models.loop import Gains, Weights
+
+from conftest import build_loop
+
+
+def other_design(loop):
+    """Another design of the loop: every gain, weight and the reference changed."""
+    g = loop.gains
+    return replace(
+        loop,
+        gains=Gains(g.k_xi * 1.3, g.k_c * 0.8, g.k_e * 1.1),
+        weights=Weights(*(loop.weights.as_array() * [1.2, 0.9, 1.1, 0.7])),
+        reference=SE3.exp([0.01, -0.02, 0.03, 0.02, -0.01, 0.03]) @ loop.reference,
+    )
+
+
+def per_design(monkeypatch: pytest.MonkeyPatch) -> None:
+    """From here on the simulators build their functions from the loop with its numbers (the
+    build before the design was an input)."""
+    monkeypatch.setattr(parametric, "parametrised", lambda loop: False)
+
+
+def assert_same_run(a, b, tol: float = 0.0) -> None:
+    assert a.status == b.status == "ok"
+    assert np.array_equal(a.t, b.t)
+    for name in a.signals:
+        assert np.abs(a[name] - b[name]).max() <= tol * max(1.0, np.abs(b[name]).max()), name
+    for name in a.integrals:
+        assert np.abs(a.integrals[name] - b.integrals[name]).max() <= tol, name
+
+
+def test_symbolic_loop_evaluates_as_the_numeric_one(rng):
+    """At random states, the right-hand side and every signal of the symbolic loop at a design's
+    ``p`` equal the numeric loop's bit for bit, for two designs (the reference included)."""
+    loop, s0, _ = build_loop()
+    for design in (loop, other_design(loop)):
+        model, p = parametric.symbolic(design), parametric.parameter_vector(design)
+        numeric, symbolic = dynamics_function(design), dynamics_function(model)
+        signals, signals_p = design.signals_function(), model.signals_function()
+        for _ in range(5):
+            t, s = rng.uniform(0, 5), s0 + 0.02 * rng.standard_normal(s0.size)
+            a, b = numeric(t, s, [], 0.1, []), symbolic(t, s, [], np.r_[0.1, p], [])
+            assert all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b, strict=True))
+            a, b = signals(t, s), signals_p(t, s, p)
+            assert all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b, strict=True))
+
+
+def test_a_design_change_reuses_the_symbolic_loop():
+    """``replace`` of a loop's design reuses its symbolic loop; another structure (mode, the
+    sampled loop) or another arm gets its own."""
+    loop, _, _ = build_loop()
+    model = parametric.symbolic(loop)
+    assert parametric.symbolic(other_design(loop)) is model
+    assert parametric.symbolic(replace(loop, mode="image")) is not model
+    assert parametric.symbolic(replace(loop, sampled=True)) is not model
+    assert parametric.symbolic(build_loop()[0]) is not model  # another Robot object
+    assert not np.array_equal(parametric.parameter_vector(loop), parametric.parameter_vector(other_design(loop)))
+
+
+def test_sampled_run_equals_the_per_design_build(monkeypatch):
+    """The sampled loop (RK4 periods, image mode, pixel noise) of two designs run with the design
+    as an input equals, bit for bit, the run built with the design's numbers."""
+    scenario, base = load(DEFAULT_SCENARIO)
+    loop, s0, settings = build(scenario, base)
+    settings = replace(settings, jit=False, duration=0.3)
+    designs = (loop, other_design(loop))
+    runs = [as_implemented(d, settings).run(s0) for d in designs]
+    per_design(monkeypatch)
+    for run, d in zip(runs, designs, strict=True):
+        assert_same_run(run, as_implemented(d, settings).run(s0))
+
+
+@pytest.mark.slow
+def test_compiled_once_for_two_designs(tmp_path, monkeypatch):
+    """Compiled (a fresh cache): the second design of the default scenario compiles nothing and
+    its runs use the first's libraries (one for the right-hand side, one for the signals, one
+    for the control period); the sampled runs equal the per-design build's bit for bit; the
+    continuous runs to 1e-8 (their right-hand sides are equal bit for bit, the Jacobians CVODES's
+    Newton steps use differ by round-off, so each run is within its own 1e-10 tolerance)."""
+    monkeypatch.setenv("DVFC_CACHE", str(tmp_path))
+    scenario, base = load(DEFAULT_SCENARIO)
+    loop, s0, settings = build(scenario, base)
+    settings = replace(settings, jit=True, duration=2.0)
+    designs = (loop, other_design(loop))
+    builds = []
+    build_once = compile_module._build
+    monkeypatch.setattr(compile_module, "_build", lambda f, *a: builds.append(f.name()) or build_once(f, *a))
+
+    def both(design):
+        return Simulator(replace(design, plant=None), settings).run(s0), as_implemented(design, settings).run(s0)
+
+    first = both(designs[0])
+    libraries = sorted(tmp_path.glob("*.so"))
+    compiled_first = list(builds)
+    second = both(designs[1])
+    assert builds == compiled_first and sorted(tmp_path.glob("*.so")) == libraries
+    assert sorted(p.name.split("-")[0] for p in libraries) == ["dvfc_camera", "dvfc_dynamics", "dvfc_last",
+                                                                "dvfc_period", "signals", "signals"]  # fmt: skip
+    per_design(monkeypatch)
+    for (continuous, sampled), design in zip((first, second), designs, strict=True):
+        reference_continuous, reference_sampled = both(design)
+        assert_same_run(sampled, reference_sampled)
+        assert np.abs(continuous["state"] - reference_continuous["state"]).max() < 1e-8
