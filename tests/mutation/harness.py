@@ -270,8 +270,8 @@ MUTATIONS = (
         "ramp-dissipation-fixed-k",
         "fact 16a's dissipation nu^T K nu with the fixed K_c instead of sigma(t) K_c",
         "models/loop.py",
-        (("cs.vertcat(cs.DM(k.k_xi), self.ramp_level * cs.DM(k.k_c), cs.DM(k.k_e))",
-          "cs.vertcat(cs.DM(k.k_xi), cs.DM(k.k_c), cs.DM(k.k_e))"),),
+        (("cs.vertcat(gain_column(k.k_xi), self.ramp_level * gain_column(k.k_c), gain_column(k.k_e))",
+          "cs.vertcat(gain_column(k.k_xi), gain_column(k.k_c), gain_column(k.k_e))"),),
         ("tests/test_start.py::test_storage_rate_is_minus_nu_k_nu_plus_x_g_w_along_the_start",),
     ),
     Mutation(
