@@ -90,7 +90,7 @@ def envelope_image(traj: Trajectory, centre: np.ndarray, size: tuple[float, floa
     width, height = size
     view = np.array([-0.05 * width, -0.05 * height, 1.05 * width, 1.05 * height])
     notes = []
-    for name, style, kind, level in (("boxes_px", "-", "certified region", "V <= c; over the whole plan when planned"),
+    for name, style, kind, level in (("boxes_px", "-", "certified region", "V <= c"),
                                      ("ultimate_boxes_px", ":", "ultimate region", "V <= c_inf")):  # fmt: skip
         boxes = np.asarray(envelope.get(name) or [], dtype=float).reshape(-1, 4)
         shown = np.concatenate([np.maximum(boxes[:, :2], view[:2]), np.minimum(boxes[:, 2:], view[2:])], axis=1)
