@@ -451,19 +451,27 @@ SEARCH_STOPPED = (
 )
 
 
+def _start_level_claim(traj: Trajectory, start: dict, tol: float, fact: str, how: str) -> Claim:
+    """A start statement's level on the run: ``V(t) <= c`` at every step from ``t = 0``, or, when
+    the start is not certified, a claim saying so and why."""
+    if not start["inside"]:
+        return Claim(f"the start ({how}) is certified", fact, float("nan"), "a start statement", None,
+                     f"not certified: {start.get('reason')}")  # fmt: skip
+    v, level = traj["V"][:, 0], start["level"]
+    excess = float(np.max(v - level))
+    return on_run(f"V(t) <= c at every step from t = 0 ({how})", fact, traj, excess, f"<= {tol:.1e} (c = {level:.4g})",
+                  excess <= tol, f"V(0) = {v[0]:.4g}, max V = {v.max():.4g}")
+
+
 def _planned_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -> list[Claim]:
     """Fact 16b's start statement on the run with the planned reference: ``V(t) <= c`` at every
     step, fact 7's bound with the path's rate from ``t = 0``, every feature in its region (16.0)
     about ``g_d(t) p_oi`` at every step, and the errors over the last quarter."""
     start = env["start"]
+    claims = [_start_level_claim(traj, start, tol, "fact 16b", "planned reference")]
     if not start["inside"]:
-        return [Claim("the planned start is certified", "fact 16b", float("nan"), "a start statement", None,
-                      f"not certified: {start.get('reason')}")]  # fmt: skip
+        return claims
     t, v, level = traj.t, traj["V"][:, 0], start["level"]
-    excess = float(np.max(v - level))
-    claims = [on_run("V(t) <= c at every step from t = 0 (planned reference)", "fact 16b", traj, excess,
-                     f"<= {tol:.1e} (c = {level:.4g})", excess <= tol,
-                     f"V(0) = {v[0]:.4g}, max V = {v.max():.4g}")]  # fmt: skip
     kappa, gamma = start["rate"], start["gamma_prime"]
     running = np.maximum.accumulate(np.sum(traj["w"] ** 2, axis=1))
     bound = np.exp(-kappa * t) * v[0] + gamma**2 / (2 * kappa) * running
@@ -486,13 +494,10 @@ def _ramp_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -> l
     ``t = 0``, and every feature inside its region (16.0) at the visible level at every step from
     ``t_vis`` on."""
     start = env["start"]
+    claims = [_start_level_claim(traj, start, tol, "fact 16a", "ramp")]
     if not start["inside"]:
-        return [Claim("the ramp's start is certified", "fact 16a", float("nan"), "a start statement", None,
-                      f"not certified: {start.get('reason')}")]  # fmt: skip
-    t, v, level = traj.t, traj["V"][:, 0], start["level"]
-    excess = float(np.max(v - level))
-    claims = [on_run("V(t) <= c at every step from t = 0 (ramp)", "fact 16a", traj, excess,
-                     f"<= {tol:.1e} (c = {level:.4g})", excess <= tol, f"V(0) = {v[0]:.4g}, max V = {v.max():.4g}")]
+        return claims
+    t = traj.t
     since = start.get("visible_from_s")
     if start.get("visible_boxes_px") is not None and since is not None:
         boxes = np.asarray(start["visible_boxes_px"])
