@@ -1,17 +1,20 @@
-"""Theorem 2 certificates: the smallest gamma with ``P(gamma) = N^T K N - W/(2 gamma^2) - I/2 >= 0``.
+"""Theorem 2 certificates: the smallest gamma with ``P(gamma) = N^T K N - W/(2 gamma^2) - S^2/2 >= 0``.
 
-``N`` comes from :func:`dvfc.models.loop.output_matrix`, the expression the simulator uses.
+``N`` comes from :func:`dvfc.models.loop.output_matrix`, the expression the simulator uses;
+``W = G D_w^2 G^T`` and ``S`` are the generalized plant's weights (docs/math.md, fact 17;
+:class:`~dvfc.models.loop.PlantWeights`, the paper's ``W`` and ``I`` at unit weights).
 ``P`` does not depend on the robot (docs/math.md, fact 1): the ``xi`` block of ``N`` is the
-identity, so that block decouples and needs ``k_xi,i >= 1/2 + 1/(2 gamma^2)``. The
-rest, over ``(e_c, e_e)``, depends on ``K_c, K_e, W_c, W_e, g_d`` and on the rotation
-``R_ec`` of the state.
+identity, so that block decouples and needs ``k_xi,i >= S_xi,i^2/2 + D_tau,i^2/(2 gamma^2)``
+(``1/2 + 1/(2 gamma^2)`` at unit weights). The rest, over ``(e_c, e_e)``, depends on
+``K_c, K_e, W_c, W_e, g_d``, the weights and on the rotation ``R_ec`` of the state.
 
 Two routes to the smallest gamma:
 
-- exact (docs/math.md, fact 3): with ``A = N^T K N - I/2`` and ``s = 1/(2 gamma^2)``, the largest
-  ``s`` with ``A - s W >= 0`` is ``min(min k_xi - 1/2, lambda_min(D^-1/2 S D^-1/2))``,
-  ``S`` the Schur complement of the ``e_c`` block ``A_cc`` (where ``W`` vanishes) and
-  ``D = W_e^2``; it requires ``A_cc > 0``. Batched over many gain points.
+- exact (docs/math.md, facts 3 and 17): with ``A = N^T K N - S^2/2`` and ``s = 1/(2 gamma^2)``, the
+  largest ``s`` with ``A - s W >= 0`` is
+  ``min(min_i (k_xi,i - S_xi,i^2/2)/D_tau,i^2, lambda_min(D^-1/2 Sc D^-1/2))``, ``Sc`` the Schur
+  complement of the ``e_c`` block ``A_cc`` (where ``W`` vanishes) and ``D = W_e^2 D_v^2``; it
+  requires ``A_cc > 0``. Batched over many gain points.
 - SDP: ``maximize s  s.t.  A - s W >= 0`` with cvxpy and Clarabel (SCS as fallback).
 
 Every answer is re-checked a posteriori on the literal ``P`` of Theorem 2: the reported
@@ -41,8 +44,8 @@ from scipy.spatial.transform import Rotation
 
 from dvfc.analysis.output import interrupted
 from dvfc.models.lie import SE3, SO3
-from dvfc.models.loop import Weights, disturbance_matrix, disturbance_weight, output_matrix
-from dvfc.models.planar import TASK, planar_disturbance_matrix, planar_output_matrix
+from dvfc.models.loop import PlantWeights, Weights, disturbance_matrix, disturbance_weight, output_matrix
+from dvfc.models.planar import planar_disturbance_matrix, planar_output_matrix
 
 INFLATION = 1e-6
 """Relative inflation of a computed gamma before the a posteriori check: at the exact
@@ -59,12 +62,34 @@ ASSUMPTIONS = (
 
 @dataclass(frozen=True)
 class GainPoint:
-    """One design: the gains of (42) and the weights of (35)."""
+    """One design: the gains of (42), the weights of (35) and the generalized plant's weights
+    (``plant``, docs/math.md, fact 17; None: the paper's, every weight 1)."""
 
     k_xi: np.ndarray
     k_c: np.ndarray
     k_e: np.ndarray
     weights: Weights
+    plant: PlantWeights | None = None
+
+    @property
+    def plant_weights(self) -> PlantWeights:
+        """The generalized plant's weights (unit when ``plant`` is None)."""
+        return self.plant if self.plant is not None else PlantWeights.unit(len(self.k_xi))
+
+    @property
+    def output_squared(self) -> np.ndarray:
+        """The diagonal of ``S^2`` (``n + 2 t`` entries, ``t`` the task's)."""
+        return self.plant_weights.output(len(self.k_c)) ** 2
+
+    @property
+    def disturbance_weights(self) -> np.ndarray:
+        """The diagonal of ``D_w`` (``n + t`` entries)."""
+        return self.plant_weights.disturbance(len(self.k_c))
+
+    @property
+    def xi_limit(self) -> float:
+        """The largest ``s = 1/(2 gamma^2)`` the ``xi`` block of ``P`` allows (docs/math.md, fact 17)."""
+        return float(xi_limits(self.k_xi[None], self)[0])
 
     @property
     def isotropic(self) -> bool:
@@ -72,7 +97,25 @@ class GainPoint:
         return bool(np.ptp(self.k_e[:3]) == 0 and np.ptp(self.k_e[3:]) == 0)
 
     def with_k_e(self, k_e: np.ndarray) -> GainPoint:
-        return GainPoint(self.k_xi, self.k_c, np.asarray(k_e, dtype=float), self.weights)
+        return GainPoint(self.k_xi, self.k_c, np.asarray(k_e, dtype=float), self.weights, self.plant)
+
+
+def xi_limits(k_xi: np.ndarray, point: GainPoint) -> np.ndarray:
+    """``min_i (k_xi,i - S_xi,i^2/2) / D_tau,i^2`` for a batch ``k_xi`` (B, n) and the weights of
+    ``point``: the ``xi`` block of ``P`` is ``diag(k_xi - S_xi^2/2 - s D_tau^2)`` (docs/math.md,
+    fact 17), ``min k_xi - 1/2`` exactly at unit weights."""
+    n = k_xi.shape[1]
+    s2, d2 = point.output_squared[:n], point.disturbance_weights[:n] ** 2
+    return ((k_xi - 0.5 * s2) / d2).min(axis=1)
+
+
+def estimation_scale(point: GainPoint) -> np.ndarray:
+    """The diagonal of ``W_e D_v`` (``t`` entries), whose square is ``W`` on ``e_e``: ``W_e`` at unit
+    weights."""
+    n, t = len(point.k_xi), len(point.k_c)
+    w = point.weights
+    w_e = np.repeat([w.w_pe, w.w_re], 3) if t == 6 else np.full(t, float(w.w_pe))
+    return w_e * point.disturbance_weights[n:]
 
 
 def sound_k_e(k_e: np.ndarray) -> np.ndarray:
@@ -125,18 +168,22 @@ def output_blocks(weights: np.ndarray, reference: SE3, rotations: np.ndarray) ->
     return out.reshape(12, b, 12).transpose(1, 0, 2)
 
 
-def exact_s(n_ce: np.ndarray, k_xi_min: np.ndarray, k_c: np.ndarray, k_e: np.ndarray, w_e: np.ndarray):
-    """Largest ``s = 1/(2 gamma^2)`` with ``A - s W >= 0`` (docs/math.md, fact 3), batched.
+def exact_s(n_ce: np.ndarray, xi_limit: np.ndarray, k_c: np.ndarray, k_e: np.ndarray, w_e: np.ndarray,
+            output_squared: np.ndarray | None = None):
+    """Largest ``s = 1/(2 gamma^2)`` with ``A - s W >= 0`` (docs/math.md, facts 3 and 17), batched.
 
     Parameters are batches, for a task of ``t`` entries (6 for the paper's loop, 2 for the
-    planar one): ``n_ce`` (B, 2t, 2t), ``k_xi_min`` (B,), ``k_c``, ``k_e`` (B, t), ``w_e``
-    (B, t) the diagonal of ``W_e``. Returns ``(s, reason, A)``: ``s`` (B,) with ``-inf``
-    where ``A_cc`` is not positive definite, a reason code per point (0 fine,
-    1 ``k_xi <= 1/2``, 2 ``A_cc`` not positive definite, 3 Schur complement not positive),
-    and ``A = N^T K N - I/2`` on ``(e_c, e_e)`` (B, 2t, 2t).
+    planar one): ``n_ce`` (B, 2t, 2t), ``xi_limit`` (B,) the ``xi`` block's largest ``s``
+    (:func:`xi_limits`), ``k_c``, ``k_e`` (B, t), ``w_e`` (B, t) the diagonal of ``W_e D_v``
+    (:func:`estimation_scale`), ``output_squared`` (2t,) the diagonal of ``S^2`` on
+    ``(e_c, e_e)`` (None: ones). Returns ``(s, reason, A)``: ``s`` (B,) with ``-inf`` where
+    ``A_cc`` is not positive definite, a reason code per point (0 fine, 1 the ``xi`` block,
+    2 ``A_cc`` not positive definite, 3 Schur complement not positive), and
+    ``A = N^T K N - S^2/2`` on ``(e_c, e_e)`` (B, 2t, 2t).
     """
     t = n_ce.shape[1] // 2
-    a = nkn(n_ce, np.concatenate([k_c, k_e], axis=1)) - 0.5 * np.eye(2 * t)
+    half = 0.5 * (np.eye(2 * t) if output_squared is None else np.diag(output_squared))
+    a = nkn(n_ce, np.concatenate([k_c, k_e], axis=1)) - half
     a_cc, a_ce, a_ee = a[:, :t, :t], a[:, :t, t:], a[:, t:, t:]
     cc_min = np.linalg.eigvalsh(a_cc)[:, 0]
     ok = cc_min > 0
@@ -145,8 +192,8 @@ def exact_s(n_ce: np.ndarray, k_xi_min: np.ndarray, k_c: np.ndarray, k_e: np.nda
         schur = a_ee[ok] - np.einsum("bji,bjk->bik", a_ce[ok], np.linalg.solve(a_cc[ok], a_ce[ok]))
         d = 1.0 / w_e[ok]  # D^-1/2 = W_e^-1
         s[ok] = np.linalg.eigvalsh(d[:, :, None] * schur * d[:, None, :])[:, 0]
-    s = np.minimum(s, k_xi_min - 0.5)
-    reason = np.where(k_xi_min <= 0.5, 1, np.where(~ok, 2, np.where(s <= 0, 3, 0)))
+    s = np.minimum(s, xi_limit)
+    reason = np.where(xi_limit <= 0, 1, np.where(~ok, 2, np.where(s <= 0, 3, 0)))
     return s, reason, a
 
 
@@ -167,8 +214,8 @@ class Reason(IntEnum):
 
 
 REASONS = {
-    Reason.K_XI: "k_xi <= 1/2: the xi block of P needs k_xi > 1/2",
-    Reason.E_C_BLOCK: "the e_c block of N^T K N - I/2 is not positive definite (raise k_c or the weights W_c)",
+    Reason.K_XI: "k_xi <= S_xi^2/2 (1/2 at unit weights): the xi block of P needs k_xi,i > S_xi,i^2/2",
+    Reason.E_C_BLOCK: "the e_c block of N^T K N - S^2/2 is not positive definite (raise k_c or the weights W_c)",
     Reason.SCHUR: "the Schur complement of the e_c block is not positive definite: no gamma satisfies Theorem 2",
     Reason.RECHECK: "a posteriori check failed",
     Reason.ABOVE_BOUND: "gamma exceeds the required bound",
@@ -183,12 +230,13 @@ def gamma_of(s: np.ndarray) -> np.ndarray:
 
 
 def theorem2_matrices(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``A = N^T K N - I/2`` and ``W`` of Theorem 2, literally, with ``N`` of size ``n + 12``."""
+    """``A = N^T K N - S^2/2`` and ``W = G D_w^2 G^T`` of Theorem 2 (docs/math.md, fact 17),
+    literally, with ``N`` of size ``n + 12``."""
     n = len(point.k_xi)
     nmat = np.asarray(cs.DM(output_matrix(point.weights, reference, cs.DM(r_ec), n)))
     k = np.concatenate([point.k_xi, point.k_c, point.k_e])
-    a = nmat.T @ (k[:, None] * nmat) - 0.5 * np.eye(n + 12)
-    return (a + a.T) / 2, np.asarray(cs.DM(disturbance_weight(point.weights, n)))
+    a = nmat.T @ (k[:, None] * nmat) - 0.5 * np.diag(point.output_squared)
+    return (a + a.T) / 2, np.asarray(cs.DM(disturbance_weight(point.weights, n, point.plant)))
 
 
 def p_min_eigenvalue(point: GainPoint, reference: SE3, r_ec: np.ndarray, gamma: float) -> float:
@@ -201,17 +249,13 @@ def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[flo
     """Smallest gamma at one rotation by the closed form, and the reason code."""
     s, reason, _ = exact_s(
         output_blocks(point.weights.as_array()[None], reference, np.asarray(r_ec)[None]),
-        np.array([point.k_xi.min()]),
+        np.array([point.xi_limit]),
         point.k_c[None],
         point.k_e[None],
-        _w_e_diagonal(point)[None],
+        estimation_scale(point)[None],
+        point.output_squared[len(point.k_xi) :],
     )
     return float(gamma_of(s)[0]), int(reason[0])
-
-
-def _w_e_diagonal(point: GainPoint) -> np.ndarray:
-    """The diagonal of ``W_e = diag(w_pe I3, w_re I3)``."""
-    return np.repeat([point.weights.w_pe, point.weights.w_re], 3)
 
 
 SOLVERS = (cp.CLARABEL, cp.SCS)
@@ -275,48 +319,59 @@ class TightCertificate:
 
 
 def tight_lmi(point: GainPoint, reference: SE3, alpha: float, gamma: float) -> np.ndarray:
-    """The dissipation LMI of the storage ``alpha V`` (docs/math.md, fact 4), at ``R_ec = R_ee = I``::
+    """The dissipation LMI of the storage ``alpha V`` (docs/math.md, facts 4 and 17), at
+    ``R_ec = R_ee = I``::
 
-        [[alpha N^T K N - I/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]] >= 0
+        [[alpha N^T K N - S^2/2, -(alpha/2) G D_w], [-(alpha/2) D_w G^T, (gamma^2/2) I]] >= 0
 
-    It gives ``d(alpha V)/dt + |x|^2/2 - gamma^2 |w|^2/2 <= 0`` and so
-    ``int |x|^2 <= gamma^2 int |w|^2 + 2 alpha V(0)``; ``alpha = 1`` is Theorem 2's ``P``.
+    It gives ``d(alpha V)/dt + |z|^2/2 - gamma^2 |d|^2/2 <= 0`` (``z = S x``, ``w = D_w d``) and so
+    ``int |z|^2 <= gamma^2 int |d|^2 + 2 alpha V(0)``; ``alpha = 1`` is Theorem 2's ``P``.
     """
-    return tight_lmi_of(*_tight_blocks(point, reference), alpha, gamma)
+    nkn_, g, s2 = _tight_blocks(point, reference)
+    return tight_lmi_of(nkn_, g, alpha, gamma, s2)
 
 
-def tight_lmi_of(a: np.ndarray, g: np.ndarray, alpha: float, gamma: float) -> np.ndarray:
-    """:func:`tight_lmi` for given ``N^T K N`` and ``G``."""
-    half = 0.5 * np.eye(a.shape[0])
+def tight_lmi_of(a: np.ndarray, g: np.ndarray, alpha: float, gamma: float,
+                 output_squared: np.ndarray | None = None) -> np.ndarray:
+    """:func:`tight_lmi` for given ``N^T K N``, ``G D_w`` and diagonal of ``S^2`` (None: ones)."""  # fmt: skip
+    half = 0.5 * _diagonal(output_squared, a.shape[0])
     return np.block([[alpha * a - half, -alpha / 2 * g], [-alpha / 2 * g.T, gamma**2 / 2 * np.eye(g.shape[1])]])
 
 
-def _tight_blocks(point: GainPoint, reference: SE3) -> tuple[np.ndarray, np.ndarray]:
-    """``N^T K N`` and ``G`` at the identity rotations."""
+def _diagonal(entries: np.ndarray | None, size: int) -> np.ndarray:
+    return np.eye(size) if entries is None else np.diag(entries)
+
+
+def _tight_blocks(point: GainPoint, reference: SE3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``N^T K N``, ``G D_w`` and the diagonal of ``S^2`` at the identity rotations."""
     a, _ = theorem2_matrices(point, reference, np.eye(3))
     n = len(point.k_xi)
-    g = np.asarray(cs.DM(disturbance_matrix(point.weights, cs.DM.eye(3), n)))
-    return a + 0.5 * np.eye(a.shape[0]), g
+    g = np.asarray(cs.DM(disturbance_matrix(point.weights, cs.DM.eye(3), n))) * point.disturbance_weights
+    return a + 0.5 * np.diag(point.output_squared), g, point.output_squared
 
 
-def gamma_for_alpha(a: np.ndarray, g: np.ndarray, alpha: float) -> float | None:
+def gamma_for_alpha(
+    a: np.ndarray, g: np.ndarray, alpha: float, output_squared: np.ndarray | None = None
+) -> float | None:
     """Smallest gamma of the fact-4 LMI at a fixed ``alpha`` (Schur complement):
-    ``gamma^2 = (alpha^2 / 2) lambda_max(G^T (alpha A - I/2)^-1 G)``, None unless
-    ``alpha A - I/2 > 0``. The solver supplies ``alpha``; gamma is then computed exactly."""
-    m = alpha * a - 0.5 * np.eye(a.shape[0])
+    ``gamma^2 = (alpha^2 / 2) lambda_max(G^T (alpha A - S^2/2)^-1 G)``, None unless
+    ``alpha A - S^2/2 > 0``. The solver supplies ``alpha``; gamma is then computed exactly."""
+    m = alpha * a - 0.5 * _diagonal(output_squared, a.shape[0])
     if np.linalg.eigvalsh(m)[0] <= 0:
         return None
     return math.sqrt(alpha**2 / 2 * np.linalg.eigvalsh(g.T @ np.linalg.solve(m, g))[-1])
 
 
-def alpha_by_search(a: np.ndarray, g: np.ndarray) -> float:
+def alpha_by_search(a: np.ndarray, g: np.ndarray, output_squared: np.ndarray | None = None) -> float:
     """The ``alpha`` minimising :func:`gamma_for_alpha` without a conic solver: the LMI is jointly
-    linear in ``(alpha, gamma^2)``, so ``gamma(alpha)^2`` is convex on ``alpha > 1/(2 lambda_min(A))``
-    and a bounded scalar search on ``log alpha`` (Brent) finds its minimum."""
-    lowest = 1.0 / (2.0 * np.linalg.eigvalsh(a)[0])
+    linear in ``(alpha, gamma^2)``, so ``gamma(alpha)^2`` is convex on
+    ``alpha > 1/(2 lambda_min(S^-1 A S^-1))`` and a bounded scalar search on ``log alpha`` (Brent)
+    finds its minimum."""
+    s_inv = 1.0 / np.sqrt(np.ones(a.shape[0]) if output_squared is None else output_squared)
+    lowest = 1.0 / (2.0 * np.linalg.eigvalsh(s_inv[:, None] * a * s_inv[None, :])[0])
 
     def gamma2(t: float) -> float:
-        gamma = gamma_for_alpha(a, g, lowest * math.exp(t))
+        gamma = gamma_for_alpha(a, g, lowest * math.exp(t), output_squared)
         return math.inf if gamma is None else gamma**2
 
     found = minimize_scalar(gamma2, bounds=(1e-9, math.log(1e6)), method="bounded", options={"xatol": 1e-10})
@@ -333,32 +388,36 @@ def tight_gamma(point: GainPoint, reference: SE3, solver_options: dict | None = 
     ``K_e`` gives a bound sound for every rotation (the LMI is monotone in ``K``).
     """
     sound = point.with_k_e(sound_k_e(point.k_e))
-    return tight_gamma_of(*_tight_blocks(sound, reference), solver_options)
+    nkn_, g, s2 = _tight_blocks(sound, reference)
+    return tight_gamma_of(nkn_, g, solver_options, s2)
 
 
-def tight_gamma_of(a: np.ndarray, g: np.ndarray, solver_options: dict | None = None) -> TightCertificate:
-    """:func:`tight_gamma` for given ``N^T K N`` and ``G``. When neither solver returns a clean
-    optimum, ``alpha`` comes from :func:`alpha_by_search` (the method says so): the certificate
-    never rests on the solver, only on the exact gamma at ``alpha`` and its a posteriori check."""
+def tight_gamma_of(a: np.ndarray, g: np.ndarray, solver_options: dict | None = None,
+                   output_squared: np.ndarray | None = None) -> TightCertificate:
+    """:func:`tight_gamma` for given ``N^T K N``, ``G D_w`` and diagonal of ``S^2`` (None: ones).
+    When neither solver returns a clean optimum, ``alpha`` comes from :func:`alpha_by_search`
+    (the method says so): the certificate never rests on the solver, only on the exact gamma at
+    ``alpha`` and its a posteriori check."""  # fmt: skip
     nx, nw = g.shape
     alpha, g2 = cp.Variable(nonneg=True), cp.Variable(nonneg=True)
-    lmi = cp.bmat([[alpha * a - 0.5 * np.eye(nx), -alpha / 2 * g], [-alpha / 2 * g.T, g2 / 2 * np.eye(nw)]])
+    half = 0.5 * _diagonal(output_squared, nx)
+    lmi = cp.bmat([[alpha * a - half, -alpha / 2 * g], [-alpha / 2 * g.T, g2 / 2 * np.eye(nw)]])
     problem = cp.Problem(cp.Minimize(g2), [(lmi + lmi.T) / 2 >> 0])
     solver, failures = solve(problem, solver_options)
     if solver is None or alpha.value is None:
         # the solver only proposes alpha; gamma is computed exactly at it and re-checked below
         method = "scaled storage alpha V (fact 4), 1-D search over alpha (" + "; ".join(failures) + ")"
-        a_alpha = alpha_by_search(a, g)
+        a_alpha = alpha_by_search(a, g, output_squared)
     else:
         method = f"scaled storage alpha V (fact 4), {solver.lower()}"
         a_alpha = float(alpha.value)
-    gamma = gamma_for_alpha(a, g, a_alpha)
+    gamma = gamma_for_alpha(a, g, a_alpha, output_squared)
     if gamma is None:
         return TightCertificate(
-            None, a_alpha, None, method, "alpha A - I/2 is not positive definite at the solver's alpha"
+            None, a_alpha, None, method, "alpha A - S^2/2 is not positive definite at the solver's alpha"
         )
     gamma *= 1 + INFLATION
-    margin = float(np.linalg.eigvalsh(tight_lmi_of(a, g, a_alpha, gamma))[0])
+    margin = float(np.linalg.eigvalsh(tight_lmi_of(a, g, a_alpha, gamma, output_squared))[0])
     if margin < 0:
         return TightCertificate(None, a_alpha, margin, method, "a posteriori check failed")
     return TightCertificate(gamma, a_alpha, margin, method, None)
@@ -377,10 +436,11 @@ def gammas_over_rotations(point: GainPoint, reference: SE3, rotations: np.ndarra
     b = len(rotations)
     s, _, _ = exact_s(
         output_blocks(np.tile(point.weights.as_array(), (b, 1)), reference, rotations),
-        np.full(b, point.k_xi.min()),
+        np.full(b, point.xi_limit),
         np.tile(point.k_c, (b, 1)),
         np.tile(point.k_e, (b, 1)),
-        np.tile(_w_e_diagonal(point), (b, 1)),
+        np.tile(estimation_scale(point), (b, 1)),
+        point.output_squared[len(point.k_xi) :],
     )
     return gamma_of(s)
 
@@ -443,11 +503,11 @@ PLANAR_ASSUMPTIONS = (
 
 
 def planar_blocks(point: GainPoint) -> tuple[np.ndarray, np.ndarray]:
-    """``N^T K N`` and ``G`` of the reduced planar loop (P9)-(P11)."""
+    """``N^T K N`` and ``G D_w`` of the reduced planar loop (P9)-(P11)."""
     w, n = point.weights, len(point.k_xi)
     nmat = planar_output_matrix(w.w_pc, w.w_pe, n)
     k = np.concatenate([point.k_xi, point.k_c, point.k_e])
-    return nmat.T @ (k[:, None] * nmat), planar_disturbance_matrix(w.w_pe, n)
+    return nmat.T @ (k[:, None] * nmat), planar_disturbance_matrix(w.w_pe, n) * point.disturbance_weights
 
 
 def certify_planar(
@@ -458,23 +518,24 @@ def certify_planar(
     w = point.weights
     s, code, _ = exact_s(
         planar_output_matrix(w.w_pc, w.w_pe, 0)[None],
-        np.array([point.k_xi.min()]),
+        np.array([point.xi_limit]),
         point.k_c[None],
         point.k_e[None],
-        np.full((1, TASK), w.w_pe),
+        estimation_scale(point)[None],
+        point.output_squared[len(point.k_xi) :],
     )
     result = Certificate(False, None, "exact (planar loop, fact 3)", None, None, PLANAR_REGION)
     if code[0]:
         result.reason = REASONS[int(code[0])]
         return result
     nkn_, g = planar_blocks(point)
-    a = nkn_ - 0.5 * np.eye(len(nkn_))
+    a = nkn_ - 0.5 * np.diag(point.output_squared)
     return _confirm(result, float(gamma_of(s)[0]), a, g @ g.T, gamma_bound, with_sdp, solver_options)
 
 
 def tight_gamma_planar(point: GainPoint, solver_options: dict | None = None) -> TightCertificate:
     """Fact 4 for the reduced planar loop."""
-    return tight_gamma_of(*planar_blocks(point), solver_options)
+    return tight_gamma_of(*planar_blocks(point), solver_options, point.output_squared)
 
 
 def certify(

@@ -54,6 +54,7 @@ from dvfc.analysis.output import (
 from dvfc.analysis.pose import initial_view, solution_record
 from dvfc.analysis.results import (
     certificate_result,
+    channels_text,
     design_recheck,
     design_runner,
     envelope_record,
@@ -459,11 +460,8 @@ def show_certificate(result: dict) -> None:
         table.add_row(name, str(value))
     out.print(table)
     if p["certified"]:
-        target = "v_o" if result["loop"] == "planar" else "V_wo"
-        out.print(
-            f"CERTIFIED: L2 gain <= {p['gamma']:.6g} from w = [tau_d; {target}] to x over {result['region']}.",
-            markup=False,
-        )
+        channels = channels_text(p, result["loop"] == "planar")
+        out.print(f"CERTIFIED: L2 gain <= {p['gamma']:.6g} {channels} over {result['region']}.", markup=False)
     else:
         out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)
     if "implemented" in p:
@@ -620,7 +618,7 @@ def synthesize_command(
     theta = speed_theta_bar(case) if speed else None
     design = designer(weights, spec.reference.se3(), n, theta_max=math.radians(spec.certify.theta_max_deg),
                       gamma_target=cfg.gamma, search_weights=cfg.search_weights,
-                      speed=(loop.robot.mass_bounds, theta) if speed else None)  # fmt: skip
+                      speed=(loop.robot.mass_bounds, theta) if speed else None, plant=case.point.plant)  # fmt: skip
     log = target.with_name(target.name + ".runs.jsonl")  # the limits search's runs, for --resume
     if resume and not (cfg.respect_limits and log.exists()):
         raise fail(f"--resume: no limits search to resume ({log} not found; needs [synthesize] respect_limits)")

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import casadi as cs
 import numpy as np
@@ -222,7 +222,10 @@ def rate_margin(nkn: np.ndarray, w: np.ndarray, d: np.ndarray, s: np.ndarray, ka
 
 def design_of(point: GainPoint, reference: SE3 | None, mass: MassBounds) -> Design:
     """The :class:`Design` of a gain point: the paper's loop when ``reference`` is given, the
-    reduced planar loop (P9), with ``N`` constant and ``D`` of (P13), when it is None."""
+    reduced planar loop (P9), with ``N`` constant and ``D`` of (P13), when it is None. The envelope
+    bounds ``V`` by the disturbance ``w`` itself: the generalized plant's weights (fact 17) do not
+    enter it."""
+    point = replace(point, plant=None)
     w, n = point.weights, len(point.k_xi)
     if reference is None:
         nmat = planar_output_matrix(w.w_pc, w.w_pe, n)

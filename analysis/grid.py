@@ -28,11 +28,12 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from dvfc.analysis.certify import INFLATION, GainPoint, Reason, exact_s, gamma_of, output_blocks, sound_k_e
+from dvfc.analysis.certify import INFLATION, GainPoint, Reason, exact_s, gamma_of, output_blocks, sound_k_e, xi_limits
 from dvfc.analysis.envelope import GridEnvelope, envelope_columns
 from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
 from dvfc.analysis.tasks import run_tasks
 from dvfc.models.lie import SE3, SO3
+from dvfc.models.loop import PlantWeights, Weights
 from dvfc.models.planar import TASK, planar_output_matrix
 
 AXES = {
@@ -70,6 +71,9 @@ class GridSpec:
     envelope: GridEnvelope | None = None
     """With a scenario's ``[envelope]``: the context of the columns ``rate`` and
     ``max_target_speed`` (:func:`dvfc.analysis.envelope.envelope_columns`)."""
+    plant: PlantWeights | None = None
+    """The generalized plant's weights every point is certified for (docs/math.md, fact 17;
+    None: the paper's)."""
 
     @property
     def planar(self) -> bool:
@@ -90,7 +94,7 @@ class GridSpec:
         return GridSpec(
             point.k_xi, point.k_c, point.k_e, w.as_array(),
             np.asarray(cs.DM(reference.translation)).ravel(), np.asarray(cs.DM(reference.rotation.matrix)),
-            tuple(axes), gamma_bound, envelope,
+            tuple(axes), gamma_bound, envelope, point.plant,
         )  # fmt: skip
 
     @property
@@ -141,15 +145,19 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
         w_e = np.repeat(d["w"][:, 2:], 3, axis=1)
         reference = SE3(spec.p_d, SO3(spec.r_d))
         n_ce = output_blocks(weights, reference, np.tile(np.eye(3), (len(weights), 1, 1)))[which.ravel()]
-    k_xi_min = d["k_xi"].min(axis=1)
-    s, reason, a = exact_s(n_ce, k_xi_min, d["k_c"], k_e_sound, w_e)
+    n, t = d["k_xi"].shape[1], w_e.shape[1]
+    plant = GainPoint(spec.k_xi, spec.k_c, spec.k_e, Weights(*spec.weights), spec.plant)
+    xi_limit = xi_limits(d["k_xi"], plant)
+    s2, d_w = plant.output_squared, plant.disturbance_weights
+    scaled = w_e * d_w[n:]  # W_e D_v (docs/math.md, fact 17)
+    s, reason, a = exact_s(n_ce, xi_limit, d["k_c"], k_e_sound, scaled, s2[n:])
     gamma = gamma_of(s) * (1 + INFLATION)
     finite = np.isfinite(gamma)
     s_check = np.where(finite, 1.0 / (2 * np.where(finite, gamma, 1.0) ** 2), 0.0)
-    t = w_e.shape[1]
-    w_ce = np.concatenate([np.zeros((b, t)), w_e**2], axis=1)
+    w_ce = np.concatenate([np.zeros((b, t)), scaled**2], axis=1)
     p = a - s_check[:, None, None] * (w_ce[:, :, None] * np.eye(2 * t))
-    margin = np.minimum(np.linalg.eigvalsh((p + p.transpose(0, 2, 1)) / 2)[:, 0], k_xi_min - 0.5 - s_check)
+    xi_block = (d["k_xi"] - 0.5 * s2[:n] - s_check[:, None] * d_w[:n] ** 2).min(axis=1)
+    margin = np.minimum(np.linalg.eigvalsh((p + p.transpose(0, 2, 1)) / 2)[:, 0], xi_block)
     margin = np.where(finite, margin, np.nan)
     reason = np.where((reason == Reason.CERTIFIED) & (margin < 0), Reason.RECHECK, reason)
     if spec.gamma_bound is not None:
@@ -157,8 +165,9 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     certified = reason == 0
     extra = {}
     if spec.envelope is not None:
-        nkn = a + 0.5 * np.eye(2 * t)
-        extra["rate"], extra["max_target_speed"] = envelope_columns(spec.envelope, nkn, w_ce, d["k_xi"], d["w"])
+        nkn = a + 0.5 * np.diag(s2[n:])  # the envelope's W is the unweighted one (facts 7-10)
+        unweighted = np.concatenate([np.zeros((b, t)), w_e**2], axis=1)
+        extra["rate"], extra["max_target_speed"] = envelope_columns(spec.envelope, nkn, unweighted, d["k_xi"], d["w"])
     return {
         **extra,
         "index": np.arange(start, stop),

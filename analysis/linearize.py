@@ -108,13 +108,15 @@ def worst_case_disturbance(
     the next ``w`` is that gradient rescaled to the same norm (for a linear loop this is
     the power iteration for the largest singular value of the finite-horizon operator).
     Starts from the linearisation's worst input direction; returns the largest
-    ``sqrt(J / int |w|^2)`` met and the disturbance that gave it.
+    ``sqrt(J / int |w|^2)`` met and the disturbance that gave it. With the generalized plant's
+    weights (docs/math.md, fact 17) ``|x|`` and ``w`` read ``|z| = |S x|`` and the normalised
+    ``d`` (``w = D_w d``): the gain Theorem 2 bounds.
     """
     n = loop.robot.n
-    w_sym = cs.SX.sym("w", n + loop.task_dim)
-    model, s_eq = driven_at_rest(loop, w_sym, lin.q_eq)
+    w_sym = cs.SX.sym("w", n + loop.task_dim)  # the normalised disturbance d, w = D_w d (fact 17)
+    model, s_eq = driven_at_rest(loop, cs.DM(weight_diagonals(loop)[1]) * w_sym, lin.q_eq)
     h = horizon / intervals
-    dae = {"x": model.state, "t": model.t, "p": w_sym, "ode": model.state_rate, "quad": model.x.T @ model.x}
+    dae = {"x": model.state, "t": model.t, "p": w_sym, "ode": model.state_rate, "quad": model.z.T @ model.z}
     step = cs.integrator("interval", "cvodes", dae, 0.0, h, {"abstol": 1e-10, "reltol": 1e-10, "quad_err_con": True,
                                                         "disable_internal_warnings": True})
     w = cs.MX.sym("W", n + loop.task_dim, intervals)
@@ -135,6 +137,15 @@ def worst_case_disturbance(
             break
         current = gradient / np.linalg.norm(gradient) * np.linalg.norm(current)
     return best[0], {"interval_s": h, "horizon_s": horizon, "rms": amplitude, "w": best[1].T.tolist()}
+
+
+def weight_diagonals(loop: ClosedLoop) -> tuple[np.ndarray, np.ndarray]:
+    """The diagonals of ``S`` and ``D_w`` of the loop's generalized plant (docs/math.md, fact 17;
+    ones for the paper's)."""
+    n, task = loop.robot.n, loop.task_dim
+    if loop.performance is None:
+        return np.ones(n + 2 * task), np.ones(n + task)
+    return loop.performance.output(task), loop.performance.disturbance(task)
 
 
 def piecewise_constant(values: np.ndarray, interval: float) -> Callable[[cs.SX], cs.SX]:
@@ -167,11 +178,13 @@ def peak_sinusoid(lin: Linearization, amplitude: float = 1e-2) -> Callable[[cs.S
 def run_from_rest(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[cs.SX], cs.SX], horizon: float,
                   dt: float = 0.01) -> tuple[float, Trajectory]:
     """Integrate the ideal loop from its equilibrium (``x(0) = 0``, so ``V(0) = 0``) driven by
-    ``disturbance`` (all of ``w``) with CVODES; returns ``sqrt(int |x|^2 / int |w|^2)`` at the
-    horizon and the trajectory. Theorem 2 says this ratio is at most every certified gamma."""  # fmt: skip
+    ``disturbance`` (all of the normalised ``d``, ``w = D_w d``, docs/math.md, fact 17) with CVODES;
+    returns ``sqrt(int |z|^2 / int |d|^2)`` at the horizon and the trajectory (``|x|`` and ``|w|`` at
+    unit weights). Theorem 2 says this ratio is at most every certified gamma."""  # fmt: skip
     _, s_eq = driven_at_rest(loop, cs.SX.zeros(loop.robot.n + loop.task_dim), lin.q_eq)
-    traj = Simulator(driven(loop, disturbance), Settings(duration=horizon, dt=dt)).run(s_eq)
-    return float(np.sqrt(traj.integrals["x_squared"][-1] / traj.integrals["w_squared"][-1])), traj
+    d_w = cs.DM(weight_diagonals(loop)[1])
+    traj = Simulator(driven(loop, lambda t: d_w * disturbance(t)), Settings(duration=horizon, dt=dt)).run(s_eq)
+    return float(np.sqrt(traj.integrals["z_squared"][-1] / traj.integrals["d_squared"][-1])), traj
 
 
 def sharpest_from_rest(
@@ -191,7 +204,7 @@ def sharpest_from_rest(
         if traj.status != "ok":
             return (*kept, False) if kept is not None else (ratio, traj, False)
         half = int(np.searchsorted(traj.t, traj.t[-1] / 2))
-        rise = ratio - float(np.sqrt(traj.integrals["x_squared"][half] / traj.integrals["w_squared"][half]))
+        rise = ratio - float(np.sqrt(traj.integrals["z_squared"][half] / traj.integrals["d_squared"][half]))
         if rise <= tolerance * ratio:
             return ratio, traj, True
         if 2 * horizon > longest:
@@ -262,15 +275,18 @@ def linearize(loop: ClosedLoop, q0: np.ndarray) -> Linearization:
     local = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6], w[n:])
     local = cs.substitute(local, model.state, state)
     output = cs.substitute(model.x, model.state, state)
-    return _linearization(local, output, z, w, model.t, q_eq)
+    return _linearization(local, output, z, w, model.t, q_eq, weight_diagonals(loop))
 
 
-def _linearization(rate, output, z, w, t, q_eq: np.ndarray) -> Linearization:
-    """The Jacobians of ``dz/dt = rate(z, w)`` and ``x = output(z, w)`` at ``z = 0, w = 0``,
-    as a python-control system, with its H-infinity norm and frequency peak."""
+def _linearization(rate, output, z, w, t, q_eq: np.ndarray, weights: tuple[np.ndarray, np.ndarray]) -> Linearization:
+    """The Jacobians of ``dz/dt = rate(z, w)`` and ``x = output(z, w)`` at ``z = 0, w = 0``, as a
+    python-control system from ``d`` to ``S x`` (``weights = (S, D_w)`` diagonals, ``w = D_w d``,
+    docs/math.md, fact 17), with its H-infinity norm and frequency peak."""
     jacobians = [cs.jacobian(rate, z), cs.jacobian(rate, w), cs.jacobian(output, z), cs.jacobian(output, w)]
     f = cs.Function("lin", [z, w, t], jacobians)
     a, b, c, d = (np.asarray(m) for m in f(np.zeros(z.shape[0]), np.zeros(w.shape[0]), 0.0))
+    s, d_w = weights
+    b, c, d = b * d_w, s[:, None] * c, s[:, None] * d * d_w
     system = control.ss(a, b, c, d)
     reduced = observable_quotient(system)
     peak, omega, direction = frequency_peak(reduced)
@@ -329,7 +345,7 @@ def linearize_planar(loop: PlanarLoop, q0: np.ndarray, iterations: int = 50) -> 
     state = cs.DM(driven_at_rest(loop, w, q)[1]) + z
     rate = cs.substitute(model.state_rate, model.state, state)
     output = cs.substitute(model.x, model.state, state)
-    return _linearization(rate, output, z, w, model.t, q)
+    return _linearization(rate, output, z, w, model.t, q, weight_diagonals(loop))
 
 
 def _quaternion_product(p: np.ndarray, q):

@@ -54,7 +54,7 @@ def _structure(loop: ClosedLoop) -> tuple:
     """What a loop's functions depend on besides its design: the objects (held by identity:
     ``dataclasses.replace`` of a loop keeps them) and the flags."""
     objects = (loop.robot, loop.camera, loop.target, loop.inputs, loop.plant, loop.plan, *loop.disturbances)
-    return objects, (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances))
+    return objects, (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance)
 
 
 def symbolic(loop: ClosedLoop) -> ClosedLoop:

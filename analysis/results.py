@@ -206,6 +206,7 @@ def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | 
     return {
         "gains": {"k_xi": point.k_xi.tolist(), "k_c": point.k_c.tolist(), "k_e": point.k_e.tolist()},
         "weights": {k: float(v) for k, v in asdict(w).items()},
+        "weights_of_plant": plant_record(point),
         "certified": cert.certified,
         "gamma": cert.gamma,
         "method": cert.method,
@@ -216,6 +217,33 @@ def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | 
         "gap": cert.gap,
         **extra,
     }
+
+
+def plant_record(point: GainPoint) -> dict:
+    """The generalized plant's weights a certificate holds for (docs/math.md, fact 17): the output
+    ``z = S x`` and the disturbance ``w = D_w d``, and whether they are the paper's (all ones)."""
+    p = point.plant_weights
+    return {
+        "output": {"xi": list(p.xi), "e_c": p.e_c, "e_e": p.e_e},
+        "disturbance": {"tau_d": list(p.tau_d), "translation": p.translation, "rotation": p.rotation},
+        "paper": point.plant is None,
+        "gain": "from d to z = S x, w = D_w d: int |z|^2 <= gamma^2 int |d|^2 + 2 V(0)",
+    }
+
+
+def channels_text(point: dict, planar: bool) -> str:
+    """The channels an L2 certificate bounds, in words: the paper's ``w -> x``, or with the
+    ``[performance]`` weights (docs/math.md, fact 17) ``d -> z = S x`` with ``w = D_w d``."""
+    target = "v_o" if planar else "V_wo"
+    paper = f"from w = [tau_d; {target}] to x = [xi; e_c; e_e]"
+    plant = point.get("weights_of_plant")
+    if plant is None or plant["paper"]:
+        return paper
+    out, dist = plant["output"], plant["disturbance"]
+    fmt = lambda v: "[" + ", ".join(f"{x:g}" for x in v) + "]"  # noqa: E731
+    velocity = f"{dist['translation']:g}" if planar else f"{dist['translation']:g} I3, {dist['rotation']:g} I3"
+    return (f"from d to z = S x, w = [tau_d; {target}] = D_w d (generalized plant: S = diag({fmt(out['xi'])}, "
+            f"{out['e_c']:g} I, {out['e_e']:g} I), D_w = diag({fmt(dist['tau_d'])}, {velocity}))")
 
 
 def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
@@ -383,7 +411,8 @@ def statements(
     out = [{
         "statement": "L2 gain (Theorem 2)", "loop": "ideal continuous loop, " + certificate["region"],
         "status": "CERTIFIED" if gamma is not None else "NOT CERTIFIED",
-        "detail": f"gamma <= {gamma:.6g} by {which}" if gamma is not None else str(point["reason"]),
+        "detail": f"gamma <= {gamma:.6g} by {which}, {channels_text(point, certificate['loop'] == 'planar')}"
+        if gamma is not None else str(point["reason"]),
     }]  # fmt: skip
     env = point.get("envelope") or {}
     if env.get("rate") is None:

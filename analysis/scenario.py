@@ -35,7 +35,7 @@ from dvfc.models.camera import Camera
 from dvfc.models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
 from dvfc.models.errors import PlantErrors
 from dvfc.models.lie import SE3
-from dvfc.models.loop import ClosedLoop, Gains, ReferencePlan, Weights
+from dvfc.models.loop import ClosedLoop, Gains, PlantWeights, ReferencePlan, Weights
 from dvfc.models.planar import TASK, PlanarLoop
 from dvfc.models.robot import (
     BUILTIN_ARMATURE,
@@ -224,6 +224,7 @@ def build(
         gains=Gains(point.k_xi, point.k_c, point.k_e),
         mode=mode or _implementation_mode(scenario),
         disturbances=disturbances(scenario.disturbance, n),
+        performance=point.plant,
     )
     s0 = _initial_state(scenario, loop, q0, qd0)
     if scenario.start.reference == "planned":
@@ -377,7 +378,20 @@ def gain_point(scenario: Scenario, n: int) -> GainPoint:
         _vector(g.k_c, task, "gains.k_c"),
         _vector(g.k_e, task, "gains.k_e"),
         Weights(**scenario.weights.model_dump()),
+        plant_weights(scenario, n),
     )
+
+
+def plant_weights(scenario: Scenario, n: int) -> PlantWeights | None:
+    """The ``[performance]`` weights of the generalized plant (docs/math.md, fact 17); None when
+    every weight is 1 (the paper's plant)."""
+    out, dist = scenario.performance.output, scenario.performance.disturbance
+    weights = PlantWeights(
+        tuple(map(float, _vector(out.xi, n, "performance.output.xi"))),
+        tuple(map(float, _vector(dist.tau_d, n, "performance.disturbance.tau_d"))),
+        out.e_c, out.e_e, dist.translation, dist.rotation,
+    )  # fmt: skip
+    return None if weights.is_unit else weights
 
 
 def _check_reference_view(camera: Camera, reference: SE3) -> None:

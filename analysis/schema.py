@@ -403,6 +403,32 @@ class DistributionSection(_Strict):
         return self
 
 
+class PerformanceOutput(_Strict):
+    """Weights of the performance output ``z = S x``: ``xi`` (one for every joint, or one per
+    joint), the control error ``e_c`` and the estimation error ``e_e``."""
+
+    xi: GainValue = 1.0
+    e_c: Positive = 1.0
+    e_e: Positive = 1.0
+
+
+class PerformanceDisturbance(_Strict):
+    """Weights of the disturbance ``w = D_w d``: the joint torques ``tau_d`` (one, or one per
+    joint) and the target's translational and rotational velocity."""
+
+    tau_d: GainValue = 1.0
+    translation: Positive = 1.0
+    rotation: Positive = 1.0
+
+
+class PerformanceSection(_Strict):
+    """The generalized plant Theorem 2 bounds the gain of (docs/math.md, fact 17): ``d -> z`` with
+    ``z = S x`` and ``w = D_w d``; every weight 1 (the default) is the paper's."""
+
+    output: PerformanceOutput = PerformanceOutput()
+    disturbance: PerformanceDisturbance = PerformanceDisturbance()
+
+
 class CertifySection(_Strict):
     """Region and requirement of the Theorem 2 certificate."""
 
@@ -542,6 +568,7 @@ class Scenario(_Strict):
     simulation: SimulationSection = SimulationSection()
     implementation: ImplementationSection | None = None
     plant: PlantSection = PlantSection()
+    performance: PerformanceSection = PerformanceSection()
     certify: CertifySection = CertifySection()
     envelope: EnvelopeSection | None = None
     report: ReportSection = ReportSection()

@@ -37,11 +37,11 @@ import cvxpy as cp
 import numpy as np
 import tomlkit
 
-from dvfc.analysis.certify import Certificate, GainPoint, certify, output_blocks, solve
+from dvfc.analysis.certify import Certificate, GainPoint, certify, estimation_scale, output_blocks, solve
 from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, pose_diagonal, s_limit
 from dvfc.models.inertia import MassBounds
 from dvfc.models.lie import SE3
-from dvfc.models.loop import Weights
+from dvfc.models.loop import PlantWeights, Weights
 
 TARGET_MARGIN = 1e-4
 """Relative margin below a gamma target that the synthesis aims at."""
@@ -87,21 +87,25 @@ class Synthesis:
     weights_tried: int = 1
 
 
-def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target: float | None):
-    """Solve the fact-6 SDP for fixed weights; returns ``(k_xi, k_c, k_e)`` or None."""
+def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target: float | None,
+         plant: PlantWeights | None):
+    """Solve the fact-6 SDP for fixed weights (and the generalized plant's, fact 17); returns
+    ``(k_xi, k_c, k_e)`` or None."""  # fmt: skip
     w = weights.as_array()[None]
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
     k_ep, k_er = cp.Variable(), cp.Variable()
     k_ce = cp.hstack([k_c, k_ep, k_ep, k_ep, k_er, k_er, k_er])
-    w_ce = np.diag(np.r_[np.zeros(6), np.repeat([weights.w_pe**2, weights.w_re**2], 3)])
-    a_ce = n_ce.T @ cp.diag(k_ce) @ n_ce - 0.5 * np.eye(12)
+    weighted = GainPoint(np.ones(n), np.ones(6), np.ones(6), weights, plant)
+    s2, d_w = weighted.output_squared, weighted.disturbance_weights
+    w_ce = np.diag(np.r_[np.zeros(6), estimation_scale(weighted) ** 2])
+    a_ce = n_ce.T @ cp.diag(k_ce) @ n_ce - 0.5 * np.diag(s2[n:])
     # aim slightly below the target: the certifier inflates gamma by 1e-6 and the solver's
     # optimum is accurate to ~1e-8, so a 1e-4 margin keeps the certified gamma <= target
     s = cp.Variable() if gamma_target is None else 1.0 / (2 * (gamma_target / (1 + TARGET_MARGIN)) ** 2)
     constraints = [
         (a_ce - s * w_ce + (a_ce - s * w_ce).T) / 2 >> 0,
-        k_xi - 0.5 - s >= 0,  # the xi block: K_xi - I/2 - s I >= 0
+        k_xi - 0.5 * s2[:n] - s * d_w[:n] ** 2 >= 0,  # the xi block: K_xi - S_xi^2/2 - s D_tau^2 >= 0
         k_xi >= bounds.k_xi[0], k_xi <= bounds.k_xi[1],
         k_c >= bounds.k_c[0], k_c <= bounds.k_c[1],
         cp.hstack([k_ep, k_er]) >= bounds.k_e[0], cp.hstack([k_ep, k_er]) <= bounds.k_e[1],
@@ -130,10 +134,12 @@ def synthesize(
     gamma_target: float | None = None,
     search_weights: bool = False,
     theta_max: float = math.pi,
+    plant: PlantWeights | None = None,
 ) -> Synthesis:
     """Gains within ``bounds`` minimising the certified gamma (or, with ``gamma_target``,
     the smallest gain norm reaching it), certified a posteriori over the rotations
-    ``|theta_ec| <= theta_max`` (the ``[certify]`` region)."""
+    ``|theta_ec| <= theta_max`` (the ``[certify]`` region), for the generalized plant ``plant``
+    (docs/math.md, fact 17; None: the paper's)."""
     candidates = [weights]
     if search_weights:
         scales = (0.25, 0.5, 1.0, 2.0, 4.0)
@@ -141,10 +147,10 @@ def synthesize(
         candidates = [Weights(*(base * np.array(c))) for c in itertools.product(scales, repeat=4)]
     best: Synthesis = Synthesis(None, None, "infeasible: no gains within the bounds certify", len(candidates))
     for w in candidates:
-        gains = _sdp(w, reference, n, bounds, gamma_target)
+        gains = _sdp(w, reference, n, bounds, gamma_target, plant)
         if gains is None:
             continue
-        point = GainPoint(*gains, w)
+        point = GainPoint(*gains, w, plant)
         cert = certify(point, reference, theta_max=theta_max, gamma_bound=gamma_target)
         if not cert.certified:
             continue
@@ -194,6 +200,7 @@ def synthesize_speed(
     theta_bar: float,
     *,
     theta_max: float = math.pi,
+    plant: PlantWeights | None = None,
 ) -> Synthesis:
     """Gains within ``bounds`` maximising the certified target speed of the envelope at
     ``theta_bar`` (radians; MATH facts 7-8): ``max over s of s kappa*(s)``, ``kappa*(s)`` the
@@ -204,7 +211,8 @@ def synthesize_speed(
     ``[s_top/2, s_top]`` (the tangent argument of :func:`dvfc.analysis.envelope.best_s`), ``s_top``
     the largest ``s`` with a positive rate: that of the upper gains, since ``N^T K N`` grows
     with every gain. The result carries the ordinary Theorem 2 certificate over
-    ``|theta_ec| <= theta_max``; its envelope is computed by the ordinary route by the caller."""
+    ``|theta_ec| <= theta_max`` for ``plant`` (the envelope itself does not depend on the
+    generalized plant's weights); its envelope is computed by the ordinary route by the caller."""
     upper = GainPoint(np.broadcast_to(bounds.k_xi[1], n), np.full(6, bounds.k_c[1]), np.full(6, bounds.k_e[1]), weights)
     top = s_limit(design_of(upper, reference, mass))
     failed = Synthesis(None, None, "infeasible: no gains within the bounds give a positive decay rate")
@@ -220,7 +228,7 @@ def synthesize_speed(
     best = float(golden_max(lambda x: np.array([value(float(v)) for v in x]), np.array([top]), GOLDEN_STEPS)[0])
     if value(best) <= 0:  # also leaves the solver's variables at the chosen s
         return failed
-    point = GainPoint(*_clipped(bounds, k_xi, k_c, k_ep, k_er), weights)
+    point = GainPoint(*_clipped(bounds, k_xi, k_c, k_ep, k_er), weights, plant)
     cert = certify(point, reference, theta_max=theta_max)
     return Synthesis(point, cert, "ok")
 
@@ -234,16 +242,17 @@ def designer(
     gamma_target: float | None = None,
     search_weights: bool = False,
     speed: tuple[MassBounds, float] | None = None,
+    plant: PlantWeights | None = None,
 ) -> Callable[[Bounds], Synthesis]:
     """The synthesis as a function of the gain box: :func:`synthesize` then :func:`rounded`, or
     with ``speed = (mass, theta_bar)`` :func:`synthesize_speed`; certified over
-    ``|theta_ec| <= theta_max``."""
+    ``|theta_ec| <= theta_max`` for the generalized plant ``plant``."""
 
     def design(bounds: Bounds) -> Synthesis:
         if speed is not None:
-            return synthesize_speed(weights, reference, n, bounds, *speed, theta_max=theta_max)
+            return synthesize_speed(weights, reference, n, bounds, *speed, theta_max=theta_max, plant=plant)
         result = synthesize(weights, reference, n, bounds, gamma_target=gamma_target, search_weights=search_weights,
-                            theta_max=theta_max)  # fmt: skip
+                            theta_max=theta_max, plant=plant)  # fmt: skip
         return rounded(result, reference, bounds, gamma_target=gamma_target, theta_max=theta_max)
 
     return design
@@ -268,7 +277,7 @@ def rounded(
         gains = [_round(v, digits) for v in (p.k_xi, p.k_c, p.k_e)]
         inside = all(np.all((g >= lo) & (g <= hi)) for g, (lo, hi) in zip(gains, (bounds.k_xi, bounds.k_c, bounds.k_e),
                                                                           strict=True))  # fmt: skip
-        point = GainPoint(*gains, p.weights)
+        point = GainPoint(*gains, p.weights, p.plant)
         cert = certify(point, reference, theta_max=theta_max, gamma_bound=gamma_target)
         if inside and cert.certified and cert.gamma <= limit:
             return replace(result, point=point, certificate=cert)

@@ -20,7 +20,7 @@ import numpy as np
 
 from dvfc.analysis.adversary import worst_disturbance
 from dvfc.analysis.envelope import DisturbanceBounds, level_bounds
-from dvfc.analysis.linearize import linearize, sharpest_from_rest
+from dvfc.analysis.linearize import linearize, sharpest_from_rest, weight_diagonals
 from dvfc.analysis.quiet import silenced
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, rotation_angle
@@ -317,7 +317,8 @@ def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float
                                float("nan"), "a run from the equilibrium", None, f"not run: {exc}",
                                inconclusive=True)]  # fmt: skip
     _, rest, converged = sharpest_from_rest(loop, lin, FROM_REST_HORIZON)
-    return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged)]
+    weights = None if loop.performance is None else weight_diagonals(loop)
+    return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged, weights=weights)]
 
 
 FROM_REST_HORIZON = 20.0
@@ -328,21 +329,28 @@ ATTAINED = 0.95
 """Fraction of the lower bound the run from rest must attain for its (45) check to bite."""
 
 
-def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, converged: bool = True) -> list[Claim]:
+def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, converged: bool = True,
+                     weights: tuple[np.ndarray, np.ndarray] | None = None) -> list[Claim]:
     """Theorem 2 where it constrains gamma: from ``x(0) = 0`` (``V(0) = 0``) under the worst
     disturbance of the linearisation, (45) reads ``int |x|^2 <= gamma^2 int |w|^2`` at every time,
     so the measured gain ``sqrt(int |x|^2 / int |w|^2)`` must not exceed gamma, and (44) holds
     pointwise. The run must also attain ``ATTAINED`` of the lower bound ``gamma_lower`` (the
     linearisation's H-infinity norm): a gamma under-reported by more than 5% then fails (45).
     ``converged``: whether the run's gain had converged in its horizon
-    (:func:`dvfc.analysis.linearize.sharpest_from_rest`), said when it falls short."""
+    (:func:`dvfc.analysis.linearize.sharpest_from_rest`), said when it falls short. ``weights``:
+    the diagonals of ``S`` and ``D_w`` of the generalized plant (docs/math.md, fact 17): the claims
+    then read ``z = S x`` for ``x`` and ``d = D_w^-1 w`` for ``w`` (None: the paper's, unit)."""
     x, w = _error_state(traj), traj["w"]
+    if weights is not None:
+        x, w = x * weights[0], w / weights[1]
     lhs44 = traj["Vdot"][:, 0] + 0.5 * (x * x).sum(1) - 0.5 * gamma**2 * (w * w).sum(1)
-    x2, w2 = traj.integrals["x_squared"], traj.integrals["w_squared"]
+    x2, w2 = traj.integrals["z_squared"], traj.integrals["d_squared"]
+    x_, w_ = ("x", "w") if weights is None else ("z", "d")
     slack45 = gamma**2 * w2 + 2 * traj["V"][0, 0] - x2
     tol = 1e-9 * gamma**2 * float((w * w).sum(1).max())  # round-off of (44) relative to its terms
     ratio = float(np.sqrt(x2[-1] / w2[-1]))
-    run = f"from x(0) = 0 under the linearisation's worst disturbance, {traj.t[-1]:g} s"
+    run = f"from x(0) = 0 under the linearisation's worst disturbance, {traj.t[-1]:g} s" + (
+        "" if weights is None else ", z = S x and d = D_w^-1 w with the [performance] weights")
     name = f"the measured gain attains {ATTAINED:g} of the lower bound (the (45) check bites)"
     bound, share = f">= {ATTAINED:g}", ratio / gamma_lower
     lower = f"H-infinity norm of the linearisation {gamma_lower:.6g}"
@@ -355,12 +363,12 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, conv
                    inconclusive=True)
     )  # fmt: skip
     return [
-        on_run("dV/dt + |x|^2/2 - gamma^2 |w|^2/2 <= 0 pointwise", "Theorem 2, (44)", traj, float(lhs44.max()),
-               f"<= {tol:.1e}", bool(lhs44.max() <= tol), f"gamma = {gamma:.6g}, {run}"),
-        on_run("int |x|^2 <= gamma^2 int |w|^2 + 2 V(0) at every time", "Theorem 2, (45)", traj, float(slack45.min()),
-               "slack >= 0", bool(slack45.min() >= 0), f"V(0) = {traj['V'][0, 0]:.2g}, {run}"),
-        on_run("measured gain sqrt(int |x|^2 / int |w|^2) <= gamma", "Theorem 2", traj, ratio, f"<= {gamma:.6g}",
-               ratio <= gamma, run),
+        on_run(f"dV/dt + |{x_}|^2/2 - gamma^2 |{w_}|^2/2 <= 0 pointwise", "Theorem 2, (44)", traj,
+               float(lhs44.max()), f"<= {tol:.1e}", bool(lhs44.max() <= tol), f"gamma = {gamma:.6g}, {run}"),
+        on_run(f"int |{x_}|^2 <= gamma^2 int |{w_}|^2 + 2 V(0) at every time", "Theorem 2, (45)", traj,
+               float(slack45.min()), "slack >= 0", bool(slack45.min() >= 0), f"V(0) = {traj['V'][0, 0]:.2g}, {run}"),
+        on_run(f"measured gain sqrt(int |{x_}|^2 / int |{w_}|^2) <= gamma", "Theorem 2", traj, ratio,
+               f"<= {gamma:.6g}", ratio <= gamma, run),
         attained,
     ]  # fmt: skip
 

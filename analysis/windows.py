@@ -1,9 +1,11 @@
 """The window each joint's gain ``k_xi,i`` must lie in (docs/math.md, "Gain windows").
 
 Below, the certificate's requirement on the ``xi`` block of the ideal continuous loop:
-Theorem 2's L2 certificate at ``gamma`` needs ``K_xi - I/2 - s I >= 0`` with
-``s = 1/(2 gamma^2)``; the window asks ``k_xi,i > 1/2 + 1/(2 gamma^2)`` at the scenario's
-required gamma (``[certify] gamma``), ``k_xi,i > 1/2`` for any finite gamma; the envelope's rate needs
+Theorem 2's L2 certificate at ``gamma`` needs ``K_xi - S_xi^2/2 - s D_tau^2 >= 0`` with
+``s = 1/(2 gamma^2)`` and the generalized plant's weights (docs/math.md, fact 17); the window asks
+``k_xi,i > S_xi,i^2/2 + D_tau,i^2/(2 gamma^2)`` at the scenario's required gamma (``[certify] gamma``),
+``k_xi,i > S_xi,i^2/2`` for any finite gamma (``1/2 + 1/(2 gamma^2)`` and ``1/2`` at unit weights,
+the paper's); the envelope's rate needs
 ``k_xi,i > s`` for its own ``s``, which it meets by choosing ``s < min_i k_xi,i``.
 
 Above, the hold limit of the sampled loop at the control rate: the torque ``-K_xi xi`` held
@@ -26,6 +28,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dvfc.models.loop import PlantWeights
+
 if TYPE_CHECKING:
     from dvfc.analysis.case import Case
 
@@ -37,10 +41,12 @@ BISECTION_STEPS = 60
 """Bisection steps on each gain between 0 and its diagonal limit (to ``2^-60`` of it)."""
 
 
-def certificate_lower(gamma: float | None) -> float:
-    """The bound ``k_xi,i`` must exceed for the ``xi`` block of Theorem 2's certificate:
-    ``1/2 + 1/(2 gamma^2)`` at a required ``gamma``; ``1/2`` for any finite gamma."""
-    return 0.5 if gamma is None else 0.5 + 1.0 / (2.0 * gamma**2)
+def certificate_lower(gamma: float | None, plant: PlantWeights) -> np.ndarray:
+    """Per joint, the bound ``k_xi,i`` must exceed for the ``xi`` block of Theorem 2's certificate:
+    ``S_xi,i^2/2 + D_tau,i^2/(2 gamma^2)`` at a required ``gamma``; ``S_xi,i^2/2`` for any finite gamma."""
+    n = len(plant.xi)
+    s2, d2 = plant.output()[:n] ** 2, plant.disturbance()[:n] ** 2
+    return 0.5 * s2 if gamma is None else 0.5 * s2 + d2 / (2.0 * gamma**2)
 
 
 def held_eigenvalues(m_inv: np.ndarray, k_xi: np.ndarray, h: float) -> np.ndarray:
@@ -86,7 +92,7 @@ class GainWindows:
     ``map_radius``: the spectral radius of ``I - h M(q0)^-1 K_xi`` (None without a hold)."""
 
     k_xi: np.ndarray
-    lower: float
+    lower: np.ndarray
     gamma: float | None
     upper: np.ndarray | None
     alone: np.ndarray | None
@@ -113,11 +119,11 @@ class GainWindows:
     def breaks(self) -> list[str]:
         """Each gain outside its window, with the limit it breaks, in words; and the gains
         together when they break the hold limit with no single joint's gain above its own."""
-        requirement = f"the L2 certificate's {self.lower:.4g}" + (f" (gamma = {self.gamma:g})" if self.gamma else "")
+        at = f" (gamma = {self.gamma:g})" if self.gamma else ""
         found = []
         for i, k in enumerate(self.k_xi):
             if self.below[i]:
-                found.append(f"joint {i + 1} k_xi = {k:.4g} not above {requirement}")
+                found.append(f"joint {i + 1} k_xi = {k:.4g} not above the L2 certificate's {self.lower[i]:.4g}{at}")
             if self.above[i]:
                 found.append(f"joint {i + 1} k_xi = {k:.4g} above its hold limit {self.upper[i]:.4g}")
         if self.hold_broken and not self.above.any():
@@ -139,14 +145,15 @@ class GainWindows:
     def as_dict(self) -> dict:
         """JSON-ready: per joint ``[lower, upper]`` (upper None without a hold) and what each limit is."""
         upper = [None] * len(self.k_xi) if self.upper is None else self.upper.tolist()
-        block = "ideal continuous loop, Theorem 2's xi block: k_xi > 1/2"
+        block = "ideal continuous loop, Theorem 2's xi block: k_xi > S_xi^2/2"
         return {
             "k_xi": [float(k) for k in self.k_xi],
-            "windows": [[self.lower, u] for u in upper],
+            "windows": [[float(low), u] for low, u in zip(self.lower, upper, strict=True)],
             "inside": (~(self.below | self.above)).tolist(),
             "hold_broken": self.hold_broken,
             "upper_alone": None if self.alone is None else self.alone.tolist(),
-            "lower": f"{block} + 1/(2 gamma^2) at gamma = {self.gamma:g}" if self.gamma else f"{block}, any gamma",
+            "lower": f"{block} + D_tau^2/(2 gamma^2) at gamma = {self.gamma:g}" if self.gamma
+            else f"{block}, any gamma",
             "envelope": "k_xi > s, met by the envelope's choice of s below min k_xi",
             "upper": None if self.upper is None else (
                 f"sampled loop, local at q0: the torque -K_xi xi held over h = 1/{self.control_rate:g} s on "
@@ -158,17 +165,20 @@ class GainWindows:
         }  # fmt: skip
 
 
-def gain_windows(mass: np.ndarray, k_xi: np.ndarray, control_rate: float | None, gamma: float | None) -> GainWindows:
+def gain_windows(mass: np.ndarray, k_xi: np.ndarray, control_rate: float | None, gamma: float | None,
+                 plant: PlantWeights | None = None) -> GainWindows:
     """The windows of ``k_xi`` for the inertia ``mass = M(q0)``, the control rate (None: the
-    ideal continuous loop) and the required gamma (None: any finite gamma)."""
+    ideal continuous loop), the required gamma (None: any finite gamma) and the generalized
+    plant's weights (None: the paper's)."""  # fmt: skip
     k_xi = np.asarray(k_xi, dtype=float)
+    lower = certificate_lower(gamma, plant if plant is not None else PlantWeights.unit(len(k_xi)))
     if control_rate is None:
-        return GainWindows(k_xi, certificate_lower(gamma), gamma, None, None, None, None, None)
+        return GainWindows(k_xi, lower, gamma, None, None, None, None, None)
     h = 1.0 / control_rate
     m_inv = np.linalg.inv(mass)
     m_inv = (m_inv + m_inv.T) / 2
     eigenvalues = held_eigenvalues(m_inv, k_xi, h)
-    return GainWindows(k_xi, certificate_lower(gamma), gamma, *hold_limits(m_inv, k_xi, h), control_rate,
+    return GainWindows(k_xi, lower, gamma, *hold_limits(m_inv, k_xi, h), control_rate,
                        float(eigenvalues[-1]), float(np.abs(1.0 - eigenvalues).max()))  # fmt: skip
 
 
@@ -180,4 +190,4 @@ def case_windows(case: Case) -> GainWindows | None:
     robot, imp = case.loop.robot, case.settings.implementation
     mass = np.asarray(robot.function("M", robot.mass_matrix)(case.s0[: robot.n], 0))
     rate = None if imp is None else imp.control_rate
-    return gain_windows(mass, case.point.k_xi, rate, case.scenario.certify.gamma)
+    return gain_windows(mass, case.point.k_xi, rate, case.scenario.certify.gamma, case.point.plant)

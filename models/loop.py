@@ -36,9 +36,48 @@ from dvfc.models.target import TargetMotion
 
 Mode = Literal["ideal", "image"]
 
-QUADRATURES = ("supply_u_nu", "supply_x_G_w", "dissipation_nu_K_nu", "x_squared", "w_squared", "unmodelled_supply")
+QUADRATURES = ("supply_u_nu", "supply_x_G_w", "dissipation_nu_K_nu", "z_squared", "d_squared", "unmodelled_supply")
 """Integrals accumulated by the integrator: ``u^T nu``, ``x^T G w``, ``nu^T K nu``,
-``|x|^2``, ``|w|^2`` and ``xi^T delta`` (:attr:`ClosedLoop.unmodelled_torque`)."""
+``|z|^2 = |S x|^2``, ``|d|^2 = |D_w^-1 w|^2`` (the generalized plant's performance output and
+disturbance, :class:`PlantWeights`; ``|x|^2`` and ``|w|^2`` at unit weights) and ``xi^T delta``
+(:attr:`ClosedLoop.unmodelled_torque`)."""
+
+
+@dataclass(frozen=True)
+class PlantWeights:
+    """Weights of the generalized plant (docs/math.md, fact 17): the performance output
+    ``z = S x`` with ``S = diag(S_xi, s_c I, s_e I)`` and the disturbance ``w = D_w d`` with
+    ``D_w = diag(D_tau, d_t I3, d_r I3)`` (``d_t I2`` for the planar loop's target velocity).
+    Theorem 2 then bounds the gain from ``d`` to ``z``, with
+    ``P = N^T K N - G D_w^2 G^T / (2 gamma^2) - S^2 / 2``; unit weights are the paper's ``P``.
+
+    ``xi`` and ``tau_d`` have one entry per joint; every weight is positive."""
+
+    xi: tuple[float, ...]
+    tau_d: tuple[float, ...]
+    e_c: float = 1.0
+    e_e: float = 1.0
+    translation: float = 1.0
+    rotation: float = 1.0
+
+    @classmethod
+    def unit(cls, n: int) -> PlantWeights:
+        """The paper's generalized plant (every weight 1) for ``n`` joints."""
+        return cls((1.0,) * n, (1.0,) * n)
+
+    @property
+    def is_unit(self) -> bool:
+        return self == PlantWeights.unit(len(self.xi))
+
+    def output(self, task: int = 6) -> np.ndarray:
+        """The diagonal of ``S`` (``n + 2 task`` entries)."""
+        return np.concatenate([self.xi, np.full(task, self.e_c), np.full(task, self.e_e)]).astype(float)
+
+    def disturbance(self, task: int = 6) -> np.ndarray:
+        """The diagonal of ``D_w`` (``n + task`` entries): the target's translational velocity, then
+        (the paper's loop) its rotational velocity."""
+        target = [self.translation] * 3 + [self.rotation] * 3 if task == 6 else [self.translation] * task
+        return np.concatenate([self.tau_d, target]).astype(float)
 
 
 @dataclass(frozen=True)
@@ -115,10 +154,16 @@ def disturbance_matrix(weights: Weights, r_ee: Matrix, n: int) -> Matrix:
     )
 
 
-def disturbance_weight(weights: Weights, n: int) -> Matrix:
-    """``W = diag(I_n, 0_6, W_e^2)`` of Theorem 2."""
+def disturbance_weight(weights: Weights, n: int, plant: PlantWeights | None = None) -> Matrix:
+    """``W = G D_w^2 G^T = diag(D_tau^2, 0_6, W_e^2 D_v^2)`` of Theorem 2 (``diag(I_n, 0_6, W_e^2)``
+    at unit weights): ``Ad_{R_ee}`` is block-diagonal in rotations and commutes with the
+    block-isotropic ``W_e D_v``, so ``W`` is the same for every ``R_ee`` (docs/math.md, fact 17)."""
     w_e = weights.estimation
-    return cs.diagcat(cs.DM.eye(n), cs.DM.zeros(6, 6), w_e @ w_e)
+    if plant is None:
+        return cs.diagcat(cs.DM.eye(n), cs.DM.zeros(6, 6), w_e @ w_e)
+    d = cs.DM(plant.disturbance())
+    d_v = cs.diag(d[n:])
+    return cs.diagcat(cs.diag(d[:n] ** 2), cs.DM.zeros(6, 6), w_e @ d_v @ d_v @ w_e)
 
 
 def pseudo_inverse(j: Matrix) -> Matrix:
@@ -196,6 +241,9 @@ class ClosedLoop:
         A planned reference ``g_d(t)`` ending at ``reference`` (docs/math.md, fact 16): the law uses
         ``g_d(t)`` everywhere and adds the feedforward ``-Ad_(g_d) V_d`` to the camera-velocity
         command; None: the paper's constant ``g_d``.
+    performance
+        The generalized plant's weights (:class:`PlantWeights`) the quadratures ``|z|^2`` and
+        ``|d|^2`` use; None: the paper's (unit).
     ramp
         Seconds of the ramp ``u_d = -sigma(t) K_c nu_c`` (docs/math.md, fact 16a; :attr:`ramp_level`);
         None: no ramp.
@@ -237,6 +285,7 @@ class ClosedLoop:
     parameters: cs.SX | None = None
     plan: ReferencePlan | None = None
     ramp: float | None = None
+    performance: PlantWeights | None = None
 
     task_dim = 6
     """Entries of ``e_c``, ``e_e``, ``u_d`` and ``u_e``."""
@@ -423,6 +472,20 @@ class ClosedLoop:
         return cs.vertcat(u_xi, u_d, u_e)
 
     @cached_property
+    def z(self) -> Matrix:
+        """The performance output ``z = S x`` of the generalized plant (:class:`PlantWeights`)."""
+        if self.performance is None:
+            return self.x
+        return cs.DM(self.performance.output(self.task_dim)) * self.x
+
+    @cached_property
+    def d(self) -> Matrix:
+        """The normalised disturbance ``d = D_w^-1 w`` of the generalized plant."""
+        if self.performance is None:
+            return self.w
+        return self.w / cs.DM(self.performance.disturbance(self.task_dim))
+
+    @cached_property
     def tau_d(self) -> Matrix:
         return torque(self.disturbances, self.t, self.robot.n)
 
@@ -512,8 +575,8 @@ class ClosedLoop:
             self.u.T @ nu,
             x.T @ self.disturbance_matrix @ w,
             nu.T @ k @ nu,
-            x.T @ x,
-            w.T @ w,
+            self.z.T @ self.z,
+            self.d.T @ self.d,
             self.xi.T @ self.unmodelled_torque,
         )
 

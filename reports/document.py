@@ -39,6 +39,7 @@ from dvfc.analysis.pose import xyz_rpy
 from dvfc.analysis.results import (
     best_gamma,
     certificate_result,
+    channels_text,
     grid_envelope_for,
     implementation_record,
     statements,
@@ -309,6 +310,7 @@ def render(data: ReportData) -> str:
         verdict=verdict(data.certificate, data.verification),
         statements=statements(data.certificate, data.verification, data.margins, data.dispersion),
         best_gamma=best_gamma(point),
+        channels=channels_text(point, spec.loop == "planar"),
         target_start=xyz_rpy(np.asarray(data.loop.target.start.as_matrix())),
         envelope=point.get("envelope"),
         envelope_claims=[c for c in data.verification["claims"] if c["paper"] in ("fact 7", "fact 8")],

@@ -210,8 +210,8 @@ def supply(traj: Trajectory) -> str:
 def l2_inequality(traj: Trajectory, gamma: float) -> str:
     """Both sides of (45) over time: ``int |x|^2`` and ``gamma^2 int |w|^2 + 2 V(0)``."""
     fig, ax = plt.subplots(figsize=(6.0, 3.4))
-    left = traj.integrals["x_squared"]
-    right = gamma**2 * traj.integrals["w_squared"] + 2 * traj["V"][0, 0]
+    left = traj.integrals["z_squared"]
+    right = gamma**2 * traj.integrals["d_squared"] + 2 * traj["V"][0, 0]
     ax.semilogy(traj.t[1:], left[1:], color=BOUNDED, label="int_0^t |x|^2 dt")
     ax.semilogy(traj.t, right, color=BOUND, ls="--", label=f"gamma^2 int_0^t |w|^2 dt + 2 V(0), gamma = {gamma:.4g}")
     ax.set_xlabel("time [s]")

@@ -11,7 +11,10 @@ is found by a different route (bisection on the smallest eigenvalue of the whole
 - (39): ``dV/dt = u^T nu + x^T G w``, ``G = [[I, 0], [0, 0], [0, W_e diag(R_ee, R_ee)]]``, so
   ``W = G G^T = diag(I, 0, W_e^2)`` (Theorem 2).
 - Theorem 2: ``P(gamma) = N^T K N - W / (2 gamma^2) - I/2``.
-- docs/math.md, fact 4: ``[[alpha N^T K N - I/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]] >= 0``.
+- docs/math.md, fact 17 (the generalized plant ``z = S x``, ``w = D_w d``): ``P = N^T K N -
+  G D_w^2 G^T / (2 gamma^2) - S^2/2``, with ``G`` built literally at a rotation ``R_ee``.
+- docs/math.md, fact 4: ``[[alpha N^T K N - I/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]] >= 0``
+  (``S^2/2`` and ``G D_w`` with weights).
 - (P9)-(P11): the planar loop's ``N = [[I, 0, 0], [0, -w_c I2, 0], [0, w_c I2, -w_e I2]]``.
 
 Smallest gamma. With ``A = N^T K N - I/2`` and ``s = 1/(2 gamma^2)``, ``f(s) = lambda_min(A - s W)``
@@ -141,12 +144,17 @@ def gamma_of_s(s: np.ndarray) -> np.ndarray:
 
 class Design:
     """One design of the paper's loop, in plain arrays: gains ``k_xi`` (n), ``k_c``, ``k_e`` (6),
-    weights ``w = (w_pc, w_rc, w_pe, w_re)``, desired pose ``g_d = (p_d, R_d)``."""
+    weights ``w = (w_pc, w_rc, w_pe, w_re)``, desired pose ``g_d = (p_d, R_d)``, and the
+    generalized plant's diagonals ``s`` of ``S`` (n + 12) and ``dw`` of ``D_w`` (n + 6), ones by
+    default; ``r_ee`` the rotation ``G`` is built at (``W`` must not depend on it)."""
 
-    def __init__(self, k_xi, k_c, k_e, w, p_d, r_d) -> None:
+    def __init__(self, k_xi, k_c, k_e, w, p_d, r_d, s=None, dw=None, r_ee=None) -> None:
         self.k_xi, self.k_c, self.k_e = (np.asarray(v, dtype=float) for v in (k_xi, k_c, k_e))
         self.w, self.p_d, self.r_d = np.asarray(w, dtype=float), np.asarray(p_d, float), np.asarray(r_d, float)
         self.n = len(self.k_xi)
+        self.s = np.ones(self.n + 12) if s is None else np.asarray(s, dtype=float)
+        self.dw = np.ones(self.n + 6) if dw is None else np.asarray(dw, dtype=float)
+        self.r_ee = np.eye(3) if r_ee is None else np.asarray(r_ee, dtype=float)
 
     @property
     def k(self) -> np.ndarray:
@@ -155,15 +163,22 @@ class Design:
     def blockwise_minimum(self) -> Design:
         """The design with ``K_e`` replaced by its blockwise minima (docs/math.md, fact 5)."""
         k_e = np.repeat([self.k_e[:3].min(), self.k_e[3:].min()], 3)
-        return Design(self.k_xi, self.k_c, k_e, self.w, self.p_d, self.r_d)
+        return Design(self.k_xi, self.k_c, k_e, self.w, self.p_d, self.r_d, self.s, self.dw, self.r_ee)
 
     def a(self, r_ec: np.ndarray) -> np.ndarray:
-        """``A = N^T K N - I/2`` at ``R_ec`` (batched)."""
-        return nkn(output_matrix(self.w, self.p_d, self.r_d, r_ec, self.n), self.k) - 0.5 * np.eye(self.n + 12)
+        """``A = N^T K N - S^2/2`` at ``R_ec`` (batched)."""
+        return nkn(output_matrix(self.w, self.p_d, self.r_d, r_ec, self.n), self.k) - 0.5 * np.diag(self.s**2)
+
+    @property
+    def weighted_g(self) -> np.ndarray:
+        """``G D_w`` at ``R_ee``."""
+        return disturbance_matrix(self.w, self.r_ee, self.n) * self.dw
 
     @property
     def weight(self) -> np.ndarray:
-        return disturbance_weight(self.w, self.n)
+        """``W = G D_w^2 G^T`` at ``R_ee`` (``diag(I, 0, W_e^2)`` at unit weights)."""
+        g = self.weighted_g
+        return g @ g.T
 
     def p_min(self, gamma: float, r_ec: np.ndarray) -> np.ndarray:
         """``lambda_min(P(gamma))`` at ``R_ec`` (batched)."""
@@ -176,32 +191,35 @@ class Design:
     def tight_lmi(self, alpha: float, gamma: float, r_ec: np.ndarray, r_ee: np.ndarray) -> np.ndarray:
         """The fact-4 LMI of the storage ``alpha V`` at ``(R_ec, R_ee)``."""
         a = nkn(output_matrix(self.w, self.p_d, self.r_d, r_ec, self.n), self.k)
-        g = disturbance_matrix(self.w, r_ee, self.n)
-        return tight_lmi(a, g, alpha, gamma)
+        g = disturbance_matrix(self.w, r_ee, self.n) * self.dw
+        return tight_lmi(a, g, alpha, gamma, self.s**2)
 
     def tight_gamma(self, r_ec: np.ndarray) -> tuple[float, float]:
         """Smallest fact-4 gamma over ``alpha > 0`` at ``R_ec`` (``R_ee`` drops out of ``G G^T``)."""
         a = nkn(output_matrix(self.w, self.p_d, self.r_d, r_ec, self.n), self.k)
-        return smallest_tight_gamma(a, self.weight)
+        return smallest_tight_gamma(a, self.weight, self.s**2)
 
 
-def tight_lmi(a: np.ndarray, g: np.ndarray, alpha: float, gamma: float) -> np.ndarray:
-    """``[[alpha A - I/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]]`` with ``A = N^T K N``."""
+def tight_lmi(a: np.ndarray, g: np.ndarray, alpha: float, gamma: float, s2: np.ndarray | None = None) -> np.ndarray:
+    """``[[alpha A - S^2/2, -(alpha/2) G], [-(alpha/2) G^T, (gamma^2/2) I]]`` with ``A = N^T K N``
+    (``S = I`` when ``s2``, the diagonal of ``S^2``, is None)."""
     m, k = g.shape
-    return np.block([[alpha * a - 0.5 * np.eye(m), -alpha / 2 * g], [-alpha / 2 * g.T, gamma**2 / 2 * np.eye(k)]])
+    half = 0.5 * (np.eye(m) if s2 is None else np.diag(s2))
+    return np.block([[alpha * a - half, -alpha / 2 * g], [-alpha / 2 * g.T, gamma**2 / 2 * np.eye(k)]])
 
 
-def smallest_tight_gamma(a: np.ndarray, w: np.ndarray) -> tuple[float, float]:
+def smallest_tight_gamma(a: np.ndarray, w: np.ndarray, s2: np.ndarray | None = None) -> tuple[float, float]:
     """``min over alpha`` of the fact-4 gamma, and its ``alpha``.
 
     By the Schur complement on the ``(gamma^2/2) I`` block, the LMI at ``alpha`` holds iff
-    ``alpha A - I/2 - alpha^2 W / (2 gamma^2) >= 0``: with ``s*(alpha)`` the largest ``s`` such
-    that ``alpha A - I/2 - s W >= 0`` (bisection), ``gamma(alpha)^2 = alpha^2 / (2 s*(alpha))``.
+    ``alpha A - S^2/2 - alpha^2 W / (2 gamma^2) >= 0``: with ``s*(alpha)`` the largest ``s`` such
+    that ``alpha A - S^2/2 - s W >= 0`` (bisection), ``gamma(alpha)^2 = alpha^2 / (2 s*(alpha))``.
     The LMI is jointly linear in ``(alpha, gamma^2)``, so ``gamma(alpha)^2`` is convex on the
     interval where it is finite: a dense log grid then golden-section search on it.
     """
-    lowest = 1.0 / (2.0 * np.linalg.eigvalsh(a)[0])  # alpha A - I/2 > 0 needs alpha > this
-    eye = np.eye(len(a))
+    eye = np.eye(len(a)) if s2 is None else np.diag(s2)
+    root = 1.0 / np.sqrt(np.diag(eye))
+    lowest = 1.0 / (2.0 * np.linalg.eigvalsh(root[:, None] * a * root[None, :])[0])  # alpha A - S^2/2 > 0 beyond
 
     def gamma2(alphas: np.ndarray) -> np.ndarray:
         s = largest_s(alphas[:, None, None] * a - 0.5 * eye, w)

@@ -111,7 +111,7 @@ def test_certificate_holds_at_gamma_and_not_below(rng):
 def test_k_xi_at_most_half_is_uncertified():
     point = GainPoint(np.array([20, 20, 0.5, 20, 20, 20.0]), np.full(6, 3.0), np.full(6, 10.0), Weights(4, 1, 4, 1))
     cert = certify(point, REFERENCE)
-    assert not cert.certified and cert.gamma is None and "k_xi <= 1/2" in cert.reason
+    assert not cert.certified and cert.gamma is None and "k_xi <= S_xi^2/2" in cert.reason
 
 
 def test_indefinite_control_error_block_is_uncertified():

@@ -296,7 +296,7 @@ def test_certify_default_scenario_json(tmp_path):
 @pytest.mark.slow
 def test_certify_uncertified_point_exits_1(tmp_path):
     result = runner.invoke(app, ["certify", str(write(tmp_path, setter("gains.k_xi", 0.5)))])
-    assert result.exit_code == 1 and "k_xi <= 1/2" in result.stdout
+    assert result.exit_code == 1 and "k_xi <= S_xi^2/2" in result.stdout
 
 
 @pytest.mark.slow

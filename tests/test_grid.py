@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from dvfc.analysis.certify import GainPoint, certify
 from dvfc.analysis.cli import app
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, axis_value, gain_map, read_points, run_sweep
 from dvfc.models.lie import SE3
-from dvfc.models.loop import Weights
+from dvfc.models.loop import PlantWeights, Weights
 
 from conftest import scenario_dict
 
@@ -181,6 +182,23 @@ def test_gain_map_cell_is_the_single_point_certificate():
             assert m.certified[row, col] == single.certified
             if single.certified:
                 assert m.gamma[row, col] == pytest.approx(single.gamma, rel=1e-12)
+
+
+def test_weighted_grid_cell_is_the_weighted_single_point_certificate():
+    """With generalized-plant weights (docs/math.md, fact 17) every grid cell is the single-point
+    certificate for the same weights, and its margin is ``lambda_min`` of that point's literal ``P``."""
+    plant = PlantWeights((0.5, 0.5, 0.9, 0.3, 0.3, 0.3), (0.4,) * 6, 1.5, 0.8, 0.6, 2.0)
+    design = replace(DESIGN, plant=plant)
+    k_c, k_xi = np.array([0.5, 3.0, 8.0]), np.array([0.3, 5.0, 20.0])
+    m = gain_map(design, REFERENCE, [("k_c", k_c), ("k_xi", k_xi)])
+    for row, kx in enumerate(k_xi):
+        for col, kc in enumerate(k_c):
+            point = GainPoint(np.full(6, kx), np.full(6, kc), DESIGN.k_e, DESIGN.weights, plant)
+            single = certify(point, REFERENCE, with_sdp=False)
+            assert m.certified[row, col] == single.certified
+            if single.certified:
+                assert m.gamma[row, col] == pytest.approx(single.gamma, rel=1e-12)
+    assert not m.certified[0].any() and m.certified.any()  # k_xi = 0.3 < S_xi^2/2 = 0.405 on joint 3
 
 
 def test_gain_map_best_is_the_smallest_certified_gamma():

@@ -33,7 +33,7 @@ from hypothesis import strategies as st
 from dvfc.analysis.certify import GainPoint, certify, certify_planar, tight_gamma, tight_gamma_planar
 from dvfc.analysis.grid import GridSpec, certify_batch
 from dvfc.models.lie import SE3
-from dvfc.models.loop import Weights
+from dvfc.models.loop import PlantWeights, Weights
 
 import reference as ref
 
@@ -142,6 +142,54 @@ def test_certificate_is_sound_complete_and_minimal(design, theta_max):
     value, tol = p_min(design, cert.gamma_worst_found * (1 - STEP), reported)
     assert value < -tol
     assert cert.gamma_worst_found >= (1 - SEARCH_SLACK) * found
+
+
+weights = st.floats(0.1, 3.0)
+
+
+@st.composite
+def weighted_designs(draw) -> tuple[ref.Design, PlantWeights]:
+    """A design of :func:`designs` with random generalized-plant weights (fact 17), the
+    reference's ``G`` built at a random ``R_ee``: the weights as the certifier takes them, and
+    the design with their full diagonals as the reference takes it."""
+    d = draw(designs())
+    n = d.n
+    xi, tau = (tuple(draw(st.lists(weights, min_size=n, max_size=n))) for _ in range(2))
+    plant = PlantWeights(xi, tau, *(draw(weights) for _ in range(4)))
+    r_ee = ref.rotation(np.array(draw(st.lists(st.floats(-2.0, 2.0), min_size=3, max_size=3))))
+    s = np.r_[xi, np.full(6, plant.e_c), np.full(6, plant.e_e)]
+    dw = np.r_[tau, np.full(3, plant.translation), np.full(3, plant.rotation)]
+    return ref.Design(d.k_xi, d.k_c, d.k_e, d.w, d.p_d, d.r_d, s, dw, r_ee), plant
+
+
+@budget(30)
+@given(weighted_designs())
+def test_weighted_certificate_is_sound_complete_and_minimal(drawn):
+    """Fact 17: with output weights ``S`` and disturbance weights ``D_w``, the certified gamma is the
+    reference's smallest gamma of ``N^T K N - G D_w^2 G^T/(2 gamma^2) - S^2/2 >= 0`` (bisection on
+    the whole literal ``P``, ``G`` at a random ``R_ee``): sound at it, failing at ``gamma (1 - 1e-5)``,
+    and uncertified exactly when the reference finds no gamma."""
+    design, plant = drawn
+    point = GainPoint(design.k_xi, design.k_c, design.k_e, Weights(*design.w), plant)
+    cert = certify(point, REFERENCE, with_sdp=False)
+    event("certified" if cert.certified else f"uncertified: {cert.reason.split(':')[0]}")
+    check_reference_agrees(design, cert.gamma, cert.certified)
+
+
+@budget(10)
+@given(weighted_designs())
+def test_weighted_tight_certificate_agrees_with_the_reference(drawn):
+    """Fact 4 with the generalized plant's weights: the scaled-storage gamma is the reference's
+    (convex search over ``alpha``), and the LMI holds at the reported ``(alpha, gamma)``."""
+    design, plant = drawn
+    point = GainPoint(design.k_xi, design.k_c, design.k_e, Weights(*design.w), plant)
+    tight = tight_gamma(point, REFERENCE)
+    bound = design if np.ptp(design.k_e[:3]) == 0 and np.ptp(design.k_e[3:]) == 0 else design.blockwise_minimum()
+    best, _ = bound.tight_gamma(I3)
+    assert tight.gamma is not None and math.isfinite(best)
+    assert tight.gamma * (1 - STEP) < best <= tight.gamma * (1 + AGREE)
+    lmi = bound.tight_lmi(tight.alpha, tight.gamma, I3, design.r_ee)
+    assert ref.lambda_min(lmi) >= -ref.round_off(lmi)
 
 
 @budget(12)

@@ -51,7 +51,7 @@ def test_run_from_rest_is_exact(worst):
 def test_measured_gain_is_at_most_every_certified_gamma(worst):
     """(45) with ``V(0) = 0`` at every time of the run: for the paper's gamma and for the
     fact-4 gamma with the storage ``alpha V`` (``2 alpha V(0) = 0`` too)."""
-    x2, w2 = worst["traj"].integrals["x_squared"], worst["traj"].integrals["w_squared"]
+    x2, w2 = worst["traj"].integrals["z_squared"], worst["traj"].integrals["d_squared"]
     for gamma in (worst["paper"].gamma, worst["tight"].gamma):
         assert np.all(x2 <= gamma**2 * w2)
     assert worst["ratio"] <= worst["tight"].gamma <= worst["paper"].gamma

@@ -75,7 +75,7 @@ def test_the_lower_limit_is_the_certificates_at_the_required_gamma(default_mass)
     low[0] = 0.9
     assert gain_windows(mass, low, None, None).warning() is None
     windows = gain_windows(mass, low, None, 1.0)
-    assert windows.lower == 1.0 and windows.upper is None
+    assert np.all(windows.lower == 1.0) and windows.upper is None
     assert "joint 1 k_xi = 0.9 not above the L2 certificate's 1 (gamma = 1)" in windows.warning()
 
 
@@ -156,6 +156,23 @@ def test_synthesis_defaults_to_the_windows_and_says_when_one_is_empty(tmp_path):
     wrong = write(tmp_path, lambda d: d.update(synthesize={"k_xi": [[1.0, 2.0]] * 5}))
     result = runner.invoke(app, ["synthesize", str(wrong), "--out", str(target)])
     assert result.exit_code == 2 and "synthesize.k_xi: 5 intervals for 6 joints" in result.stderr
+
+
+def test_a_light_wrist_weight_opens_the_window_and_synthesis_writes_a_certified_design(tmp_path):
+    """Fact 17 on the light wrist at 500 Hz: with wrist 3's output and torque weights 0.5
+    (``[performance]``), its certificate bound drops from 1/2 to ``0.5^2/2 = 0.125``, below its
+    hold limit, and ``synthesize`` writes a design certified for that plant, with fact 14
+    certifying the sampled loop and its run within the URDF limits (re-checked before writing)."""
+    light = [1.0] * 5 + [0.5]
+    path = write(tmp_path, lambda d: (light_wrist(d), d.update(performance={"output": {"xi": light},
+                                                                              "disturbance": {"tau_d": light}})))
+    target = tmp_path / "out" / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(path), "--out", str(target), "--json", "-"])
+    assert result.exit_code == 0 and target.exists(), result.output
+    record = json.loads(result.stdout)
+    lo6, hi6 = record["bounds"]["k_xi"][5]
+    assert lo6 == pytest.approx(0.125) and hi6 < 0.5
+    assert record["implemented"]["certified"] and record["point"]["weights_of_plant"]["output"]["xi"] == light
 
 
 @pytest.mark.slow

@@ -57,8 +57,36 @@ MUTATIONS = (
         "xi-block-dropped",
         "the xi block term dropped from the closed form (k_xi >= 1/2 + 1/(2 gamma^2))",
         "analysis/certify.py",
-        (("    s = np.minimum(s, k_xi_min - 0.5)\n", ""),),
+        (("    s = np.minimum(s, xi_limit)\n", ""),),
         ("tests/test_reference.py::test_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "xi-disturbance-weight-dropped",
+        "the xi block's limit without the torque weight D_tau (fact 17)",
+        "analysis/certify.py",
+        (("    return ((k_xi - 0.5 * s2) / d2).min(axis=1)\n", "    return (k_xi - 0.5 * s2).min(axis=1)\n"),),
+        ("tests/test_reference.py::test_weighted_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "target-velocity-weight-dropped",
+        "W on e_e without the target-velocity weights D_v (W_e in place of W_e D_v, fact 17)",
+        "analysis/certify.py",
+        (("    return w_e * point.disturbance_weights[n:]\n", "    return w_e\n"),),
+        ("tests/test_reference.py::test_weighted_certificate_is_sound_complete_and_minimal",),
+    ),
+    Mutation(
+        "output-weight-dropped-from-quadrature",
+        "the run's integral of |z|^2 taken unweighted (|x|^2 for |S x|^2, fact 17)",
+        "models/loop.py",
+        (("            self.z.T @ self.z,\n", "            self.x.T @ self.x,\n"),),
+        ("tests/test_generalized_plant.py::test_weighted_theorem_2_holds_from_rest_and_bites",),
+    ),
+    Mutation(
+        "linearisation-unweighted",
+        "the lower bound's linearisation left unweighted (w -> x for d -> z, fact 17)",
+        "analysis/linearize.py",
+        (("    b, c, d = b * d_w, s[:, None] * c, s[:, None] * d * d_w\n", "    b, c, d = b, c, d\n"),),
+        ("tests/test_generalized_plant.py::test_weighted_linearisation_is_below_the_weighted_gamma",),
     ),
     Mutation(
         "worst-rotation-search-off",
@@ -137,14 +165,14 @@ MUTATIONS = (
         "tight-anisotropic-at-identity",
         "the fact-4 certificate for anisotropic K_e evaluated at R = I with the true K_e (not sound for every R)",
         "analysis/certify.py",
-        (("    sound = point.with_k_e(sound_k_e(point.k_e))\n    return tight_gamma_of(", "    sound = point\n    return tight_gamma_of("),),  # noqa: E501
+        (("    sound = point.with_k_e(sound_k_e(point.k_e))\n    nkn_, g, s2 = _tight_blocks(", "    sound = point\n    nkn_, g, s2 = _tight_blocks("),),  # noqa: E501
         ("tests/test_reference.py::test_tight_certificate_is_sound_complete_and_minimal",),
     ),
     Mutation(
         "planar-certifier-weight",
         "the planar certificate (P11) weighs e_e by w_pc instead of w_pe",
         "analysis/certify.py",
-        (("        np.full((1, TASK), w.w_pe),\n", "        np.full((1, TASK), w.w_pc),\n"),),
+        (("else np.full(t, float(w.w_pe))\n", "else np.full(t, float(w.w_pc))\n"),),
         ("tests/test_reference.py::test_planar_certificates_are_sound_complete_and_minimal",),
     ),
     Mutation(
@@ -159,7 +187,7 @@ MUTATIONS = (
         "lower-bound-doubled-energy",
         "the worst-case search integrates 2 |x|^2 (its lower bound sqrt(2) too high)",
         "analysis/linearize.py",
-        (('"quad": model.x.T @ model.x}', '"quad": 2 * model.x.T @ model.x}'),),
+        (('"quad": model.z.T @ model.z}', '"quad": 2 * model.z.T @ model.z}'),),
         ("tests/test_theorem2.py",),
     ),
     Mutation(
