@@ -228,7 +228,8 @@ def build(
     )
     s0 = _initial_state(scenario, loop, q0, qd0)
     if scenario.start.reference == "planned":
-        loop = replace(loop, plan=ReferencePlan(_estimate(loop, s0), loop.reference, scenario.start.duration))
+        loop = replace(loop, plan=ReferencePlan(_estimate(loop, s0), loop.reference, scenario.start.duration,
+                                                _first_image(scenario)))
     loop = replace(loop, ramp=scenario.start.ramp)
     if check_view:
         _check_initial_view(loop, s0, scenario.simulation.sigma_min)
@@ -326,6 +327,16 @@ def _initial_state(scenario: Scenario, loop: ClosedLoop, q0: np.ndarray, qd0: np
             raise ScenarioError(f"start.observer: {exc}") from exc
     o = scenario.observer
     return loop.initial_state(q0, qd0, SE3.from_xyz_rpy(o.error_xyz, o.error_rpy))
+
+
+def _first_image(scenario: Scenario) -> float:
+    """Seconds the arm is held at rest before the planned reference starts: with ``[start] observer
+    = "image"`` and an ``[implementation]``, until the image captured at ``t = 0`` can have arrived
+    (its latency, plus the largest jitter); 0 otherwise (the image is taken as there at once)."""
+    imp = scenario.implementation
+    if scenario.start.observer != "image" or imp is None:
+        return 0.0
+    return (round(imp.latency * imp.control_rate) + imp.latency_jitter) / imp.control_rate
 
 
 def _estimate(loop: ClosedLoop, s0: np.ndarray) -> SE3:

@@ -79,6 +79,8 @@ PLANNED_ASSUMPTIONS = (
     "V(0) as computed from the scenario's start (the observer's error e_e(0) known or bounded by it)",
     "J_b nonsingular along the run (not implied by V <= c)",
     "K_c isotropic (the rate depends on g_d only through |p_d|)",
+    "with the observer from the image, the arm held at rest until that image arrives (g_d stays at the "
+    "plan's start meanwhile, a point of the same path)",
 )
 
 
@@ -122,7 +124,7 @@ def path_centres(plan: ReferencePlan, points: np.ndarray, tau: np.ndarray) -> np
 
 def path_progress(plan: ReferencePlan, t: np.ndarray) -> np.ndarray:
     """``tau(t)`` (numeric) of the quintic time law."""
-    return quintic(np.clip(np.asarray(t, dtype=float) / plan.duration, 0.0, 1.0))
+    return quintic(plan.fraction(t))
 
 
 def path_range(plan: ReferencePlan) -> tuple[float, float]:
@@ -174,7 +176,8 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
     ``V(t) <= level`` is certified for all ``t >= 0``. ``theta_bar`` runs up the 1-degree grid from
     the envelope's until ``max(V(0), c_inf,path)`` lies below its self-consistent level (``s``
     the best one at the scenario's ``g_d`` for that ``theta_bar``)."""
-    record = {**env.start, "method": "planned", "duration": plan.duration, "inside": False, "level": None,
+    record = {**env.start, "method": "planned", "duration": plan.duration, "hold": plan.hold, "inside": False,
+              "level": None,
               "visible": None, "assumptions": list(PLANNED_ASSUMPTIONS)}  # fmt: skip
     if env.rate is None:
         return {**record, "reason": "no rate certified at the scenario's reference"}

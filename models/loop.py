@@ -195,12 +195,21 @@ class ReferencePlan:
     estimate ``gbar(0)``) to ``goal`` (the scenario's ``g_d``) in ``duration`` seconds, by the
     decoupled interpolation ``p_d = p_0 + tau(t) dp``, ``R_d = R_0 exp(tau(t) omega)``
     (``dp = p_goal - p_0``, ``omega = log(R_0^T R_goal)``) with the quintic time law
-    ``tau = 10 u^3 - 15 u^4 + 6 u^5``, ``u = min(t / duration, 1)``: C^2, at rest at both ends,
-    and ``g_d = goal`` from ``duration`` on. ``start`` and ``goal`` are numeric."""
+    ``tau = 10 u^3 - 15 u^4 + 6 u^5``, ``u = min(max(t - hold, 0) / duration, 1)``: C^2, at rest at
+    both ends, and ``g_d = goal`` from ``hold + duration`` on. ``hold``: seconds ``g_d`` stays at
+    ``start`` first (the arm held until the first image arrives: the law then commands no motion,
+    ``e_c = 0`` and ``qd_d = 0``). ``start`` and ``goal`` are numeric."""
 
     start: SE3
     goal: SE3
     duration: float
+    hold: float = 0.0
+
+    def fraction(self, t: Matrix | np.ndarray) -> Matrix | np.ndarray:
+        """``u(t) = min(max(t - hold, 0) / duration, 1)``, for CasADi or NumPy ``t``."""
+        if isinstance(t, cs.SX | cs.MX | cs.DM):
+            return cs.fmin(cs.fmax((t - self.hold) / self.duration, 0), 1)
+        return np.clip((np.asarray(t, dtype=float) - self.hold) / self.duration, 0.0, 1.0)
 
     @cached_property
     def step(self) -> tuple[np.ndarray, np.ndarray]:
@@ -211,7 +220,7 @@ class ReferencePlan:
 
     def progress(self, t: Matrix) -> tuple[Matrix, Matrix]:
         """``(tau(t), dtau/dt)`` of the quintic time law."""
-        u = cs.fmin(cs.fmax(t / self.duration, 0), 1)
+        u = self.fraction(t)
         return quintic(u), 30 * u**2 * (1 - u) ** 2 / self.duration
 
     def pose(self, t: Matrix) -> SE3:

@@ -3,12 +3,15 @@ the observer from the first image, and the start statement checked on runs from 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import casadi as cs
 import numpy as np
 import pytest
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.results import envelope_record
+from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, load
 from dvfc.analysis.start import run_regions
 from dvfc.analysis.verify import envelope_claims
@@ -153,3 +156,17 @@ def test_observer_from_the_image_starts_at_the_true_pose():
     loop, s0, _ = build_loop(planned(2.0, "image"))
     error = cs.Function("e0", [loop.t, loop.state], [loop.e_e])(0.0, s0)
     assert np.abs(np.asarray(error)).max() < 1e-9
+
+
+def test_the_arm_is_held_until_the_first_image_arrives():
+    """With the observer from the image and a 20 ms latency (the default example as implemented),
+    the plan starts when the image captured at t = 0 arrives: until then ``g_d`` is the plan's
+    start, the law commands no motion and the joints stay at rest (gravity held exactly by the
+    model, the plant here); after it the arm moves."""
+    case = Case.load(DEFAULT_SCENARIO)
+    assert case.loop.plan.hold == pytest.approx(0.02)
+    settings = replace(case.settings, duration=0.1, dt=0.002, jit=False)
+    traj = as_implemented(case.loop, settings).run(case.s0)
+    qd = np.abs(traj["qd"])
+    held = traj.t < 0.02 - 1e-9
+    assert qd[held].max() < 1e-9 and qd[traj.t > 0.05].max() > 1e-6

@@ -82,6 +82,14 @@ MUTATIONS = (
         ("tests/test_generalized_plant.py::test_weighted_theorem_2_holds_from_rest_and_bites",),
     ),
     Mutation(
+        "plan-ignores-hold",
+        "the planned reference starts at t = 0, before the first image has arrived (fact 16b)",
+        "models/loop.py",
+        (("            return cs.fmin(cs.fmax((t - self.hold) / self.duration, 0), 1)\n",
+          "            return cs.fmin(cs.fmax(t / self.duration, 0), 1)\n"),),
+        ("tests/test_start.py::test_the_arm_is_held_until_the_first_image_arrives",),
+    ),
+    Mutation(
         "linearisation-unweighted",
         "the lower bound's linearisation left unweighted (w -> x for d -> z, fact 17)",
         "analysis/linearize.py",
