@@ -152,8 +152,13 @@ def dynamics_function(loop: ClosedLoop) -> cs.Function:
 def _singular_values(j: np.ndarray) -> np.ndarray:
     """Singular values of a batch ``(T, r, c)``, ascending, by SVD: accurate to about
     ``eps sigma_max`` (the square root of a Gram matrix's eigenvalues resolves only
-    ``sqrt(eps) sigma_max`` ~ 1e-8, which hides how singular a matrix is)."""
-    return np.linalg.svd(j, compute_uv=False)[:, ::-1]
+    ``sqrt(eps) sigma_max`` ~ 1e-8, which hides how singular a matrix is). NaN for a matrix with a
+    non-finite entry (a diverged run's last samples)."""
+    finite = np.isfinite(j).all(axis=(1, 2))
+    out = np.full((len(j), min(j.shape[1:])), np.nan)
+    if finite.any():
+        out[finite] = np.linalg.svd(j[finite], compute_uv=False)[:, ::-1]
+    return out
 
 
 def conditioning_of(flat: np.ndarray, shapes) -> tuple[np.ndarray, np.ndarray]:

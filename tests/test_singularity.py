@@ -13,7 +13,7 @@ import tomli_w
 from dvfc.analysis.case import Case
 from dvfc.analysis.results import verification_result
 from dvfc.analysis.scenario import ScenarioError, build, load
-from dvfc.analysis.simulate import Simulator
+from dvfc.analysis.simulate import Simulator, conditioning_of
 
 from conftest import build_loop
 
@@ -72,3 +72,14 @@ def test_singular_start_is_bad_input(tmp_path):
     spec, base = load(planar(tmp_path, robot={"q0": [0.3, 0.0]}, target={"xyz": [0.67, 0.21, -0.45]}))  # in view
     with pytest.raises(ScenarioError, match=r"^robot.q0: J_p is near-singular at q0 \(sigma_min = "):
         build(spec, base)
+
+
+def test_conditioning_of_a_diverged_sample_is_nan_not_a_crash():
+    """A diverged run's last samples can hold infinite Jacobians: their conditioning is NaN and the
+    finite samples keep their singular values (to the SVD's round-off, a few eps)."""
+    arm, image = np.diag([3.0, 2.0]), np.diag([4.0, 1.0, 2.0])[:, :2]
+    row = np.concatenate([arm.ravel(order="F"), image.ravel(order="F")])
+    flat = np.stack([row, np.full_like(row, np.inf)])
+    sigma, cond = conditioning_of(flat, ((2, 2), (3, 2)))
+    assert sigma[0] == pytest.approx(2.0, rel=1e-14) and cond[0] == pytest.approx(4.0, rel=1e-14)
+    assert np.isnan(sigma[1]) and np.isnan(cond[1])
