@@ -316,13 +316,9 @@ def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float
         return [*claims, Claim("dissipation inequality at the certified gamma from x(0) = 0", "Theorem 2, (44)-(45)",
                                float("nan"), "a run from the equilibrium", None, f"not run: {exc}",
                                inconclusive=True)]  # fmt: skip
-    _, rest, converged = sharpest_from_rest(loop, lin, FROM_REST_HORIZON)
+    _, rest, converged = sharpest_from_rest(loop, lin)
     return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged)]
 
-
-FROM_REST_HORIZON = 20.0
-"""Seconds of the first run from rest; :func:`dvfc.analysis.linearize.sharpest_from_rest`
-doubles it until the measured gain converges (the transient from ``x = 0`` costs the rest)."""
 
 ATTAINED = 0.95
 """Fraction of the lower bound the run from rest must attain for its (45) check to bite."""
