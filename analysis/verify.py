@@ -522,9 +522,12 @@ def adversarial_claim(loop: ClosedLoop, s0: np.ndarray, env: dict) -> Claim:
     limit = env["ultimate_V"] * (1 - math.exp(-env["rate"] * worst["horizon_s"]))
     errors = ", ".join(f"{k} {v:.3g} (bound {env['bounds'][k]:.3g})" for k, v in worst["errors"].items()
                        if v is not None)  # fmt: skip
+    dropped = (f"; {worst['dropped']} disturbance(s) dropped: the integrator stopped on them (J_b singular along "
+               "the run, outside the envelope's premise)") if worst["dropped"] else ""  # fmt: skip
     return Claim(name, "fact 7", worst["V"],
                  f"<= c_inf (1 - exp(-kappa T)) = {limit:.4g}", worst["V"] <= limit * (1 + 1e-9) + 1e-12,
-                 f"T = {worst['horizon_s']:g} s; worst / c_inf = {worst['V'] / env['ultimate_V']:.3g}; there {errors}")
+                 f"T = {worst['horizon_s']:g} s; worst / c_inf = {worst['V'] / env['ultimate_V']:.3g}; there {errors}"
+                 + dropped)
 
 
 def _ultimate_errors(loop: ClosedLoop, traj: Trajectory, env: dict, bound: np.ndarray, k0: int) -> list[Claim]:
