@@ -288,12 +288,11 @@ def test_certify_reports_the_envelope_contract(tmp_path):
 def test_verify_confirms_the_envelope_on_a_run():
     """``dvfc verify``'s envelope claims (fact 7's inequality from t = 0, fact 8's boxes, the
     ultimate errors against fact 7's bound, the worst ``V(T)`` an adversarial search finds from
-    ``V(0) = 0``) all pass on the shipped example that starts inside its envelope."""
-    spec, base = load(EXAMPLES / "ur5_envelope.toml")
-    loop, s0, settings = build(spec, base)
-    env = envelope(design_of(gain_point(spec, 6), loop.reference, loop.robot.mass_bounds), loop.camera,
-                   disturbance_bounds(spec.envelope, loop), start_storage(loop, s0), search=False)  # fmt: skip
-    claims = envelope_claims(loop, s0, replace(settings, duration=4.0, jit=False), env.as_dict())
+    ``V(0) = 0``) and its planned start's (fact 16b) all pass on the shipped example that starts at
+    rest inside its envelope."""
+    case = Case.load(EXAMPLES / "ur5_envelope.toml")
+    claims = envelope_claims(case.loop, case.s0, replace(case.settings, duration=4.0, jit=False),
+                             envelope_record(case, search=False))  # fmt: skip
     assert len(claims) == 9 and all(c.passed for c in claims), [c.as_dict() for c in claims if not c.passed]
 
 
