@@ -42,6 +42,12 @@ def _to_balls(direction: np.ndarray, blocks: list[tuple[slice, float]]) -> np.nd
     return out
 
 
+BACKTRACKS = 4
+"""Disturbances the search may drop: one on which the integrator stops (it drove the arm to where
+``J_b`` is singular, outside the envelope's premise) is replaced by the midpoint between it and
+the last one that ran (half of it when none has), within the bounds by convexity."""
+
+
 def worst_disturbance(
     loop: ClosedLoop,
     q0: np.ndarray,
@@ -53,8 +59,9 @@ def worst_disturbance(
     seed: int = 0,
 ) -> dict:
     """The largest ``V(T)`` found from the equilibrium near ``q0`` under disturbances within
-    ``bounds`` (module text), with the control and estimation errors there and the
-    disturbance (one row per piece)."""
+    ``bounds`` (module text), with the control and estimation errors there, the disturbance
+    (one row per piece) and how many disturbances were dropped (:data:`BACKTRACKS`); a
+    ``RuntimeError`` when the integrator stopped on every one tried."""
     n, task = loop.robot.n, loop.task_dim
     w_sym = cs.SX.sym("w", n + task)
     model, s_eq = driven_at_rest(loop, w_sym, equilibrium_configuration(loop, q0))
@@ -74,15 +81,25 @@ def worst_disturbance(
     search = cs.Function("J", [w], [v_final, cs.gradient(v_final, w), e_c, e_e, th_c, th_e])
     blocks = _blocks(n, task, bounds)
     current = _to_balls(np.random.default_rng(seed).normal(size=(n + task, intervals)), blocks)
-    best = None
-    for _ in range(iterations):
-        value, gradient, e_c_t, e_e_t, th_c_t, th_e_t = (np.asarray(v) for v in search(current))
+    best, last, dropped = None, None, 0
+    while iterations > 0:
+        try:
+            value, gradient, e_c_t, e_e_t, th_c_t, th_e_t = (np.asarray(v) for v in search(current))
+        except RuntimeError:  # the integrator stopped: the disturbance drove the arm where J_b is singular
+            dropped += 1
+            if dropped > BACKTRACKS:
+                break
+            current = current / 2 if last is None else (last + current) / 2  # still within the bounds
+            continue
+        iterations -= 1
         if best is None or value.item() > best["V"]:
             best = {"V": value.item(), "e_c": e_c_t.ravel(), "e_e": e_e_t.ravel(), "w": current,
                     "angles": (math.degrees(th_c_t.item()), math.degrees(th_e_t.item()))}  # fmt: skip
         if not np.all(np.isfinite(gradient)) or not np.any(gradient):
             break
-        current = _to_balls(gradient, blocks)
+        last, current = current, _to_balls(gradient, blocks)
+    if best is None:
+        raise RuntimeError("the integrator stopped on every disturbance tried")
     e_c, e_e = best["e_c"], best["e_e"]
     th_c, th_e = best["angles"] if rotational else (None, None)
     return {
@@ -96,4 +113,5 @@ def worst_disturbance(
             "theta_ee_deg": th_e,
         },
         "w": best["w"].T.tolist(),
+        "dropped": dropped,
     }

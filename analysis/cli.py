@@ -450,7 +450,7 @@ def show_certificate(result: dict) -> None:
         ("margin lambda_min(P)", fmt(p["margin"])),
         ("gamma_tight (alpha V, fact 4)", f"{fmt(p.get('gamma_tight'))} (alpha = {fmt(p.get('alpha'))})"),
         (
-            "gamma_lower: linearisation, nonlinear search",
+            "gamma_lower: linearisation, nonlinear from rest",
             f"{fmt(p.get('gamma_lower_linear'))}, {fmt(p.get('gamma_lower_nonlinear'))}",
         ),
         ("tightness gamma / gamma_lower", fmt(p.get("tightness"))),

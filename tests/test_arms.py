@@ -112,8 +112,8 @@ def test_redundant_arm_self_motion_is_bounded_by_xi(tmp_path):
 
 def test_planar_certificates_sit_above_the_lower_bounds(tmp_path):
     """The planar loop's certified gammas (paper's P and scaled storage) are upper bounds on
-    its L2 gain: both lie above the linearisation's peak gain and the worst disturbance found
-    on the nonlinear loop. python-control's H-infinity norm (Hamiltonian bisection, stopped at
+    its L2 gain: both lie above the linearisation's peak gain and the gain of the
+    nonlinear loop from rest. python-control's H-infinity norm (Hamiltonian bisection, stopped at
     1e-6 relative) agrees with the attained peak of the frequency sweep (exact here: the peak is
     at omega = 0, a grid point) to 1e-5 relative."""
     _, result = run("certify", str(short("planar2dd_reduced", tmp_path)))

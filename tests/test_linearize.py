@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dvfc.analysis.certify import GainPoint, certify, tight_gamma
-from dvfc.analysis.linearize import driven, equilibrium_state, linearize, worst_case_disturbance
+from dvfc.analysis.linearize import driven, equilibrium_state, linearize, sharpest_from_rest
 from dvfc.analysis.simulate import Settings, Simulator
 
 from conftest import build_loop
@@ -72,6 +72,6 @@ def test_lower_bound_below_tight_below_paper(gains):
     point = GainPoint(loop.gains.k_xi, loop.gains.k_c, loop.gains.k_e, loop.weights)
     paper, tight = certify(point, loop.reference, with_sdp=False), tight_gamma(point, loop.reference)
     lin = linearize(loop, s0[:6])
-    nonlinear, _ = worst_case_disturbance(loop, lin)
+    nonlinear, _, _ = sharpest_from_rest(loop, lin)
     lower = max(lin.peak_gain, nonlinear)
     assert lower <= tight.gamma <= paper.gamma

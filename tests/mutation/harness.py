@@ -193,9 +193,9 @@ MUTATIONS = (
     # --- lower bounds, Theorem 2 on trajectories, resume ---------------------------------
     Mutation(
         "lower-bound-doubled-energy",
-        "the worst-case search integrates 2 |x|^2 (its lower bound sqrt(2) too high)",
+        "the from-rest search reports sqrt(2) times the gain it measured (its lower bound too high)",
         "analysis/linearize.py",
-        (('"quad": model.z.T @ model.z}', '"quad": 2 * model.z.T @ model.z}'),),
+        (("            return ratio, traj, True\n", "            return math.sqrt(2) * ratio, traj, True\n"),),
         ("tests/test_theorem2.py",),
     ),
     Mutation(
