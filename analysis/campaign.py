@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from contextlib import closing
 from dataclasses import dataclass, replace
@@ -151,9 +152,32 @@ def true_pixels(loop: ClosedLoop, traj: Trajectory, errors: PlantErrors) -> np.n
     return f.reshape(len(traj.t), -1, 2) + np.asarray(errors.principal_point, dtype=float)
 
 
+SIMULATORS = 4
+"""Compiled campaign simulators kept per process (least recently used dropped)."""
+
+_simulators: OrderedDict[int, tuple[Case, SampledSimulator]] = OrderedDict()
+
+
+def shared_simulator(case: Case) -> SampledSimulator:
+    """The simulator every run of ``case``'s campaigns runs on (:meth:`SampledSimulator.for_run`),
+    built once per process and case: a worker builds it for its first batch and reuses it for
+    every later one (a worker receives each batch's case as the same object,
+    :func:`dvfc.analysis.case._unpickled`)."""
+    key = id(case)
+    if key in _simulators:
+        _simulators.move_to_end(key)
+        return _simulators[key][1]
+    simulator = as_implemented(case.loop, campaign_settings(case))
+    _simulators[key] = (case, simulator)  # the case held: its id stays its own while cached
+    if len(_simulators) > SIMULATORS:
+        _simulators.popitem(last=False)
+    return simulator
+
+
 def campaign_batch(spec: CampaignSpec, start: int, stop: int) -> dict[str, list]:
-    """Runs ``start .. stop - 1`` (a task): their rows as columns."""
-    simulator = as_implemented(spec.case.loop, campaign_settings(spec.case))
+    """Runs ``start .. stop - 1`` (a task) on the process's :func:`shared_simulator`: their rows
+    as columns."""
+    simulator = shared_simulator(spec.case)
     rows = [simulate_run(spec, k, simulator)[0] for k in range(start, stop)]
     return {key: [r[key] for r in rows] for key in rows[0]}
 
@@ -317,7 +341,7 @@ def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] 
     from scipy.optimize import differential_evolution
 
     box = spec.dispersion.box()
-    simulator = as_implemented(spec.case.loop, campaign_settings(spec.case))
+    simulator = shared_simulator(spec.case)
     best: dict = {"ratio": -math.inf}
     evaluations = 0
 

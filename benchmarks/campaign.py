@@ -31,7 +31,7 @@ from pathlib import Path
 
 from timing import seconds
 
-from dvfc.analysis.campaign import CampaignSpec, campaign_settings, run_campaign, simulate_run
+from dvfc.analysis.campaign import CampaignSpec, run_campaign, shared_simulator, simulate_run
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import FIELDS
 from dvfc.analysis.margins import tracking_bound
@@ -89,7 +89,7 @@ def main() -> None:
     nominal.run(default.s0)  # compiled (or loaded from the cache) before timing
     case = every_dispersion()
     spec = CampaignSpec.of(case, tracking_bound(case))
-    shared = as_implemented(case.loop, campaign_settings(case))
+    shared = shared_simulator(case)
     shared.run(case.s0)
     pairs = [(seconds(lambda: nominal.run(default.s0))[0], seconds(lambda k=k: simulate_run(spec, k, shared))[0])
              for k in range(PAIRS)]  # fmt: skip
