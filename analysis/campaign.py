@@ -31,10 +31,11 @@ import pyarrow.parquet as pq
 from scipy import stats
 
 from dvfc.analysis.case import Case
-from dvfc.analysis.dispersion import Dispersion, base_values, with_values
+from dvfc.analysis.dispersion import INPUTS, MASSES, Dispersion, base_values, with_values
 from dvfc.analysis.grid import batches
 from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_error
 from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
+from dvfc.analysis.parametric import parametrised
 from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory
@@ -75,6 +76,11 @@ class CampaignSpec:
             settings.implementation.integrator != "rk4"
         ):
             raise ScenarioError('dispersion: friction needs integrator = "rk4"')
+        inputs = [k for k in case.scenario.dispersion if k in INPUTS]
+        if inputs and not parametrised(case.loop):
+            raise ScenarioError(f'dispersion."{inputs[0]}": an input of the paper\'s loop only, not the planar one')
+        if "target.motion.radius" in case.scenario.dispersion and case.scenario.target.motion.kind == "static":
+            raise ScenarioError('dispersion."target.motion.radius": a static target has no radius; give a circle')
         base = base_values(case.scenario, campaign_settings(case), case.s0, case.loop.robot.n)
         return CampaignSpec(case, Dispersion(dict(case.scenario.dispersion), base), bound, seed)
 
@@ -99,12 +105,15 @@ class CampaignSpec:
 
 
 def campaign_settings(case: Case) -> Settings:
-    """The case's settings with plant errors (none when the scenario gives none): the code path
-    of every campaign run."""
+    """The case's settings with plant errors (none when the scenario gives none) and, when the
+    dispersion draws the plant's masses, a plant (the URDF's arm when the scenario gives none):
+    the code path of every campaign run."""
     settings = case.settings
-    if settings.errors is not None:
-        return settings
-    return replace(settings, errors=PlantErrors.none(case.loop.camera, case.loop.robot.n))
+    if settings.errors is None:
+        settings = replace(settings, errors=PlantErrors.none(case.loop.camera, case.loop.robot.n))
+    if settings.plant is None and any(key in MASSES for key in case.scenario.dispersion):
+        settings = replace(settings, plant=case.loop.robot)
+    return settings
 
 
 def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, values: dict[str, np.ndarray]) -> dict:

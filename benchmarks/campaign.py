@@ -50,6 +50,11 @@ SPREAD = {
     "observer.error_rpy": {"dist": "normal", "sigma": 0.005},
     "robot.q0": {"dist": "normal", "sigma": 0.005},
     "robot.qd0": {"dist": "normal", "sigma": 0.005},
+    "target.motion.radius": {"dist": "uniform", "low": -0.005, "high": 0.005},
+    "plant.mass_scale": {"dist": "lognormal", "sigma": 0.02},
+    "plant.payload.mass": {"dist": "uniform", "low": 0.0, "high": 0.1},
+    "plant.payload.com": {"dist": "normal", "sigma": 0.005},
+    "plant.payload.inertia": {"dist": "uniform", "low": 0.0, "high": [1e-5, 0.0, 0.0, 1e-5, 0.0, 1e-5]},
 }
 """Small spreads on the dispersable fields the cell example leaves alone (so that every field is
 drawn in the benchmark's runs)."""

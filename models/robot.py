@@ -268,6 +268,18 @@ def perturbed_urdf(text: str, frame: str, payload: Payload | None, mass_scale: f
     return ET.tostring(root, encoding="unicode")
 
 
+def coriolis_matrix(m: Matrix, q: cs.SX, qd: cs.SX) -> Matrix:
+    """``C(q, qd)`` of (33) from the Christoffel symbols of the mass matrix ``m(q)``.
+
+    With ``B = d(m qd)/dq`` (``qd`` held fixed), ``C = (mdot + B - B^T) / 2``; then
+    ``C qd`` is the Coriolis and centrifugal torque and ``mdot - 2C = B^T - B``.
+    """
+    n = q.numel()
+    mdot = cs.reshape(cs.jtimes(cs.vec(m), q, qd), n, n)
+    b = cs.jacobian(m @ qd, q)
+    return (mdot + b - b.T) / 2
+
+
 def frozen_urdf(urdf: Path, joints: list[str]) -> str:
     """The URDF with every movable joint outside ``joints`` (a gripper's fingers, say) fixed at
     zero and without ``mimic`` and ``dynamics`` tags and top-level elements other than links,
@@ -376,10 +388,15 @@ class Robot:
         return expr[6:, 6:] if expr.shape[1] > 1 else expr[6:]
 
     @cached_property
+    def rigid_mass_matrix(self) -> Matrix:
+        """The links' part of ``M(q)``: :attr:`mass_matrix` without the :attr:`armature`."""
+        t = cs.DM(self.coupling)
+        return t.T @ self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self._q_moving)) @ t
+
+    @cached_property
     def mass_matrix(self) -> Matrix:
         """``M(q)`` of (33), symbolic in :attr:`q` (rigid body plus :attr:`armature`)."""
-        t = cs.DM(self.coupling)
-        rigid = t.T @ self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self._q_moving)) @ t
+        rigid = self.rigid_mass_matrix
         return rigid + cs.diag(cs.DM(self.armature)) if self.armature else rigid
 
     @cached_property
@@ -389,15 +406,8 @@ class Robot:
 
     @cached_property
     def coriolis(self) -> Matrix:
-        """``C(q, qd)`` of (33) from the Christoffel symbols of ``M``.
-
-        With ``B = d(M qd)/dq`` (``qd`` held fixed), ``C = (Mdot + B - B^T) / 2``; then
-        ``C qd`` is the Coriolis and centrifugal torque and ``Mdot - 2C = B^T - B``.
-        """
-        m = self.mass_matrix
-        mdot = cs.reshape(cs.jtimes(cs.vec(m), self.q, self.qd), self.n, self.n)
-        b = cs.jacobian(m @ self.qd, self.q)
-        return (mdot + b - b.T) / 2
+        """``C(q, qd)`` of (33) from the Christoffel symbols of ``M`` (:func:`coriolis_matrix`)."""
+        return coriolis_matrix(self.mass_matrix, self.q, self.qd)
 
     @cached_property
     def mass_matrix_dot(self) -> Matrix:
@@ -405,10 +415,14 @@ class Robot:
         return cs.reshape(cs.jtimes(cs.vec(self.mass_matrix), self.q, self.qd), self.n, self.n)
 
     @cached_property
+    def link_pose(self) -> SE3:
+        """``g_wl(q)``: world to the link :attr:`frame`, its forward kinematics."""
+        return SE3.from_matrix(self._kindyn.forward_kinematics(self.frame, cs.SX.eye(4), self._q_moving))
+
+    @cached_property
     def camera_pose(self) -> SE3:
         """``g_wc(q)``: world to camera, the link's forward kinematics times the mount."""
-        link = SE3.from_matrix(self._kindyn.forward_kinematics(self.frame, cs.SX.eye(4), self._q_moving))
-        return link @ self.mount
+        return self.link_pose @ self.mount
 
     @cached_property
     def body_jacobian(self) -> Matrix:

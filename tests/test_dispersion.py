@@ -170,7 +170,7 @@ def test_clopper_pearson_equals_scipy_and_the_hand_computation():
         ({"plant.mount.rpy": {"dist": "uniform", "low": 0.1, "high": -0.1}}, "exceeds high"),
         ({"plant.mount.rpy": {"dist": "cauchy", "sigma": 0.1}}, "dist"),
         ({"plant.mount.rp": {"dist": "normal", "sigma": 0.1}}, "did you mean 'plant.mount.rpy'"),
-        ({"target.motion.radius": {"dist": "normal", "sigma": 0.1}}, "not dispersable"),
+        ({"target.motion.period": {"dist": "normal", "sigma": 0.1}}, "not dispersable"),
         ({"implementation.frame_drop": {"dist": "choice", "values": [0.1, 1.5]}}, "outside"),
     ],
 )
