@@ -24,9 +24,9 @@ from functools import cached_property
 import casadi as cs
 import numpy as np
 
-from dvfc.models.lie import SE3, SO3, Matrix, vee
+from dvfc.models.lie import SE3, SO3, Matrix, hat, vee
 from dvfc.models.loop import ClosedLoop, Gains, Weights
-from dvfc.models.robot import Payload, Robot, coriolis_matrix
+from dvfc.models.robot import Payload, Robot
 from dvfc.models.target import TargetMotion
 
 CACHE_SIZE = 8
@@ -104,8 +104,9 @@ class InertialPlant:
     Rigid-body dynamics are linear in the links' masses and inertias, so the links contribute
     ``s M_links(q)``, ``s C_links``, ``s g_links`` (the armature is not scaled); the payload adds
     ``M_b = m J_c^T J_c + J_w^T I_c J_w`` (``J_c`` the Jacobian of its centre of mass in the
-    world, ``J_w`` of the link's body angular velocity), ``C_b`` from the Christoffel symbols of
-    ``M_b`` and ``g_b = -m J_c^T g_world``."""
+    world, ``J_w`` of the link's body angular velocity ``w``), the Newton-Euler ``C_b = m J_c^T
+    dJ_c/dt + J_w^T (I_c dJ_w/dt + hat(w) I_c J_w)`` (its ``C_b qd`` the Christoffel one's, at a
+    directional derivative's cost) and ``g_b = -m J_c^T g_world``."""
 
     robot: Robot
     masses: cs.SX
@@ -119,8 +120,8 @@ class InertialPlant:
         return self.robot.qd
 
     @cached_property
-    def _payload(self) -> tuple[Matrix, Matrix]:
-        """``(M_b, g_b)`` of the payload."""
+    def _payload(self) -> tuple[Matrix, Matrix, Matrix]:
+        """``(M_b, C_b, g_b)`` of the payload."""
         r, m, com = self.robot, self.masses[1], self.masses[2:5]
         xx, xy, xz, yy, yz, zz = (self.masses[5 + i] for i in range(6))
         inertia = cs.vertcat(cs.horzcat(xx, xy, xz), cs.horzcat(xy, yy, yz), cs.horzcat(xz, yz, zz))
@@ -128,7 +129,9 @@ class InertialPlant:
         j_c = cs.jacobian(r.link_pose.translation + rotation @ com, r.q)
         spin = (rotation.T @ cs.reshape(cs.jacobian(cs.vec(rotation), r.q[i]), 3, 3) for i in range(r.n))
         j_w = cs.horzcat(*map(vee, spin))
-        return m * (j_c.T @ j_c) + j_w.T @ inertia @ j_w, -m * (j_c.T @ cs.DM(GRAVITY))
+        rate = lambda j: cs.reshape(cs.jtimes(cs.vec(j), r.q, r.qd), 3, r.n)  # noqa: E731 (dJ/dt)
+        coriolis = m * (j_c.T @ rate(j_c)) + j_w.T @ (inertia @ rate(j_w) + hat(j_w @ r.qd) @ inertia @ j_w)
+        return m * (j_c.T @ j_c) + j_w.T @ inertia @ j_w, coriolis, -m * (j_c.T @ cs.DM(GRAVITY))
 
     @cached_property
     def mass_matrix(self) -> Matrix:
@@ -138,11 +141,11 @@ class InertialPlant:
 
     @cached_property
     def coriolis(self) -> Matrix:
-        return self.masses[0] * self.robot.coriolis + coriolis_matrix(self._payload[0], self.q, self.qd)
+        return self.masses[0] * self.robot.coriolis + self._payload[1]
 
     @cached_property
     def gravity(self) -> Matrix:
-        return self.masses[0] * self.robot.gravity + self._payload[1]
+        return self.masses[0] * self.robot.gravity + self._payload[2]
 
 
 def _structure(loop: ClosedLoop) -> tuple:

@@ -268,18 +268,6 @@ def perturbed_urdf(text: str, frame: str, payload: Payload | None, mass_scale: f
     return ET.tostring(root, encoding="unicode")
 
 
-def coriolis_matrix(m: Matrix, q: cs.SX, qd: cs.SX) -> Matrix:
-    """``C(q, qd)`` of (33) from the Christoffel symbols of the mass matrix ``m(q)``.
-
-    With ``B = d(m qd)/dq`` (``qd`` held fixed), ``C = (mdot + B - B^T) / 2``; then
-    ``C qd`` is the Coriolis and centrifugal torque and ``mdot - 2C = B^T - B``.
-    """
-    n = q.numel()
-    mdot = cs.reshape(cs.jtimes(cs.vec(m), q, qd), n, n)
-    b = cs.jacobian(m @ qd, q)
-    return (mdot + b - b.T) / 2
-
-
 def frozen_urdf(urdf: Path, joints: list[str]) -> str:
     """The URDF with every movable joint outside ``joints`` (a gripper's fingers, say) fixed at
     zero and without ``mimic`` and ``dynamics`` tags and top-level elements other than links,
@@ -406,8 +394,15 @@ class Robot:
 
     @cached_property
     def coriolis(self) -> Matrix:
-        """``C(q, qd)`` of (33) from the Christoffel symbols of ``M`` (:func:`coriolis_matrix`)."""
-        return coriolis_matrix(self.mass_matrix, self.q, self.qd)
+        """``C(q, qd)`` of (33) from the Christoffel symbols of ``M``.
+
+        With ``B = d(M qd)/dq`` (``qd`` held fixed), ``C = (Mdot + B - B^T) / 2``; then
+        ``C qd`` is the Coriolis and centrifugal torque and ``Mdot - 2C = B^T - B``.
+        """
+        m = self.mass_matrix
+        mdot = cs.reshape(cs.jtimes(cs.vec(m), self.q, self.qd), self.n, self.n)
+        b = cs.jacobian(m @ self.qd, self.q)
+        return (mdot + b - b.T) / 2
 
     @cached_property
     def mass_matrix_dot(self) -> Matrix:

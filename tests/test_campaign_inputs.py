@@ -73,6 +73,7 @@ def drawn_and_written(tmp_path_factory):
     return drawn, plain, builds
 
 
+@pytest.mark.slow
 def test_a_drawn_radius_mass_scale_and_payload_run_is_the_written_in_scenarios_bit_for_bit(drawn_and_written):
     drawn, plain, _ = drawn_and_written
     assert drawn.status == plain.status == "ok"
@@ -81,6 +82,7 @@ def test_a_drawn_radius_mass_scale_and_payload_run_is_the_written_in_scenarios_b
         assert np.array_equal(value, plain.signals[name]), name
 
 
+@pytest.mark.slow
 def test_the_written_in_radius_and_masses_run_on_the_campaigns_compiled_functions(drawn_and_written):
     """Another radius, mass scale and payload build no function anew (they are entries of ``p``)."""
     assert drawn_and_written[2] == []
