@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from contextlib import closing
 from dataclasses import dataclass, replace
@@ -30,10 +31,11 @@ import pyarrow.parquet as pq
 from scipy import stats
 
 from dvfc.analysis.case import Case
-from dvfc.analysis.dispersion import Dispersion, base_values, with_values
+from dvfc.analysis.dispersion import INPUTS, MASSES, Dispersion, base_values, with_values
 from dvfc.analysis.grid import batches
 from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_error
 from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
+from dvfc.analysis.parametric import parametrised
 from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory
@@ -74,6 +76,11 @@ class CampaignSpec:
             settings.implementation.integrator != "rk4"
         ):
             raise ScenarioError('dispersion: friction needs integrator = "rk4"')
+        inputs = [k for k in case.scenario.dispersion if k in INPUTS]
+        if inputs and not parametrised(case.loop):
+            raise ScenarioError(f'dispersion."{inputs[0]}": an input of the paper\'s loop only, not the planar one')
+        if "target.motion.radius" in case.scenario.dispersion and case.scenario.target.motion.kind == "static":
+            raise ScenarioError('dispersion."target.motion.radius": a static target has no radius; give a circle')
         base = base_values(case.scenario, campaign_settings(case), case.s0, case.loop.robot.n)
         return CampaignSpec(case, Dispersion(dict(case.scenario.dispersion), base), bound, seed)
 
@@ -98,12 +105,15 @@ class CampaignSpec:
 
 
 def campaign_settings(case: Case) -> Settings:
-    """The case's settings with plant errors (none when the scenario gives none): the code path
-    of every campaign run."""
+    """The case's settings with plant errors (none when the scenario gives none) and, when the
+    dispersion draws the plant's masses, a plant (the URDF's arm when the scenario gives none):
+    the code path of every campaign run."""
     settings = case.settings
-    if settings.errors is not None:
-        return settings
-    return replace(settings, errors=PlantErrors.none(case.loop.camera, case.loop.robot.n))
+    if settings.errors is None:
+        settings = replace(settings, errors=PlantErrors.none(case.loop.camera, case.loop.robot.n))
+    if settings.plant is None and any(key in MASSES for key in case.scenario.dispersion):
+        settings = replace(settings, plant=case.loop.robot)
+    return settings
 
 
 def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, values: dict[str, np.ndarray]) -> dict:
@@ -151,9 +161,32 @@ def true_pixels(loop: ClosedLoop, traj: Trajectory, errors: PlantErrors) -> np.n
     return f.reshape(len(traj.t), -1, 2) + np.asarray(errors.principal_point, dtype=float)
 
 
+SIMULATORS = 4
+"""Compiled campaign simulators kept per process (least recently used dropped)."""
+
+_simulators: OrderedDict[int, tuple[Case, SampledSimulator]] = OrderedDict()
+
+
+def shared_simulator(case: Case) -> SampledSimulator:
+    """The simulator every run of ``case``'s campaigns runs on (:meth:`SampledSimulator.for_run`),
+    built once per process and case: a worker builds it for its first batch and reuses it for
+    every later one (a worker receives each batch's case as the same object,
+    :func:`dvfc.analysis.case._unpickled`)."""
+    key = id(case)
+    if key in _simulators:
+        _simulators.move_to_end(key)
+        return _simulators[key][1]
+    simulator = as_implemented(case.loop, campaign_settings(case))
+    _simulators[key] = (case, simulator)  # the case held: its id stays its own while cached
+    if len(_simulators) > SIMULATORS:
+        _simulators.popitem(last=False)
+    return simulator
+
+
 def campaign_batch(spec: CampaignSpec, start: int, stop: int) -> dict[str, list]:
-    """Runs ``start .. stop - 1`` (a task): their rows as columns."""
-    simulator = as_implemented(spec.case.loop, campaign_settings(spec.case))
+    """Runs ``start .. stop - 1`` (a task) on the process's :func:`shared_simulator`: their rows
+    as columns."""
+    simulator = shared_simulator(spec.case)
     rows = [simulate_run(spec, k, simulator)[0] for k in range(start, stop)]
     return {key: [r[key] for r in rows] for key in rows[0]}
 
@@ -317,7 +350,7 @@ def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] 
     from scipy.optimize import differential_evolution
 
     box = spec.dispersion.box()
-    simulator = as_implemented(spec.case.loop, campaign_settings(spec.case))
+    simulator = shared_simulator(spec.case)
     best: dict = {"ratio": -math.inf}
     evaluations = 0
 

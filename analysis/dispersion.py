@@ -7,7 +7,8 @@ error): ``normal`` adds ``N(0, sigma)`` (redrawn beyond ``clip`` sigmas when ``c
 given), ``uniform`` adds ``U(low, high)``, ``lognormal`` multiplies by ``exp(N(0, sigma))``,
 ``choice`` takes one of ``values`` (absolute). A value outside its field's domain (a negative
 latency, a probability above 1) is clipped to it. Only fields that are inputs of the compiled
-loop (:data:`FIELDS`) can be dispersed, so that no run recompiles.
+loop (:data:`FIELDS`) can be dispersed, so that no run recompiles: the target's radius and the
+plant's masses are entries of its parameter vector (:class:`dvfc.analysis.parametric.Inputs`).
 """
 
 from __future__ import annotations
@@ -17,10 +18,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from dvfc.analysis.parametric import Inputs
 from dvfc.analysis.schema import DistributionSection, Scenario, ScenarioError
 from dvfc.analysis.simulate import Settings
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop
+from dvfc.models.robot import Payload
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,11 @@ FIELDS = {
     "plant.target_points": Field("3m"),
     "plant.friction.viscous": Field("n", 0.0),
     "plant.friction.coulomb": Field("n", 0.0),
+    "plant.mass_scale": Field("1", 1e-9),
+    "plant.payload.mass": Field("1", 0.0),
+    "plant.payload.com": Field("3"),
+    "plant.payload.inertia": Field("6"),
+    "target.motion.radius": Field("1", 0.0),
     "implementation.latency": Field("1", 0.0),
     "implementation.latency_jitter": Field("1", 0.0, integer=True),
     "implementation.frame_drop": Field("1", 0.0, 1.0),
@@ -59,6 +67,11 @@ FIELDS = {
 }
 """The fields a ``[dispersion]`` may perturb: every one an input of the compiled sampled loop
 (or of its start, or of the code between its calls)."""
+
+MASSES = ("plant.mass_scale", "plant.payload.mass", "plant.payload.com", "plant.payload.inertia")
+"""The fields that need the loop built with a plant (its masses inputs of the compiled loop)."""
+INPUTS = ("target.motion.radius", *MASSES)
+"""The fields that are entries of the compiled loop's parameter vector, beside its design."""
 
 
 def _scenario_paths(data: dict, prefix: str = "") -> list[str]:
@@ -196,7 +209,7 @@ def with_values(
     """The settings and initial state of one run: ``values`` (absolute, per key of :data:`FIELDS`)
     applied to the case's ``settings`` (whose ``errors`` are set) and start ``s0``."""
     imp, errors, n = settings.implementation, settings.errors, loop.robot.n
-    imp_changes, err_changes = {}, {}
+    imp_changes, err_changes, input_changes, payload_changes = {}, {}, {}, {}
     for key, v in values.items():
         section, _, name = key.partition(".")
         if section == "implementation":
@@ -221,6 +234,13 @@ def with_values(
             err_changes["point_errors"] = v.reshape(-1, 3)
         elif key.startswith("plant.friction."):
             err_changes[name.rpartition(".")[2]] = v
+        elif key == "target.motion.radius":
+            input_changes["radius"] = float(v[0])
+        elif key == "plant.mass_scale":
+            input_changes["mass_scale"] = float(v[0])
+        elif key.startswith("plant.payload."):
+            entry = name.rpartition(".")[2]
+            payload_changes[entry] = float(v[0]) if entry == "mass" else tuple(map(float, v))
     s = s0.copy()
     if "robot.q0" in values or "robot.qd0" in values or any(k.startswith("observer.") for k in values):
         o = scenario.observer
@@ -229,19 +249,31 @@ def with_values(
         error = SE3.from_xyz_rpy(values.get("observer.error_xyz", o.error_xyz), values.get("observer.error_rpy",
                                                                                             o.error_rpy))  # fmt: skip
         s = loop.initial_state(np.asarray(q0, float), np.asarray(qd0, float), error)
-    return replace(settings, implementation=replace(imp, **imp_changes), errors=replace(errors, **err_changes)), s
+    settings = replace(settings, implementation=replace(imp, **imp_changes), errors=replace(errors, **err_changes))
+    if input_changes or payload_changes:
+        inputs = settings.inputs or Inputs.of(loop.target, settings.plant)
+        if payload_changes:
+            input_changes["payload"] = replace(inputs.payload or Payload(0.0), **payload_changes)
+        settings = replace(settings, inputs=replace(inputs, **input_changes))
+    return settings, s
 
 
 def base_values(scenario: Scenario, settings: Settings, s0: np.ndarray, n: int) -> dict[str, np.ndarray]:
     """The scenario's value of every dispersable field (flat arrays): the values its runs use
     when nothing is drawn."""
     imp, e = settings.implementation, settings.errors
+    payload = scenario.plant.payload
     return {
         "plant.mount.xyz": e.mount_xyz, "plant.mount.rpy": e.mount_rpy,
         "plant.camera.focal_length": np.array([e.fx]), "plant.camera.fx": np.array([e.fx]),
         "plant.camera.fy": np.array([e.fy]), "plant.camera.principal_point": np.asarray(e.principal_point, float),
         "plant.camera.distortion": np.asarray(e.distortion, float), "plant.target_points": np.ravel(e.point_errors),
         "plant.friction.viscous": e.viscous, "plant.friction.coulomb": e.coulomb,
+        "plant.mass_scale": np.array([scenario.plant.mass_scale]),
+        "plant.payload.mass": np.array([0.0 if payload is None else payload.mass]),
+        "plant.payload.com": np.zeros(3) if payload is None else np.asarray(payload.com, float),
+        "plant.payload.inertia": np.zeros(6) if payload is None else np.asarray(payload.inertia, float),
+        "target.motion.radius": np.array([scenario.target.motion.radius]),
         "implementation.latency": np.array([imp.latency]),
         "implementation.latency_jitter": np.array([float(imp.latency_jitter)]),
         "implementation.frame_drop": np.array([imp.frame_drop]),

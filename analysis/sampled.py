@@ -41,6 +41,7 @@ import numpy as np
 
 from dvfc.analysis.compile import Buffered, compiled
 from dvfc.analysis.output import interrupted
+from dvfc.analysis.parametric import parameter_vector
 from dvfc.analysis.simulate import Settings, Simulator, Trajectory, joint_peaks
 from dvfc.models.errors import PlantErrors, camera_size, controller_features, friction_torque, true_features
 from dvfc.models.lie import SE3
@@ -157,17 +158,16 @@ class SampledSimulator(Simulator):
             period, last = compiled(period, jacobian=False, level="-O2"), compiled(last, jacobian=False)
         self._period, self._last = period, Buffered(last)
         self._chunks: dict[int, Buffered] = {}
-        noise = cs.SX.sym("noise", model.features.numel())  # the image does not depend on the design
+        noise = cs.SX.sym("noise", model.features.numel())
+        p = [] if model.parameters is None else [model.parameters]  # the image depends on the target's radius
         if self.errors is None:
-            self._camera = cs.Function("dvfc_camera", [model.t, model.state, noise], self._image(noise))
+            camera = cs.Function("dvfc_camera", [model.t, model.state, noise, *p], self._image(noise))
         else:
             errors = cs.SX.sym("errors", camera_size(loop.camera.m))
             image = self._true_image(noise, errors)
-            self._camera = cs.Function("dvfc_true_camera", [model.t, model.state, noise, errors], image)
+            camera = cs.Function("dvfc_true_camera", [model.t, model.state, noise, errors, *p], image)
             self._errors = self.errors.camera_vector(loop.camera)
-        if settings.jit:
-            self._camera = compiled(self._camera, jacobian=False)
-        self._camera = Buffered(self._camera)
+        self._image_function = Buffered(compiled(camera, jacobian=False) if settings.jit else camera)
         self._window = None  # the image as bounds on f, point by point (when the run checks it)
         if settings.view and loop.camera.has_image:
             self._window = tuple(np.tile(bound, loop.camera.m) for bound in loop.camera.image_window())
@@ -176,13 +176,15 @@ class SampledSimulator(Simulator):
 
     def for_run(self, settings: Settings) -> SampledSimulator:
         """This simulator (its compiled functions) for another run of the same loop: the
-        settings' implementation and plant errors (``errors`` set here too) replace this one's.
-        A campaign builds one simulator and runs it with each run's values."""
+        settings' implementation, plant errors (``errors`` set here too) and inputs (target
+        radius, plant masses) replace this one's. A campaign builds one simulator and runs it
+        with each run's values."""
         if (settings.errors is None) != (self.errors is None):
             raise ValueError("for_run: the plant errors must be given for both runs or neither")
         other = copy.copy(self)
         imp = settings.implementation
         other.settings, other.implementation = settings, imp
+        other.design = [] if not self.design else [parameter_vector(self.loop, settings.inputs)]
         other.limits = imp.limits(self.loop.robot.limits)
         other._effort = other.limits.effort if imp.saturate else np.full(self.loop.robot.n, np.inf)
         if settings.errors is not None:
@@ -192,6 +194,11 @@ class SampledSimulator(Simulator):
             if self._window is not None:
                 other._window = settings.errors.window(self.loop.camera)
         return other
+
+    def _camera(self, t: float, s: np.ndarray, noise: np.ndarray, *errors: np.ndarray) -> list[np.ndarray]:
+        """What the image at ``(t, s)`` gives (:meth:`_image`, :meth:`_true_image` with the plant's
+        camera ``errors``), with ``noise`` added to the pixels, for the run's :attr:`design`."""
+        return self._image_function(t, s, noise, *errors, *self.design)
 
     def _rk4(
         self, t: cs.MX, s: cs.MX, applied: cs.MX, e: cs.MX, friction: cs.MX, design: list[cs.MX]
@@ -273,14 +280,16 @@ class SampledSimulator(Simulator):
 
     def true_tracking(self, t: np.ndarray, states: np.ndarray) -> np.ndarray:
         """The tracking error ``g_d^-1 g`` of the true camera (``g`` seen through the mount
-        error) at times ``t`` and ``states`` (rows), as the rows of ``g_tracking``."""
-        loop = self.loop
+        error) at times ``t`` and ``states`` (rows), as the rows of ``g_tracking`` (the target's
+        motion and ``g_d`` of the run's :attr:`design`)."""
+        model = self.model
         mount = cs.SX.sym("mount", 6)
-        g = SE3.from_xyz_rpy(mount[:3], mount[3:]).inverse() @ loop.relative_pose
-        error = cs.vec((loop.reference.inverse() @ g).as_matrix())
-        function = cs.Function("true_tracking", [loop.t, loop.state, mount], [error]).map(len(t))
-        m = np.repeat(self._errors[:6, None], len(t), axis=1)
-        return np.asarray(function(t, states.T, m)).T
+        g = SE3.from_xyz_rpy(mount[:3], mount[3:]).inverse() @ model.relative_pose
+        error = cs.vec((model.reference.inverse() @ g).as_matrix())
+        p = [] if model.parameters is None else [model.parameters]
+        function = cs.Function("true_tracking", [model.t, model.state, mount, *p], [error]).map(len(t))
+        columns = (np.repeat(v[:, None], len(t), axis=1) for v in (self._errors[:6], *self.design))
+        return np.asarray(function(t, states.T, *columns)).T
 
     def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, str | None]:
         """The ``e_e`` of an image captured at ``(t, s)``, or the reason there is none."""

@@ -21,7 +21,7 @@ import numpy as np
 from dvfc.analysis.compile import compiled
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.output import interrupted
-from dvfc.analysis.parametric import parameter_vector, symbolic
+from dvfc.analysis.parametric import Inputs, parameter_vector, symbolic
 from dvfc.models.errors import PlantErrors
 from dvfc.models.loop import QUADRATURES, ClosedLoop
 from dvfc.models.robot import Robot
@@ -62,6 +62,10 @@ class Settings:
     view
         End the run with status ``"out_of_view"`` when a feature leaves the camera's image
         (when its size is known): the runs as implemented do, the paper's claims do not.
+    inputs
+        The target's radius and the plant's masses of this run, in place of the loop's and
+        ``plant``'s own (:class:`dvfc.analysis.parametric.Inputs`: entries of the compiled
+        functions' parameter vector); None: theirs.
     """
 
     duration: float = 10.0
@@ -76,6 +80,7 @@ class Settings:
     plant: Robot | None = None
     errors: PlantErrors | None = None
     view: bool = False
+    inputs: Inputs | None = None
 
 
 CHUNK_SECONDS = 0.5
@@ -183,7 +188,7 @@ class Simulator:
         self.loop = loop
         self.settings = settings
         self.model = model = symbolic(loop)
-        p = parameter_vector(loop)
+        p = parameter_vector(loop, settings.inputs)
         self.design: list[np.ndarray] = [] if p is None else [p]
         """The last arguments of the model's functions: ``[p]``, or none for a loop that keeps its
         numbers (:func:`dvfc.analysis.parametric.parametrised`)."""

@@ -31,7 +31,7 @@ from pathlib import Path
 
 from timing import seconds
 
-from dvfc.analysis.campaign import CampaignSpec, campaign_settings, run_campaign, simulate_run
+from dvfc.analysis.campaign import CampaignSpec, run_campaign, shared_simulator, simulate_run
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import FIELDS
 from dvfc.analysis.margins import tracking_bound
@@ -50,6 +50,11 @@ SPREAD = {
     "observer.error_rpy": {"dist": "normal", "sigma": 0.005},
     "robot.q0": {"dist": "normal", "sigma": 0.005},
     "robot.qd0": {"dist": "normal", "sigma": 0.005},
+    "target.motion.radius": {"dist": "uniform", "low": -0.005, "high": 0.005},
+    "plant.mass_scale": {"dist": "lognormal", "sigma": 0.02},
+    "plant.payload.mass": {"dist": "uniform", "low": 0.0, "high": 0.1},
+    "plant.payload.com": {"dist": "normal", "sigma": 0.005},
+    "plant.payload.inertia": {"dist": "uniform", "low": 0.0, "high": [1e-5, 0.0, 0.0, 1e-5, 0.0, 1e-5]},
 }
 """Small spreads on the dispersable fields the cell example leaves alone (so that every field is
 drawn in the benchmark's runs)."""
@@ -89,7 +94,7 @@ def main() -> None:
     nominal.run(default.s0)  # compiled (or loaded from the cache) before timing
     case = every_dispersion()
     spec = CampaignSpec.of(case, tracking_bound(case))
-    shared = as_implemented(case.loop, campaign_settings(case))
+    shared = shared_simulator(case)
     shared.run(case.s0)
     pairs = [(seconds(lambda: nominal.run(default.s0))[0], seconds(lambda k=k: simulate_run(spec, k, shared))[0])
              for k in range(PAIRS)]  # fmt: skip

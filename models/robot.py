@@ -376,10 +376,15 @@ class Robot:
         return expr[6:, 6:] if expr.shape[1] > 1 else expr[6:]
 
     @cached_property
+    def rigid_mass_matrix(self) -> Matrix:
+        """The links' part of ``M(q)``: :attr:`mass_matrix` without the :attr:`armature`."""
+        t = cs.DM(self.coupling)
+        return t.T @ self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self._q_moving)) @ t
+
+    @cached_property
     def mass_matrix(self) -> Matrix:
         """``M(q)`` of (33), symbolic in :attr:`q` (rigid body plus :attr:`armature`)."""
-        t = cs.DM(self.coupling)
-        rigid = t.T @ self._joint_block(self._kindyn.mass_matrix(cs.SX.eye(4), self._q_moving)) @ t
+        rigid = self.rigid_mass_matrix
         return rigid + cs.diag(cs.DM(self.armature)) if self.armature else rigid
 
     @cached_property
@@ -405,10 +410,14 @@ class Robot:
         return cs.reshape(cs.jtimes(cs.vec(self.mass_matrix), self.q, self.qd), self.n, self.n)
 
     @cached_property
+    def link_pose(self) -> SE3:
+        """``g_wl(q)``: world to the link :attr:`frame`, its forward kinematics."""
+        return SE3.from_matrix(self._kindyn.forward_kinematics(self.frame, cs.SX.eye(4), self._q_moving))
+
+    @cached_property
     def camera_pose(self) -> SE3:
         """``g_wc(q)``: world to camera, the link's forward kinematics times the mount."""
-        link = SE3.from_matrix(self._kindyn.forward_kinematics(self.frame, cs.SX.eye(4), self._q_moving))
-        return link @ self.mount
+        return self.link_pose @ self.mount
 
     @cached_property
     def body_jacobian(self) -> Matrix:

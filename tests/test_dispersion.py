@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import pickle
 import tomllib
 from dataclasses import replace
 from pathlib import Path
@@ -169,7 +170,7 @@ def test_clopper_pearson_equals_scipy_and_the_hand_computation():
         ({"plant.mount.rpy": {"dist": "uniform", "low": 0.1, "high": -0.1}}, "exceeds high"),
         ({"plant.mount.rpy": {"dist": "cauchy", "sigma": 0.1}}, "dist"),
         ({"plant.mount.rp": {"dist": "normal", "sigma": 0.1}}, "did you mean 'plant.mount.rpy'"),
-        ({"target.motion.radius": {"dist": "normal", "sigma": 0.1}}, "not dispersable"),
+        ({"target.motion.period": {"dist": "normal", "sigma": 0.1}}, "not dispersable"),
         ({"implementation.frame_drop": {"dist": "choice", "values": [0.1, 1.5]}}, "outside"),
     ],
 )
@@ -278,3 +279,15 @@ def test_report_campaign_runs_is_a_strict_positive_integer(runs):
         Scenario.model_validate(data)
     data["report"] = {"campaign_runs": 7}
     assert Scenario.model_validate(data).report.campaign_runs == 7
+
+
+def test_a_worker_builds_one_simulator_for_every_batch_of_a_case():
+    """Each batch reaches a worker as a pickled case; the copies of one case share the simulator
+    built for the first (no batch rebuilds it)."""
+    case = case_of(with_dispersion(SMALL), duration=0.2)
+    first, second = (pickle.loads(pickle.dumps(case)) for _ in range(2))
+    assert campaign_module.shared_simulator(first) is campaign_module.shared_simulator(second)
+    other = case_of(with_dispersion(SMALL), duration=0.3)
+    assert campaign_module.shared_simulator(pickle.loads(pickle.dumps(other))) is not (
+        campaign_module.shared_simulator(first)
+    )

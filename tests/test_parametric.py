@@ -36,18 +36,28 @@ def per_design(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(parametric, "parametrised", lambda loop: False)
 
 
+TARGET_VELOCITY_ROUNDING = 1e-15
+"""How far what is built from the target's velocity (``w``, ``dV/dt``, the quadratures) of the
+symbolic loop may be from the numeric loop's: its radius is an entry of ``p``, and CasADi folds
+a numeric radius into the constants of the time derivative; measured at most about 1e-17."""
+ROUNDED = ("w", "Vdot")
+"""The signals built from the target's velocity."""
+
+
 def assert_same_run(a, b, tol: float = 0.0) -> None:
     assert a.status == b.status == "ok"
     assert np.array_equal(a.t, b.t)
     for name in a.signals:
-        assert np.abs(a[name] - b[name]).max() <= tol * max(1.0, np.abs(b[name]).max()), name
+        limit = max(tol, TARGET_VELOCITY_ROUNDING) if name in ROUNDED else tol
+        assert np.abs(a[name] - b[name]).max() <= limit * max(1.0, np.abs(b[name]).max()), name
     for name in a.integrals:
-        assert np.abs(a.integrals[name] - b.integrals[name]).max() <= tol, name
+        assert np.abs(a.integrals[name] - b.integrals[name]).max() <= max(tol, TARGET_VELOCITY_ROUNDING), name
 
 
 def test_symbolic_loop_evaluates_as_the_numeric_one(rng):
     """At random states, the right-hand side and every signal of the symbolic loop at a design's
-    ``p`` equal the numeric loop's bit for bit, for two designs (the reference included)."""
+    ``p`` equal the numeric loop's bit for bit, for two designs (the reference included), but
+    what is built from the target's velocity (:data:`TARGET_VELOCITY_ROUNDING`)."""
     loop, s0, _ = build_loop()
     for design in (loop, other_design(loop)):
         model, p = parametric.symbolic(design), parametric.parameter_vector(design)
@@ -55,10 +65,14 @@ def test_symbolic_loop_evaluates_as_the_numeric_one(rng):
         signals, signals_p = design.signals_function(), model.signals_function()
         for _ in range(5):
             t, s = rng.uniform(0, 5), s0 + 0.02 * rng.standard_normal(s0.size)
-            a, b = numeric(t, s, [], 0.1, []), symbolic(t, s, [], np.r_[0.1, p], [])
-            assert all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b, strict=True))
+            (ode, _, quad, _), (ode_p, _, quad_p, _) = (numeric(t, s, [], 0.1, []),
+                                                        symbolic(t, s, [], np.r_[0.1, p], []))  # fmt: skip
+            assert np.array_equal(np.asarray(ode), np.asarray(ode_p))
+            assert np.allclose(np.asarray(quad), np.asarray(quad_p), rtol=0, atol=TARGET_VELOCITY_ROUNDING)
             a, b = signals(t, s), signals_p(t, s, p)
-            assert all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b, strict=True))
+            for name, x, y in zip(design.signals, a, b, strict=True):
+                tol = TARGET_VELOCITY_ROUNDING if name in ROUNDED else 0.0
+                assert np.abs(np.asarray(x) - np.asarray(y)).max(initial=0.0) <= tol, name
 
 
 def test_a_design_change_reuses_the_symbolic_loop():
@@ -75,7 +89,8 @@ def test_a_design_change_reuses_the_symbolic_loop():
 
 def test_sampled_run_equals_the_per_design_build(monkeypatch):
     """The sampled loop (RK4 periods, image mode, pixel noise) of two designs run with the design
-    as an input equals, bit for bit, the run built with the design's numbers."""
+    as an input equals, bit for bit (but what is built from the target's velocity, :data:`ROUNDED`),
+    the run built with the design's numbers."""
     scenario, base = load(DEFAULT_SCENARIO)
     loop, s0, settings = build(scenario, base)
     settings = replace(settings, jit=False, duration=0.3)

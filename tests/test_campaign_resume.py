@@ -1,0 +1,77 @@
+"""Campaigns on a Dask cluster, and the report's campaign stage interrupted and resumed."""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+
+import pytest
+import tomli_w
+from typer.testing import CliRunner
+
+from dvfc.analysis import campaign as campaign_module
+from dvfc.analysis.campaign import read_runs
+from dvfc.analysis.case import Case
+from dvfc.analysis.cli import app
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
+from dvfc.reports.document import StageCache, measure_campaign
+
+DISPERSION = {"plant.mount.rpy": {"dist": "normal", "sigma": 0.01, "clip": 3.0},
+              "implementation.frame_drop": {"dist": "uniform", "low": 0.0, "high": 0.1},
+              "target.motion.radius": {"dist": "uniform", "low": -0.01, "high": 0.01}}  # fmt: skip
+
+
+def scenario_data(runs: int) -> dict:
+    """The default scenario, 1 s, with :data:`DISPERSION` and ``[report] campaign_runs = runs``."""
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["simulation"]["duration"] = 1.0
+    data["dispersion"] = copy.deepcopy(DISPERSION)
+    data["report"] = {"campaign_runs": runs}
+    return data
+
+
+@pytest.mark.slow
+def test_a_local_dask_cluster_gives_the_datasets_of_one_and_two_local_workers(tmp_path):
+    """``dvfc campaign --scheduler local`` (a LocalCluster of two worker processes on this machine)
+    writes the dataset of one local worker and of two, run for run (but the wall times)."""
+    pytest.importorskip("distributed")
+    scenario = tmp_path / "scenario.toml"
+    scenario.write_text(tomli_w.dumps(scenario_data(6)))
+    runs = {}
+    for name, options in (("one", ["--workers", "1"]), ("two", ["--workers", "2"]),
+                          ("dask", ["--workers", "2", "--scheduler", "local"])):  # fmt: skip
+        command = ["campaign", str(scenario), "--runs", "6", "--batch-size", "2", "--out", str(tmp_path / name)]
+        result = CliRunner().invoke(app, [*command, *options])
+        assert result.exit_code in (0, 1), result.output  # 1: some run fails the criterion
+        runs[name] = read_runs(tmp_path / name).drop_columns(["wall_time"])
+    assert runs["one"].equals(runs["two"])
+    assert runs["dask"].equals(runs["one"])
+
+
+@pytest.mark.slow
+def test_the_reports_campaign_interrupted_and_resumed_loses_nothing_and_gives_the_same_result(tmp_path, monkeypatch):
+    """Ctrl-C in the report's campaign stage after its second batch; the resumed report makes only
+    the runs not yet recorded and states what the uninterrupted report does."""
+    case = Case(Scenario.model_validate(scenario_data(60)), DEFAULT_SCENARIO.parent)  # 3 batches of 25 runs
+    whole = measure_campaign(case, StageCache(tmp_path / "whole", "key", False), None)
+    starts, cut, real = [], [], campaign_module.campaign_batch
+
+    def batch(spec, start: int, stop: int) -> dict:
+        starts.append(start)
+        if len(starts) == 3 and not cut:  # Ctrl-C in the third batch, once
+            cut.append(start)
+            raise KeyboardInterrupt
+        return real(spec, start, stop)
+
+    monkeypatch.setattr(campaign_module, "campaign_batch", batch)
+    with pytest.raises(KeyboardInterrupt):
+        measure_campaign(case, StageCache(tmp_path / "cut", "key", False), None)
+    starts.clear()
+    resumed = measure_campaign(case, StageCache(tmp_path / "cut", "key", True), None)
+    assert starts == [50]  # the two batches recorded are not made again
+    for result in (whole, resumed):
+        result["runs"].pop("wall_time")
+        result["summary"].pop("wall_time_per_run")
+    assert resumed["summary"] == whole["summary"]
+    assert resumed["runs"] == whole["runs"]
+    assert (resumed["worst"].signals["q"] == whole["worst"].signals["q"]).all()
