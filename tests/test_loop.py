@@ -173,14 +173,21 @@ def test_compiled_dynamics_match_virtual_machine(tmp_path, monkeypatch):
 
 def test_mapped_signals_equal_pointwise_evaluation():
     """Signals read in one mapped call equal the signal function at single points (every
-    output, including those with structural zeros)."""
+    output, including those with structural zeros): bit for bit, except the target velocity in
+    ``w``, whose radius is an entry of the mapped call's parameter vector and a constant of the
+    pointwise function (the same product in another order: 2 ulp of the signal's largest entry)."""
     loop, s0, settings = build_loop()
     traj = run(loop, s0, settings, duration=0.5)
     f = loop.signals_function()
     for k in (0, 17, 50):
         values = f(traj.t[k], traj["state"][k])
         for i, name in enumerate(f.name_out()):
-            assert np.array_equal(np.asarray(values[i]).ravel(), traj[name][k]), name
+            value = np.asarray(values[i]).ravel()
+            if name == "w":
+                tol = 2 * np.finfo(float).eps * np.abs(value).max()
+                assert np.all((value == 0) == (traj[name][k] == 0)) and np.abs(value - traj[name][k]).max() <= tol
+            else:
+                assert np.array_equal(value, traj[name][k]), name
 
 
 def test_diverging_run_stops_with_a_status(rng):
