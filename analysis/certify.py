@@ -62,14 +62,16 @@ ASSUMPTIONS = (
 
 @dataclass(frozen=True)
 class GainPoint:
-    """One design: the gains of (42), the weights of (35) and the generalized plant's weights
-    (``plant``, docs/math.md, fact 17; None: the paper's, every weight 1)."""
+    """One design: the gains of (42), the weights of (35), the generalized plant's weights
+    (``plant``, docs/math.md, fact 17; None: the paper's, every weight 1) and the integral gain
+    ``k_i`` (fact 20; None: none). ``P(gamma)`` does not depend on ``k_i`` (fact 20.2)."""
 
     k_xi: np.ndarray
     k_c: np.ndarray
     k_e: np.ndarray
     weights: Weights
     plant: PlantWeights | None = None
+    k_i: np.ndarray | None = None
 
     @property
     def plant_weights(self) -> PlantWeights:
@@ -97,7 +99,7 @@ class GainPoint:
         return bool(np.ptp(self.k_e[:3]) == 0 and np.ptp(self.k_e[3:]) == 0)
 
     def with_k_e(self, k_e: np.ndarray) -> GainPoint:
-        return GainPoint(self.k_xi, self.k_c, np.asarray(k_e, dtype=float), self.weights, self.plant)
+        return GainPoint(self.k_xi, self.k_c, np.asarray(k_e, dtype=float), self.weights, self.plant, self.k_i)
 
 
 def xi_limits(k_xi: np.ndarray, point: GainPoint) -> np.ndarray:

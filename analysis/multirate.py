@@ -20,6 +20,12 @@ periods, the control/camera ratio rational) the product of the step maps is the 
 ``Pi``. If ``rho(Pi) < 1`` the equilibrium of the nonlinear sampled loop is locally
 exponentially stable with every rate below ``-ln(rho) / (P h)``; the certificate is the
 strict discrete Lyapunov inequality for ``P_L = dlyap(Pi^T, I)``, checked a posteriori.
+
+With integral action (docs/math.md, fact 21) ``z`` ends with ``z_I``, held over the period
+(no rate) and updated at each sample, ``z_I <- z_I + h (X z_k + X_e e_k)`` (``xi = X z + X_e e``
+linearised), the law reading ``-K_I z_I``: ``6 + n`` more states (36 on a 6-joint arm). The
+plant's friction ``b qd + c tanh(qd/eps)`` linearised at ``qd = 0`` has the slope
+``b + c/eps``: ``A -> A - B_tau diag(b + c/eps) S_qd`` (:meth:`HeldLinearization.with_friction`).
 """
 
 from __future__ import annotations
@@ -81,6 +87,9 @@ class HeldLinearization:
         ``e_e`` (15) and its image estimate (21) from the true features: ``c z``, ``c_image z``.
     q_eq, tau_eq
         The equilibrium configuration and torque ``g(q_eq)``.
+    xi, xi_e
+        With integral action: ``xi = xi z + xi_e e`` at the sample, whose ``h`` multiple is the
+        update of ``z_I``, the last ``n`` entries of ``z`` (None: no integral state).
     """
 
     a: np.ndarray
@@ -92,15 +101,44 @@ class HeldLinearization:
     c_image: np.ndarray
     q_eq: np.ndarray
     tau_eq: np.ndarray
+    xi: np.ndarray | None = None
+    xi_e: np.ndarray | None = None
 
-    def period_map(self, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(A_z, A_e)`` of one control period ``h``: the zero-order-hold flow, exactly."""
+    def flow(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(Phi, G_tau, G_e)``: the held flow over ``h``, the first block row of
+        ``expm([[A, B_tau, B_e], [0, 0, 0]] h)``."""
         nz, nt, ne = self.a.shape[0], self.b_tau.shape[1], self.b_e.shape[1]
         generator = np.zeros((nz + nt + ne, nz + nt + ne))
         generator[:nz] = np.hstack([self.a, self.b_tau, self.b_e])
         flow = scipy.linalg.expm(generator * h)[:nz]
-        phi, g_tau, g_e = flow[:, :nz], flow[:, nz : nz + nt], flow[:, nz + nt :]
-        return phi + g_tau @ self.f, g_tau @ self.f_e + g_e
+        return flow[:, :nz], flow[:, nz : nz + nt], flow[:, nz + nt :]
+
+    def period_map(self, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(A_z, A_e)`` of one control period ``h``: the zero-order-hold flow, exactly, and with
+        integral action the sample's update ``z_I <- z_I + h xi_k`` (fact 21)."""
+        nz, nt = self.a.shape[0], self.b_tau.shape[1]
+        phi, g_tau, g_e = self.flow(h)
+        a_z, a_e = phi + g_tau @ self.f, g_tau @ self.f_e + g_e
+        if self.xi is not None:
+            a_z[nz - nt :] += h * self.xi
+            a_e[nz - nt :] += h * self.xi_e
+        return a_z, a_e
+
+    def steady_state(self, h: float, c: np.ndarray, tau_d: np.ndarray) -> np.ndarray:
+        """The fixed point ``z`` of the sampled loop under a constant joint torque ``tau_d`` (fact 21):
+        every held value is constant there (``e = c z``), so ``(I - A_z - A_e c) z = G_tau tau_d``
+        exactly, the steady state of the linearised sampled loop (and of the continuous one)."""
+        a_z, a_e = self.period_map(h)
+        return np.linalg.solve(np.eye(len(a_z)) - a_z - a_e @ c, self.flow(h)[1] @ tau_d)
+
+    def with_friction(self, slope: np.ndarray) -> HeldLinearization:
+        """The same loop with the plant's joint friction linearised at ``qd = 0``: ``slope = b + c/eps``
+        per joint, ``A -> A - B_tau diag(slope) S_qd`` (``tanh`` is odd and smooth: the equilibrium
+        does not move, and this is its exact linearisation; fact 21)."""
+        n = self.b_tau.shape[1]
+        a = self.a.copy()
+        a[:, n : 2 * n] -= self.b_tau @ np.diag(slope)
+        return replace(self, a=a)
 
 
 def rest_model(loop: ClosedLoop) -> ClosedLoop:
@@ -112,8 +150,10 @@ def rest_model(loop: ClosedLoop) -> ClosedLoop:
 
 
 def rest_state(loop: ClosedLoop, q_eq: np.ndarray) -> np.ndarray:
-    """The state ``[q; qd; pbar; quat]`` at the equilibrium: ``q = q_eq``, ``qd = 0``, ``gbar = g_d``."""
-    return np.concatenate([q_eq, np.zeros(loop.robot.n), loop.reference.position_quaternion()])
+    """The state ``[q; qd; pbar; quat]`` at the equilibrium: ``q = q_eq``, ``qd = 0``, ``gbar = g_d``
+    (and ``z_I = 0`` with integral action)."""
+    z_i = np.zeros(loop.robot.n if loop.integral else 0)
+    return np.concatenate([q_eq, np.zeros(loop.robot.n), loop.reference.position_quaternion(), z_i])
 
 
 def held_linearization(loop: ClosedLoop, q0: np.ndarray) -> HeldLinearization:
@@ -124,27 +164,32 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray) -> HeldLinearization:
     model = rest_model(loop)
     tau, e = model.hold[:n], model.hold[n:]
     dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
-    z = cs.vertcat(dq, dqd, dp, dth)
+    dz_i = cs.SX.sym("dz_I", n if loop.integral else 0)
+    z = cs.vertcat(dq, dqd, dp, dth, dz_i)
     s_eq = rest_state(loop, q_eq)
     state = cs.vertcat(
         s_eq[: 2 * n] + cs.vertcat(dq, dqd),
         s_eq[2 * n : 2 * n + 3] + dp,
-        _quaternion_product(s_eq[2 * n + 3 :], cs.vertcat(1, dth / 2)),
+        _quaternion_product(s_eq[2 * n + 3 : 2 * n + 7], cs.vertcat(1, dth / 2)),
+        dz_i,
     )
-    rate = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6])
+    held = cs.DM.zeros(dz_i.shape[0])  # z_I is held over the period
+    rate = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6], held)
     law = cs.substitute(model.tau, tau, cs.DM.zeros(n))  # the law does not read the held torque
-    exprs = [rate, law, model.e_e, model.e_e_image]
-    rate, law, e_exact, e_image = cs.substitute(exprs, [model.state], [state])
+    exprs = [rate, law, model.e_e, model.e_e_image, model.xi]
+    rate, law, e_exact, e_image, xi = cs.substitute(exprs, [model.state], [state])
     jac = cs.Function("held", [z, tau, e, model.t], [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau),
                                                        cs.jacobian(rate, e), cs.jacobian(law, z), cs.jacobian(law, e),
-                                                       cs.jacobian(e_exact, z), cs.jacobian(e_image, z)])  # fmt: skip
+                                                       cs.jacobian(e_exact, z), cs.jacobian(e_image, z),
+                                                       cs.jacobian(xi, z), cs.jacobian(xi, e)])  # fmt: skip
     zero_z, zero_e = np.zeros(z.shape[0]), np.zeros(loop.task_dim)
     tau_eq = np.asarray(jac(zero_z, np.zeros(n), zero_e, 0.0)[0]).ravel()
     values = [np.asarray(m) for m in jac(zero_z, tau_eq, zero_e, 0.0)]
     residual = np.abs(values[1]).max()
     if residual > 1e-8:
         raise ValueError(f"the linearisation point is not an equilibrium (|dz/dt| = {residual:.2e})")
-    return HeldLinearization(*values[2:], q_eq=q_eq, tau_eq=tau_eq)
+    integral = values[9:] if loop.integral else [None, None]
+    return HeldLinearization(*values[2:9], q_eq=q_eq, tau_eq=tau_eq, xi=integral[0], xi_e=integral[1])
 
 
 class NotApplicableError(ValueError):
@@ -380,6 +425,7 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
     certified = rho < 1 - RHO_MARGIN and check.certified
     gap = float(np.abs(lin.c_image - lin.c).max())
     return {
+        **_integral_and_friction(loop, settings, system),
         "applies": True,
         "certified": certified,
         "reason": None if certified else f"rho = {rho:.6g} or the Lyapunov check (margin {check.margin:.3g}) fails",
@@ -402,6 +448,25 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
         "margins": linear_margins(system),
         "seconds": time.perf_counter() - start,
     }
+
+
+def _integral_and_friction(loop: ClosedLoop, settings: Settings, system: MultirateLoop) -> dict:
+    """The record's entries for integral action and the plant's friction (fact 21): whether
+    ``z_I`` is in the monodromy and, when the plant has friction, ``rho`` with its slope
+    ``b + c/eps`` at ``qd = 0`` (the headline ``rho`` is the frictionless plant's)."""
+    out: dict = {"integral_state": loop.integral}
+    errors = settings.errors
+    if errors is None or not (np.any(errors.viscous) or np.any(errors.coulomb)):
+        return out
+    slope = np.asarray(errors.viscous, dtype=float) + np.asarray(errors.coulomb, dtype=float) / errors.smoothing
+    with_friction = MultirateLoop(system.lin.with_friction(slope), system.implementation, system.mode, {})
+    out["friction_slope"] = {
+        "slope": slope.tolist(),
+        "rho": with_friction.rho(),
+        "scope": ("the plant's friction b qd + c tanh(qd/eps) linearised at qd = 0 (slope b + c/eps, the "
+                  "simulator's smoothed Coulomb model: a real joint sticks at rest); local, target at rest"),
+    }  # fmt: skip
+    return out
 
 
 def implemented_text(record: dict) -> str:

@@ -6,7 +6,8 @@ symbolic gains, weights, reference, target radius and plant (:func:`symbolic`), 
 and loop structure, and pass a design's numbers (:func:`parameter_vector`) at run time::
 
     p = [k_xi (n); k_c (6); k_e (6); w_pc; w_rc; w_pe; w_re; p_d (3); vec(R_d) (9, column-major);
-         radius; (mass_scale; payload mass; payload com (3); payload inertia (6)) with a plant]
+         radius; (mass_scale; payload mass; payload com (3); payload inertia (6)) with a plant;
+         (k_i (n)) with integral action]
 
 so that the generated code, and the compiled library cached by the hash of its source, does
 not depend on the design: another design of the same arm, another target radius, another
@@ -77,9 +78,10 @@ class Inputs:
         return np.array([self.radius, self.mass_scale, body.mass, *body.com, *body.inertia], dtype=float)
 
 
-def parameter_count(n: int, plant: bool = False) -> int:
-    """Entries of the parameter vector of an arm with ``n`` joints (with a ``plant``: its masses too)."""
-    return n + 2 * ClosedLoop.task_dim + 4 + 3 + 9 + 1 + (PLANT_ENTRIES if plant else 0)
+def parameter_count(n: int, plant: bool = False, integral: bool = False) -> int:
+    """Entries of the parameter vector of an arm with ``n`` joints (with a ``plant``: its masses
+    too; with ``integral`` action: ``K_I``)."""
+    return n + 2 * ClosedLoop.task_dim + 4 + 3 + 9 + 1 + (PLANT_ENTRIES if plant else 0) + (n if integral else 0)
 
 
 def parameter_vector(loop: ClosedLoop, inputs: Inputs | None = None) -> np.ndarray | None:
@@ -91,7 +93,10 @@ def parameter_vector(loop: ClosedLoop, inputs: Inputs | None = None) -> np.ndarr
     translation = np.asarray(cs.DM(r.translation), dtype=float).ravel()
     rotation = np.asarray(cs.DM(r.rotation.matrix), dtype=float).ravel(order="F")
     extra = (inputs or Inputs.of(loop.target, loop.plant)).vector(loop.plant is not None)
-    return np.concatenate([g.k_xi, g.k_c, g.k_e, loop.weights.as_array(), translation, rotation, extra]).astype(float)
+    k_i = [] if g.k_i is None else [g.k_i]
+    return np.concatenate([g.k_xi, g.k_c, g.k_e, loop.weights.as_array(), translation, rotation, extra, *k_i]).astype(
+        float
+    )
 
 
 @dataclass(frozen=True)
@@ -152,7 +157,11 @@ def _structure(loop: ClosedLoop) -> tuple:
     """What a loop's functions depend on besides its design: the objects (held by identity:
     ``dataclasses.replace`` of a loop keeps them) and the flags."""
     objects = (loop.robot, loop.camera, loop.target, loop.inputs, loop.plant, loop.plan, *loop.disturbances)
-    return objects, (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance)
+    flags = (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance)
+    if loop.integral or loop.friction is not None or loop.compensation is not None:
+        numbers = (None if v is None else tuple(map(float, v)) for v in (loop.friction, loop.compensation))
+        flags = (*flags, loop.integral, loop.integral_start, *numbers)
+    return objects, flags
 
 
 def symbolic(loop: ClosedLoop) -> ClosedLoop:
@@ -167,7 +176,8 @@ def symbolic(loop: ClosedLoop) -> ClosedLoop:
         _symbolic.move_to_end(key)
         return _symbolic[key][1]
     n, task = loop.robot.n, loop.task_dim
-    p = cs.SX.sym("p", parameter_count(n, loop.plant is not None))
+    plant = loop.plant is not None
+    p = cs.SX.sym("p", parameter_count(n, plant, loop.integral))
     k_xi, k_c, k_e = p[:n], p[n : n + task], p[n + task : n + 2 * task]
     w = p[n + 2 * task : n + 2 * task + 4]
     position = p[n + 2 * task + 4 : n + 2 * task + 7]
@@ -175,11 +185,11 @@ def symbolic(loop: ClosedLoop) -> ClosedLoop:
     rotation = cs.reshape(p[n + 2 * task + 7 : end], 3, 3)
     model = replace(
         loop,
-        gains=Gains(k_xi, k_c, k_e),
+        gains=Gains(k_xi, k_c, k_e, p[-n:] if loop.integral else None),
         weights=Weights(w[0], w[1], w[2], w[3]),
         reference=SE3(position, SO3(rotation)),
         target=replace(loop.target, radius=p[end]),
-        plant=None if loop.plant is None else InertialPlant(_same_arm(loop), p[end + 1 :]),
+        plant=None if not plant else InertialPlant(_same_arm(loop), p[end + 1 : end + 1 + PLANT_ENTRIES]),
         parameters=p,
     )
     _symbolic[key] = (objects, model)  # the objects held: their ids stay theirs while cached

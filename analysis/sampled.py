@@ -15,7 +15,13 @@ controller
    (21) with the estimate ``gbar`` of the capture time (``e_e = "image"``), or the exact
    ``e_e`` (15) of the capture time (``e_e = "ideal"``);
 2. evaluates the law (35), (42) with the latest ``e_e`` (held until the next image) and
-   clips it at the URDF's effort limits when ``saturate`` is on.
+   clips it at the URDF's effort limits when ``saturate`` is on;
+3. with integral action (docs/math.md, fact 20), updates ``z_I <- z_I + h xi_k`` with the
+   sample's ``xi`` (from ``integral_start`` on), ``z_I`` held over the period like the torque;
+   anti-windup by conditional integration: joint ``i`` is not integrated at a sample whose
+   commanded torque exceeds its effort limit when the update ``-K_I,i h xi_i`` would push the
+   command further beyond it (``tau_i > effort_i`` and ``xi_i < 0``, or ``tau_i < -effort_i`` and
+   ``xi_i > 0``).
 
 The observer (12) runs between images on the joint velocities (``V_wc = J_b qd``, (34)),
 integrated exactly, with ``u_e`` built from the latest ``e_e``. Images are captured at the
@@ -152,6 +158,8 @@ class SampledSimulator(Simulator):
             after, quad = result["xf"], result["qf"]
         for q in loop.quaternions:
             after[q] = after[q] / cs.norm_2(after[q])
+        if loop.integral:
+            after[loop.integral_slice] = self._integral_update(t, s, e, commanded, effort, design)
         period = cs.Function("dvfc_period", [s, t, e, effort, friction, *design], [after, commanded, applied, quad])
         last = cs.Function("dvfc_last", [t, s, e, effort, *design], [commanded, applied])  # at t = T: the law only
         if settings.jit and implementation.integrator == "rk4":
@@ -229,6 +237,19 @@ class SampledSimulator(Simulator):
             s = s + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             quad = quad + step / 6 * (q1 + 2 * q2 + 2 * q3 + q4)
         return s, quad
+
+    def _integral_update(
+        self, t: cs.MX, s: cs.MX, e: cs.MX, commanded: cs.MX, effort: cs.MX, design: list[cs.MX]
+    ) -> cs.MX:
+        """``z_I`` after one control period: ``z_I + h xi_k`` (the sample's ``xi``, 0 before
+        ``integral_start``: :attr:`ClosedLoop.integrand`), but a joint whose ``commanded`` torque is
+        beyond its ``effort`` limit keeps its ``z_I`` when the update would push the command
+        further beyond (conditional integration, see the module's description)."""
+        model, n = self.model, self.loop.robot.n
+        rate = cs.Function("dvfc_integrand", model.arguments[0], [model.integrand])
+        xi = rate(t, s, cs.vertcat(cs.MX.zeros(n), e), *design)
+        windup = cs.logic_or(cs.logic_and(commanded > effort, xi < 0), cs.logic_and(commanded < -effort, xi > 0))
+        return s[self.loop.integral_slice] + cs.if_else(windup, cs.MX.zeros(n), self.implementation.period * xi)
 
     def _cvodes(self) -> cs.Function:
         """CVODES over one control period (the reference integrator)."""

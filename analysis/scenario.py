@@ -24,6 +24,7 @@ from dvfc.analysis.messages import one_line
 from dvfc.analysis.schema import (
     CameraSection,
     DisturbancesSection,
+    FrictionModel,
     PlantSection,
     RobotSection,
     Scenario,
@@ -221,10 +222,12 @@ def build(
         target=target,
         reference=scenario.reference.se3(),
         weights=point.weights,
-        gains=Gains(point.k_xi, point.k_c, point.k_e),
+        gains=Gains(point.k_xi, point.k_c, point.k_e, point.k_i),
         mode=mode or _implementation_mode(scenario),
         disturbances=disturbances(scenario.disturbance, n),
         performance=point.plant,
+        compensation=compensation(scenario, robot),
+        integral_start=integral_start(scenario),
     )
     s0 = _initial_state(scenario, loop, q0, qd0)
     if scenario.start.reference == "planned":
@@ -381,16 +384,51 @@ def _plant(section: PlantSection, robot: Robot) -> Robot | None:
 
 def gain_point(scenario: Scenario, n: int) -> GainPoint:
     """The scenario's gains and weights as a certifier point (``n`` joints; ``K_c``, ``K_e``
-    of 6 entries, or 2 for the planar loop)."""
+    of 6 entries, or 2 for the planar loop; ``K_I`` from ``k_i`` or ``k_i_factor K_xi``)."""
     g = scenario.gains
     task = TASK if scenario.loop == "planar" else 6
+    k_xi = _vector(g.k_xi, n, "gains.k_xi")
+    k_i = None
+    if g.k_i is not None or g.k_i_factor is not None:
+        if scenario.loop == "planar":
+            name = "k_i" if g.k_i is not None else "k_i_factor"
+            raise ScenarioError(f"gains.{name}: integral action is built for the paper's loop, not the planar one")
+        k_i = _vector(g.k_i, n, "gains.k_i") if g.k_i is not None else g.k_i_factor * k_xi
     return GainPoint(
-        _vector(g.k_xi, n, "gains.k_xi"),
+        k_xi,
         _vector(g.k_c, task, "gains.k_c"),
         _vector(g.k_e, task, "gains.k_e"),
         Weights(**scenario.weights.model_dump()),
         plant_weights(scenario, n),
+        k_i,
     )
+
+
+def integral_start(scenario: Scenario) -> float:
+    """``[gains] integral_start``, or the end of the start's transient: the planned reference's hold
+    plus its duration, the ramp's end, else 0 (docs/math.md, fact 20)."""
+    if scenario.gains.integral_start is not None:
+        return scenario.gains.integral_start
+    start = scenario.start
+    if start.reference == "planned":
+        return _first_image(scenario) + start.duration
+    return start.ramp or 0.0
+
+
+def compensation(scenario: Scenario, robot: Robot) -> np.ndarray | None:
+    """The law's friction model ``[bhat; chat; epshat]`` of ``[controller] friction_compensation``
+    (docs/math.md, fact 19.2), or None (``"none"``)."""
+    model, n = scenario.controller.friction_compensation, robot.n
+    if model == "none":
+        return None
+    if scenario.loop == "planar":
+        raise ScenarioError("controller.friction_compensation: built for the paper's loop, not the planar one")
+    if model == "urdf":
+        viscous, coulomb = joint_dynamics(robot.urdf, robot.joints)
+        return np.concatenate([viscous, coulomb, [FrictionModel().smoothing]]).astype(float)
+    where = "controller.friction_compensation"
+    viscous, coulomb = _vector(model.viscous, n, f"{where}.viscous"), _vector(model.coulomb, n, f"{where}.coulomb")
+    return np.concatenate([viscous, coulomb, [model.smoothing]]).astype(float)
 
 
 def plant_weights(scenario: Scenario, n: int) -> PlantWeights | None:

@@ -412,7 +412,8 @@ def identity_residuals(traj: Trajectory) -> dict[str, float]:
     - ``passivity`` (Lemma 2, (40)-(41) with ``w``): ``V(t) - V(0) = int (u^T nu + x^T G w)``;
       holds for any input, so in both modes.
     - ``dissipation`` ((43), with ``w``): ``V(t) - V(0) = int (-nu^T K nu + x^T G w)``;
-      exact only when ``u = -K N x`` with the exact ``e_e`` (ideal mode).
+      exact only when ``u = -K N x`` with the exact ``e_e`` (ideal mode). With integral action,
+      ``V_a = V + z_I^T K_I z_I / 2`` in place of ``V`` (docs/math.md, fact 20.1).
 
     The scale is ``max(V(0), max_t |int u^T nu|, max_t |int x^T G w|)``.
     """
@@ -421,6 +422,8 @@ def identity_residuals(traj: Trajectory) -> dict[str, float]:
     i = traj.integrals
     scale = max(v[0], np.abs(i["supply_u_nu"]).max(), np.abs(i["supply_x_G_w"]).max(), np.finfo(float).tiny)
     passivity = dv - i["supply_u_nu"] - i["supply_x_G_w"]
+    if "V_a" in traj.signals:
+        dv = traj["V_a"][:, 0] - traj["V_a"][0, 0]
     dissipation = dv + i["dissipation_nu_K_nu"] - i["supply_x_G_w"]
     return {
         "passivity": float(np.abs(passivity).max() / scale),

@@ -30,6 +30,7 @@ import numpy as np
 
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import Disturbance, torque
+from dvfc.models.errors import friction_torque
 from dvfc.models.lie import SE3, SO3, Matrix, quaternion_rate, quaternion_to_matrix
 from dvfc.models.robot import Robot
 from dvfc.models.target import TargetMotion
@@ -108,11 +109,13 @@ class Weights:
 @dataclass(frozen=True)
 class Gains:
     """Diagonal gains of (42): ``K_xi`` (n entries), ``K_c`` and ``K_e`` (6 entries each), as
-    numbers or as CasADi symbols (columns)."""
+    numbers or as CasADi symbols (columns), and the integral gain ``K_I`` (n entries) of
+    ``u_xi = -K_xi xi - K_I z_I`` (docs/math.md, fact 20; None: no integral action, the paper's law)."""
 
     k_xi: np.ndarray | cs.SX
     k_c: np.ndarray | cs.SX
     k_e: np.ndarray | cs.SX
+    k_i: np.ndarray | cs.SX | None = None
 
     @property
     def matrix(self) -> Matrix:
@@ -269,6 +272,18 @@ class ClosedLoop:
     plant
         The arm as it really is (a payload, other masses), when it differs from ``robot``:
         the law keeps ``robot``'s model, the joints move by ``plant``'s (33).
+    friction
+        The plant's joint friction ``[b; c; eps]`` (:func:`dvfc.models.errors.friction_torque`) in
+        the continuous loop: the joints receive ``tau - f(qd)``, and ``-f(qd)`` is part of the torque
+        disturbance of ``w`` (docs/math.md, fact 18.1). None: none. (The sampled loop takes the
+        plant's friction as an input of its control period instead.)
+    compensation
+        The controller's friction model ``[bhat; chat; epshat]``, fed forward on the law's own
+        ``qd_d``: the law (35) plus ``fhat(qd_d)`` (docs/math.md, fact 19.2); the residual
+        ``fhat(qd_d) - f(qd)`` is the torque disturbance of ``w``. None: no compensation.
+    integral_start
+        With integral action (``gains.k_i``), the time from which ``z_I`` integrates (held at 0
+        before: the start's transient, docs/math.md, fact 20).
     sampled
         The loop as a digital controller runs it: the torque applied and the ``e_e`` the
         law and observer use are held inputs (:attr:`hold`), set at the samples by
@@ -295,6 +310,9 @@ class ClosedLoop:
     plan: ReferencePlan | None = None
     ramp: float | None = None
     performance: PlantWeights | None = None
+    friction: np.ndarray | None = None
+    compensation: np.ndarray | None = None
+    integral_start: float = 0.0
 
     task_dim = 6
     """Entries of ``e_c``, ``e_e``, ``u_d`` and ``u_e``."""
@@ -311,6 +329,22 @@ class ClosedLoop:
         self.n_state = 2 * n + 7
         self.quaternions = [slice(2 * n + 3, 2 * n + 7)]
         """Where the state holds unit quaternions (renormalised between integration chunks)."""
+        self.z_i = cs.SX.sym("z_I", n) if self.integral else cs.SX(0, 1)
+        """The integral state ``z_I`` (fact 20), the state's last ``n`` entries with integral action."""
+        if self.integral:
+            self.state = cs.vertcat(self.state, self.z_i)
+            self.n_state += n
+
+    @property
+    def integral(self) -> bool:
+        """Whether the law has integral action (``gains.k_i`` given)."""
+        return self.gains.k_i is not None
+
+    @property
+    def integral_slice(self) -> slice:
+        """Where the state holds ``z_I`` (empty without integral action)."""
+        start = 2 * self.robot.n + 7
+        return slice(start, start + (self.robot.n if self.integral else 0))
 
     # --- poses and errors -------------------------------------------------------
     @cached_property
@@ -474,11 +508,29 @@ class ClosedLoop:
 
     @cached_property
     def u(self) -> Matrix:
-        """Input ``u = [u_xi; u_d; u_e]``; ``u_xi = -K_xi xi`` under (42)."""
+        """Input ``u = [u_xi; u_d; u_e]``; ``u_xi = -K_xi xi`` under (42), ``-K_xi xi - K_I z_I`` with
+        integral action (fact 20)."""
         u_d, u_e = self._camera_inputs
         feedback = self.inputs is None
         u_xi = -gain_column(self.gains.k_xi) * self.xi if feedback else self.inputs(self.t)[0 : self.robot.n]
+        if self.integral and feedback:
+            u_xi = u_xi - gain_column(self.gains.k_i) * self.z_i
         return cs.vertcat(u_xi, u_d, u_e)
+
+    @cached_property
+    def integrand(self) -> Matrix:
+        """``dz_I/dt = xi`` from :attr:`integral_start` on, 0 before (fact 20, variant i): the rate of
+        ``z_I`` in the continuous loop; the sampled loop adds ``h`` times it at each sample (its
+        anti-windup in :class:`dvfc.analysis.sampled.SampledSimulator`)."""
+        return cs.if_else(self.t >= self.integral_start, self.xi, cs.DM.zeros(self.robot.n))
+
+    @cached_property
+    def augmented_storage(self) -> Matrix:
+        """``V_a = V + z_I^T K_I z_I / 2`` (fact 20.1): ``dV_a/dt = -nu^T K nu + x^T G w`` under the law
+        with integral action; ``V`` (38) without it."""
+        if not self.integral:
+            return self.storage
+        return self.storage + self.z_i.T @ (gain_column(self.gains.k_i) * self.z_i) / 2
 
     @cached_property
     def z(self) -> Matrix:
@@ -499,14 +551,43 @@ class ClosedLoop:
         return torque(self.disturbances, self.t, self.robot.n)
 
     @cached_property
+    def plant_friction(self) -> Matrix:
+        """The continuous loop's joint friction ``f(qd) = b qd + c tanh(qd/eps)`` (:attr:`friction`;
+        0 without)."""
+        if self.friction is None:
+            return cs.DM.zeros(self.robot.n)
+        return friction_torque(self.qd, cs.DM(self.friction), self.robot.n)
+
+    @cached_property
+    def compensation_torque(self) -> Matrix:
+        """``fhat(qd_d)``, the law's friction compensation (:attr:`compensation`; 0 without)."""
+        if self.compensation is None:
+            return cs.DM.zeros(self.robot.n)
+        return friction_torque(self.qd_d, cs.DM(self.compensation), self.robot.n)
+
+    @cached_property
+    def matched_disturbance(self) -> Matrix:
+        """The torque disturbance of (36) relative to the law (35): ``tau_d - f(qd) + fhat(qd_d)``
+        (docs/math.md, facts 18.1 and 19.2); ``tau_d`` without friction or compensation."""
+        if self.friction is None and self.compensation is None:
+            return self.tau_d
+        return self.tau_d - self.plant_friction + self.compensation_torque
+
+    @cached_property
     def w(self) -> Matrix:
-        """Disturbance ``w = [tau_d; V_wo]`` (36)."""
-        return cs.vertcat(self.tau_d, self.target.velocity(self.t))
+        """Disturbance ``w = [tau_d; V_wo]`` (36), ``tau_d`` the :attr:`matched_disturbance`."""
+        return cs.vertcat(self.matched_disturbance, self.target.velocity(self.t))
 
     @cached_property
     def tau(self) -> Matrix:
         """Torque law (35): ``M qdd_d + C qd_d + g + J_b^T Ad_{g_d^-1}^T W_c e_c + u_xi`` (``g_d(t)``
-        when planned)."""
+        when planned), plus the friction compensation ``fhat(qd_d)`` when the law has one."""
+        law = self.paper_torque
+        return law if self.compensation is None else law + self.compensation_torque
+
+    @cached_property
+    def paper_torque(self) -> Matrix:
+        """(35) alone, without the friction compensation."""
         r = self.robot
         ad_d = self.desired.inverse().adjoint()
         feedforward = r.mass_matrix @ self.qdd_d + r.coriolis @ self.qd_d + r.gravity
@@ -531,6 +612,8 @@ class ClosedLoop:
         """Joint acceleration from (33): ``M qdd = tau + tau_d - C qd - g``, with the plant's
         ``M``, ``C``, ``g`` and the applied torque."""
         m, bias = self.plant_dynamics
+        if self.friction is not None:
+            bias = bias + self.plant_friction
         return cs.solve(m, self.applied_torque + self.tau_d - bias)
 
     @cached_property
@@ -542,12 +625,19 @@ class ClosedLoop:
         if self.plant is None and not self.sampled:
             return cs.DM.zeros(self.robot.n)
         r = self.robot
-        return r.mass_matrix @ self.qdd + r.coriolis @ self.qd + r.gravity - self.tau - self.tau_d
+        if self.friction is None and self.compensation is None:
+            return r.mass_matrix @ self.qdd + r.coriolis @ self.qd + r.gravity - self.tau - self.tau_d
+        model = r.mass_matrix @ self.qdd + r.coriolis @ self.qd + r.gravity
+        return model - self.paper_torque - self.matched_disturbance
 
     @cached_property
     def state_rate(self) -> Matrix:
-        """``ds/dt`` for ``s = [q; qd; pbar; quat]``."""
-        return cs.vertcat(self.qd, self.qdd, self.estimate_rate)
+        """``ds/dt`` for ``s = [q; qd; pbar; quat]`` (and ``z_I``: :attr:`integrand` in the continuous
+        loop, held between samples in the sampled one)."""
+        if not self.integral:
+            return cs.vertcat(self.qd, self.qdd, self.estimate_rate)
+        rate = cs.DM.zeros(self.robot.n) if self.sampled else self.integrand
+        return cs.vertcat(self.qd, self.qdd, self.estimate_rate, rate)
 
     @cached_property
     def conditioning(self) -> dict[str, Matrix]:
@@ -619,6 +709,7 @@ class ClosedLoop:
             "depth_bar": self.camera.depths(self.estimate),
             "image_jacobian": cs.vec(self.conditioning[self._image_matrix]),
             "body_jacobian": cs.vec(self.conditioning[self._arm_matrix]),
+            **({"z_I": self.z_i, "V_a": self.augmented_storage} if self.integral else {}),
         }
 
     @property
@@ -648,4 +739,5 @@ class ClosedLoop:
         """``s(0)`` with ``gbar(0) = g(0) g_ee(0)^-1`` for a given initial estimation error."""
         pose = cs.Function("g0", [self.q, self.t], [self.relative_pose.as_matrix()])
         g0 = SE3.from_matrix(pose(q0, 0.0))
-        return np.concatenate([q0, qd0, (g0 @ estimation_error.inverse()).position_quaternion()])
+        z_i = np.zeros(self.robot.n if self.integral else 0)
+        return np.concatenate([q0, qd0, (g0 @ estimation_error.inverse()).position_quaternion(), z_i])
