@@ -60,6 +60,27 @@ ASSUMPTIONS = (
 )
 
 
+INTEGRAL_COVERAGE = {
+    "lemma_2": "exact with V_a = V + z_I^T K_I z_I / 2: dV_a/dt = u'^T nu + x^T G w with u'_xi = u_xi + K_I z_I, and "
+    "dV_a/dt = -nu^T K nu + x^T G w under the law (docs/math.md, fact 20.1)",
+    "theorem_2": "the same P(gamma), so the same gamma, from w to x (not to z_I): int |x|^2 <= gamma^2 int |w|^2 + "
+    "2 V_a(0), V_a(0) = V(0) with z_I(0) = 0 (fact 20.2)",
+    "constant_torque": "under any constant joint torque and a static target the equilibrium has xi = 0, e_c = 0, e_e = "
+    "0 and K_I z_I = tau_d (fact 20.3, exact)",
+    "rate": "not certified: fact 7's exponential rate is lost; fact 20.4's V_eps rate needs sampled constants (fact "
+    "20.4)",
+    "implemented": "fact 14 with z_I in the monodromy (fact 21: n more states), local",
+}
+"""What the certificates cover for a design with integral action ``K_I``."""
+
+
+def integral_coverage(point: GainPoint) -> dict | None:
+    """:data:`INTEGRAL_COVERAGE` with the design's ``k_i`` (JSON-ready), or None without integral action."""
+    if point.k_i is None:
+        return None
+    return {"k_i": np.asarray(point.k_i, dtype=float).tolist(), **INTEGRAL_COVERAGE}
+
+
 @dataclass(frozen=True)
 class GainPoint:
     """One design: the gains of (42), the weights of (35), the generalized plant's weights

@@ -797,3 +797,75 @@ def _visible_level_of(ctx: GridEnvelope, weights: np.ndarray) -> float:
     stub = Design(np.zeros((12, 12)), np.zeros(12), np.zeros(0), ctx.mass, tuple(float(v) for v in weights), True,
                   None, None, (np.zeros((1, 1)), np.zeros(1)))  # fmt: skip
     return visible_level(stub, ctx.camera, ctx.desired)
+
+
+INTEGRAL_RATE = (
+    "not certified for a law with integral action (docs/math.md, fact 20.4): fact 7's exponential rate is lost (at "
+    "x = 0 with z_I != 0, dV_a/dt = 0 while V_a > 0), and fact 20.4's local V_eps rate needs constants (the bounds "
+    "c_C on C(q, qd) and jbar on J_b) that are sampled, not rigorous"
+)
+"""The envelope's statement for a design with ``K_I``."""
+
+
+@dataclass(frozen=True)
+class FrictionBound:
+    """The plant's joint friction as the envelope sees it (docs/math.md, facts 18, 19.2): per joint, the
+    Coulomb bound on the torque the law leaves (``F_c``, or ``|d_i| <= |F_i - Fhat_i| + Fhat_i
+    sup_v |tanh(v/eps) - tanh(v/epshat)|`` with compensation on ``qd_d``, the ``sup`` bounded by 1 when the
+    smoothings differ), and the viscous coefficient of the cross term ``-xi^T (B_v - Bhat) J_b^-1 Y e_c``
+    (fact 18.3), which this route does not bound."""
+
+    coulomb: np.ndarray
+    cross: np.ndarray
+    compensated: bool
+
+    @staticmethod
+    def of(friction: np.ndarray, compensation: np.ndarray | None) -> FrictionBound:
+        """From the plant's ``[b; c; eps]`` and the law's ``[bhat; chat; epshat]`` (None: no compensation)."""
+        n = (len(friction) - 1) // 2
+        b, c, eps = friction[:n], friction[n : 2 * n], friction[2 * n]
+        if compensation is None:
+            return FrictionBound(np.asarray(c, float), np.asarray(b, float), False)
+        bh, ch, eh = compensation[:n], compensation[n : 2 * n], compensation[2 * n]
+        shape = 0.0 if eh == eps else 1.0
+        return FrictionBound(np.abs(c - ch) + ch * shape, np.abs(b - bh), True)
+
+
+def friction_record(design: Design, camera: Camera, disturbance: DisturbanceBounds, start: dict,
+                    frictionless: Envelope, bound: FrictionBound) -> dict:
+    """The envelope of the plant with friction, the law's as it is (docs/math.md, fact 18.5 unweighted:
+    ``|tau_d| <= |tau_e| + |F|`` with ``F`` the Coulomb bound of ``bound``, one ``s`` for every channel):
+    CERTIFIED only when the envelope with that torque bound is certified and no viscous cross term is
+    left (exact viscous compensation); otherwise the numbers that show why, ``c_inf`` against ``c_max``
+    at the frictionless envelope's ``theta_bar`` (``c_inf`` grows with ``theta_bar`` while ``c_max <
+    2 min(w_rc, w_re)``)."""  # fmt: skip
+    torque = disturbance.torque + float(np.linalg.norm(bound.coulomb))
+    how = ("|tau_e| + |F_c|: the plant's Coulomb friction, law unchanged (fact 18.4)" if not bound.compensated else
+           "|tau_e| + |d|: the residual of the law's friction compensation on qd_d (fact 19.2)")  # fmt: skip
+    trial = DisturbanceBounds(**{**_fields(disturbance), "torque": torque,
+                                 "derivation": {**disturbance.derivation, "torque": how}})  # fmt: skip
+    env = envelope(design, camera, trial, start, search=False)
+    theta = frictionless.theta_bar_deg if frictionless.theta_bar_deg is not None else 1.0
+    d = decays(design, np.radians([theta]))
+    c_inf, c_max = (d[0].rho * trial.wbar**2, d[0].c_max) if d else (math.inf, 0.0)
+    cap = 2 * float(min(design.weights[1], design.weights[3]))
+    record = {"torque_bound": torque, "wbar": trial.wbar, "theta_bar_deg": theta, "c_inf": c_inf, "c_max": c_max,
+              "c_max_sup": cap, "coulomb_bound": bound.coulomb.tolist(), "viscous_cross": bound.cross.tolist(),
+              "compensated": bound.compensated, "rate": env.rate, "bounds": env.bounds}  # fmt: skip
+    law = "with the law's friction compensation on qd_d" if bound.compensated else "with the law unchanged"
+    if env.rate is None:
+        record["certified"] = False
+        record["statement"] = (f"with the plant's friction ({law}) the envelope is vacuous: c_inf = {c_inf:.4g} > "
+                               f"c_max = {c_max:.4g} at theta_bar = {theta:.3g} deg (fact 18.5, unweighted; c_inf "
+                               f"grows with theta_bar, c_max < 2 min(w_rc, w_re) = {cap:.3g}): no certificate; the "
+                               "dispersion campaign is the evidence")  # fmt: skip
+    elif np.any(bound.cross > 0):
+        record["certified"] = False
+        record["statement"] = (f"with the plant's friction ({law}) not certified: the Coulomb part alone gives "
+                               f"c_inf = {env.ultimate_v:.4g} <= c_max = {env.invariant_v:.4g}, but the viscous cross "
+                               "term -xi^T (B_v - Bhat) J_b^-1 Y e_c (fact 18.3) is not bounded by this route")
+    else:
+        record["certified"] = True
+        record["statement"] = (f"with the plant's friction ({law}; viscous friction cancelled exactly, fact 19.2): "
+                               f"{env.statement} (c_inf = {env.ultimate_v:.4g})")  # fmt: skip
+    return record

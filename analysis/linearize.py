@@ -88,8 +88,9 @@ def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX]) -> Clo
 
 
 def equilibrium_state(loop: ClosedLoop, q_eq: np.ndarray) -> np.ndarray:
-    """State of :class:`DrivenTargetLoop` at the equilibrium: ``x = 0``, target at ``g_wo(0)``."""
-    poses = [loop.reference.position_quaternion(), loop.target.start.position_quaternion()]
+    """State of :class:`DrivenTargetLoop` at the equilibrium: ``x = 0`` (and ``z_I = 0``), target at ``g_wo(0)``."""
+    z_i = np.zeros(loop.robot.n if loop.integral else 0)
+    poses = [loop.reference.position_quaternion(), z_i, loop.target.start.position_quaternion()]
     return np.concatenate([q_eq, np.zeros(loop.robot.n), *poses])
 
 

@@ -197,12 +197,15 @@ def envelope_bound(case: Case, envelope: dict | None = None) -> TrackingBound | 
     ultimate bound (of ``envelope``, the case's :func:`~dvfc.analysis.results.envelope_record`,
     computed here when not given). None when no envelope with rotation bounds is certified."""
     env = envelope_record(case, search=False) if envelope is None else envelope
+    own = "without_integral" not in env
+    env = env.get("without_integral", env)  # integral action (fact 20.4): the same design's without K_I
     b = env.get("bounds")
     if b is None or b["theta_ec_deg"] is None:
         return None
     position, angle = b["p_ec"] + b["p_ee"], min(180.0, b["theta_ec_deg"] + b["theta_ee_deg"])
+    whose = "the operating envelope's" if own else "the same design's without integral action (K_I = 0):"
     text = (
-        f"the operating envelope's certified ultimate bound (docs/math.md, fact 7: the ideal continuous loop under its "
+        f"{whose} certified ultimate bound (docs/math.md, fact 7: the ideal continuous loop under its "
         f"disturbance bounds, wbar = {env['wbar']:.4g}): position <= |p_ec| + |p_ee| = {b['p_ec']:.4g} + "
         f"{b['p_ee']:.4g} = {position:.4g} m and angle <= theta_ec + theta_ee = {b['theta_ec_deg']:.4g} + "
         f"{b['theta_ee_deg']:.4g} = {angle:.4g} deg (g_d^-1 g = g_ec g_ee, triangle inequality; the envelope's "

@@ -23,13 +23,24 @@ from dvfc.analysis.certify import (
     certify,
     certify_planar,
     exact_gamma,
+    integral_coverage,
     region_text,
     tight_gamma,
     tight_gamma_planar,
 )
 from dvfc.analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
+from dvfc.analysis.envelope import (
+    INTEGRAL_RATE,
+    FrictionBound,
+    GridEnvelope,
+    design_of,
+    disturbance_bounds,
+    envelope,
+    friction_record,
+    grid_envelope,
+    start_storage,
+)
 from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
-from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.linearize import MARGINAL_POLES, linearize, sharpest_from_rest
 from dvfc.analysis.multirate import implemented_record
@@ -290,6 +301,17 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
         record["statement"] = record["start"]["statement"]
         if record["start"].get("boxes_px") is not None:  # the figure's regions: those of the whole run
             record["boxes_px"] = record["start"]["boxes_px"]
+    if (friction := plant_friction(case)) is not None and not planar:  # docs/math.md, facts 18-19
+        record["friction"] = friction_record(design, loop.camera, disturbance, start_storage(loop, case.s0), env,
+                                             FrictionBound.of(friction, loop.compensation))  # fmt: skip
+        record["statement"] = f"for the plant without friction: {record['statement']}; {record['friction']['statement']}"
+    if loop.integral:  # docs/math.md, fact 20.4: the law without K_I has this envelope, this design none
+        without = {**record, "statement": f"the same design without integral action: {record['statement']}"}
+        record = {key: None for key in record} | {
+            "rate": None, "reason": INTEGRAL_RATE, "statement": f"no envelope certified: {INTEGRAL_RATE}",
+            "start": {**record["start"], "inside": False}, "disturbance": record["disturbance"],
+            "wbar": record["wbar"], "without_integral": without, "friction": record.get("friction"),
+        }  # fmt: skip
     return {
         **record,
         "m_hi_method": mass.method_hi,
@@ -298,6 +320,15 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
         else "anisotropic: blockwise-minimum K_min, sound for every R_ec (fact 5)",
         "assumptions": list(PLANAR_ENVELOPE_ASSUMPTIONS if planar else ENVELOPE_ASSUMPTIONS),
     }
+
+
+def plant_friction(case: Case) -> np.ndarray | None:
+    """The plant's joint friction ``[b; c; eps]`` of the loop as implemented (``[plant] friction``), or None
+    when it has none."""
+    errors = case.settings.errors
+    if errors is None or not (np.any(errors.viscous) or np.any(errors.coulomb)):
+        return None
+    return errors.friction_vector()
 
 
 def grid_envelope_for(case: Case) -> GridEnvelope | None:
@@ -344,6 +375,8 @@ def certificate_result(case: Case, provenance: dict, *, lower_bounds: bool = Tru
     if lower_bounds:
         record.update(lower_bound_record(case.loop, case.s0, record))
     record["envelope"] = envelope_record(case)
+    if (coverage := integral_coverage(point)) is not None:
+        record["integral"] = coverage
     if case.settings.implementation is not None:
         record["implemented"] = implemented_record(case.loop, case.s0, case.settings)
     result = {
@@ -411,13 +444,23 @@ def statements(
     report's campaign, its ``summary`` the campaign's ``summary.json``): when measured."""
     point = certificate["points"][0]
     gamma, which = best_gamma(point)
+    integral = point.get("integral")
     out = [{
         "statement": "L2 gain (Theorem 2)", "loop": "ideal continuous loop, " + certificate["region"],
         "status": "CERTIFIED" if gamma is not None else "NOT CERTIFIED",
         "detail": f"gamma <= {gamma:.6g} by {which}, {channels_text(point, certificate['loop'] == 'planar')}"
+        + ("" if integral is None else f"; with integral action: {integral['theorem_2']}")
         if gamma is not None else str(point["reason"]),
     }]  # fmt: skip
     env = point.get("envelope") or {}
+    if integral is not None:
+        out.append({"statement": "constant-torque equilibrium (fact 20.3)", "loop": "ideal continuous loop, static "
+                    "target", "status": "CERTIFIED", "detail": integral["constant_torque"]})  # fmt: skip
+    if env.get("friction") is not None:
+        out.append({"statement": "operating envelope with the plant's friction (fact 18)",
+                    "loop": "ideal continuous loop with the [plant] friction",
+                    "status": "CERTIFIED" if env["friction"]["certified"] else "NOT CERTIFIED",
+                    "detail": env["friction"]["statement"]})  # fmt: skip
     if env.get("rate") is None:
         out.append({"statement": "operating envelope (facts 7-10)", "loop": "ideal continuous loop",
                     "status": "NOT CERTIFIED", "detail": str(env.get("reason", "not computed"))})  # fmt: skip

@@ -130,7 +130,7 @@ def static(loop: ClosedLoop) -> ClosedLoop:
 
 def theorem_1(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Claim]:
     traj = Simulator(replace(static(loop), mode="ideal"), settings).run(s0)
-    v = traj["V"][:, 0]
+    v = traj[storage_of(traj)][:, 0]
     x = _error_state(traj)
     residual = identity_residuals(traj)["dissipation"]
     rise = float(np.diff(v).max(initial=0.0) / v[0])
@@ -148,6 +148,12 @@ def theorem_1(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Clai
         converged,
         *([self_motion(traj)] if loop.robot.n > loop.task_dim else []),
     ]  # fmt: skip
+
+
+def storage_of(traj: Trajectory) -> str:
+    """The storage Theorems 1-2 are stated with on the run: ``V`` (38), or ``V_a = V + z_I^T K_I z_I / 2``
+    with integral action (docs/math.md, facts 20.1-20.2)."""
+    return "V_a" if "V_a" in traj.signals else "V"
 
 
 def self_motion(traj: Trajectory) -> Claim:
@@ -339,10 +345,13 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, conv
     x, w = _error_state(traj), traj["w"]
     if weights is not None:
         x, w = x * weights[0], w / weights[1]
-    lhs44 = traj["Vdot"][:, 0] + 0.5 * (x * x).sum(1) - 0.5 * gamma**2 * (w * w).sum(1)
+    storage = storage_of(traj)
+    lhs44 = traj[f"{storage}_dot" if storage == "V_a" else "Vdot"][:, 0] + 0.5 * (x * x).sum(1) - 0.5 * gamma**2 * (
+        w * w
+    ).sum(1)
     x2, w2 = traj.integrals["z_squared"], traj.integrals["d_squared"]
     x_, w_ = ("x", "w") if weights is None else ("z", "d")
-    slack45 = gamma**2 * w2 + 2 * traj["V"][0, 0] - x2
+    slack45 = gamma**2 * w2 + 2 * traj[storage][0, 0] - x2
     tol = 1e-9 * gamma**2 * float((w * w).sum(1).max())  # round-off of (44) relative to its terms
     ratio = float(np.sqrt(x2[-1] / w2[-1]))
     run = f"from x(0) = 0 under the linearisation's worst disturbance, {traj.t[-1]:g} s" + (

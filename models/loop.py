@@ -666,6 +666,12 @@ class ClosedLoop:
         return cs.jtimes(self.storage, cs.vertcat(self.state, self.t), cs.vertcat(self.state_rate, 1))
 
     @cached_property
+    def augmented_storage_rate(self) -> Matrix:
+        """``dV_a/dt`` along the loop, by automatic differentiation of :attr:`augmented_storage`."""
+        state, rate = cs.vertcat(self.state, self.t), cs.vertcat(self.state_rate, 1)
+        return cs.jtimes(self.augmented_storage, state, rate)
+
+    @cached_property
     def quadratures(self) -> Matrix:
         """Integrands of :data:`QUADRATURES`."""
         nu, x, w = self.nu, self.x, self.w
@@ -709,8 +715,15 @@ class ClosedLoop:
             "depth_bar": self.camera.depths(self.estimate),
             "image_jacobian": cs.vec(self.conditioning[self._image_matrix]),
             "body_jacobian": cs.vec(self.conditioning[self._arm_matrix]),
-            **({"z_I": self.z_i, "V_a": self.augmented_storage} if self.integral else {}),
+            **self._integral_signals,
         }
+
+    @property
+    def _integral_signals(self) -> dict[str, Matrix]:
+        """With integral action: ``z_I``, ``V_a`` and ``dV_a/dt`` (fact 20.1); none without."""
+        if not self.integral:
+            return {}
+        return {"z_I": self.z_i, "V_a": self.augmented_storage, "V_a_dot": self.augmented_storage_rate}
 
     @property
     def arguments(self) -> tuple[list[cs.SX], list[str]]:
