@@ -304,7 +304,8 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
     if (friction := plant_friction(case)) is not None and not planar:  # docs/math.md, facts 18-19
         record["friction"] = friction_record(design, loop.camera, disturbance, start_storage(loop, case.s0), env,
                                              FrictionBound.of(friction, loop.compensation))  # fmt: skip
-        record["statement"] = f"for the plant without friction: {record['statement']}; {record['friction']['statement']}"
+        with_friction = record["friction"]["statement"]
+        record["statement"] = f"for the plant without friction: {record['statement']}; {with_friction}"
     if loop.integral:  # docs/math.md, fact 20.4: the law without K_I has this envelope, this design none
         without = {**record, "statement": f"the same design without integral action: {record['statement']}"}
         record = {key: None for key in record} | {
