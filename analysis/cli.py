@@ -37,6 +37,7 @@ from dvfc.analysis.campaign import (
 from dvfc.analysis.campaign import row as campaign_row
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import (
+    INTEGRAL_COVERAGE,
     NOT_APPLICABLE,
     GainPoint,
 )
@@ -464,6 +465,9 @@ def show_certificate(result: dict) -> None:
         out.print(f"CERTIFIED: L2 gain <= {p['gamma']:.6g} {channels} over {result['region']}.", markup=False)
     else:
         out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)
+    if (integral := p.get("integral")) is not None:  # docs/math.md, facts 20-21
+        covered = "; ".join(f"{key.replace('_', ' ')}: {integral[key]}" for key in INTEGRAL_COVERAGE)
+        out.print(f"WITH INTEGRAL ACTION (k_i = {integral['k_i']}): {covered}.", markup=False)
     if "implemented" in p:
         out.print(implemented_text(p["implemented"]), markup=False, soft_wrap=True)
     if "envelope" in p:
@@ -479,6 +483,8 @@ def show_envelope(e: dict) -> None:
     """Human output of the operating envelope (docs/math.md, facts 7-9)."""
     if e.get("rate") is None:
         out.print(f"Operating envelope: not certified: {e['reason']}", markup=False)
+        if e.get("friction") is not None:
+            out.print(f"ENVELOPE: {e['friction']['statement']}.", markup=False)
         return
     fmt = lambda v, unit="": "-" if v is None else f"{v:.4g}{unit}"  # noqa: E731
     d, b, start = e["disturbance"], e["bounds"], e["start"]

@@ -212,18 +212,22 @@ def linearize(loop: ClosedLoop, q0: np.ndarray) -> Linearization:
     model = driven(loop, lambda t: w)
     dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
     zeta = cs.SX.sym("zeta", 6)
-    z = cs.vertcat(dq, dqd, dp, dth, zeta)
+    dz_i = cs.SX.sym("dz_I", n if loop.integral else 0)  # integral action: z_I, with dz_I/dt = xi (fact 20)
+    z = cs.vertcat(dq, dqd, dp, dth, dz_i, zeta)
     s_eq = equilibrium_state(loop, q_eq)
+    o = 2 * n + 7 + dz_i.shape[0]  # where the target's pose starts
     r_o = np.asarray(cs.DM(loop.target.start.rotation.matrix))
     # local coordinates, exact to first order: Rbar = Rbar* exp(dth), g_wo = g_wo* exp(zeta)
     state = cs.vertcat(
         s_eq[: 2 * n] + cs.vertcat(dq, dqd),
         s_eq[2 * n : 2 * n + 3] + dp,
         _quaternion_product(s_eq[2 * n + 3 : 2 * n + 7], cs.vertcat(1, dth / 2)),
-        s_eq[2 * n + 7 : 2 * n + 10] + r_o @ zeta[0:3],
-        _quaternion_product(s_eq[2 * n + 10 :], cs.vertcat(1, zeta[3:6] / 2)),
+        dz_i,
+        s_eq[o : o + 3] + r_o @ zeta[0:3],
+        _quaternion_product(s_eq[o + 3 :], cs.vertcat(1, zeta[3:6] / 2)),
     )
-    local = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6], w[n:])
+    integral = model.xi if loop.integral else cs.SX(0, 1)  # the loop after the start's transient
+    local = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6], integral, w[n:])
     local = cs.substitute(local, model.state, state)
     output = cs.substitute(model.x, model.state, state)
     return _linearization(local, output, z, w, model.t, q_eq, weight_diagonals(loop))
