@@ -141,10 +141,11 @@ def theorem_1(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Clai
     else:
         converged = Claim("x -> 0", "Theorem 1", ratio, bound, None, f"the run stopped before T: {traj.message}",
                           inconclusive=True)  # fmt: skip
+    s = storage_of(traj)
     return [
-        on_run("V(t) - V(0) = -int nu^T K nu (w = 0)", "Theorem 1, (43)", traj, residual, f"<= {IDENTITY_TOL:g}",
-               residual <= IDENTITY_TOL),
-        on_run("V non-increasing", "Theorem 1, (43)", traj, rise, "max step rise / V(0) <= 1e-9", rise <= 1e-9),
+        on_run(f"{s}(t) - {s}(0) = -int nu^T K nu (w = 0)", "Theorem 1, (43)", traj, residual,
+               f"<= {IDENTITY_TOL:g}", residual <= IDENTITY_TOL),
+        on_run(f"{s} non-increasing", "Theorem 1, (43)", traj, rise, f"max step rise / {s}(0) <= 1e-9", rise <= 1e-9),
         converged,
         *([self_motion(traj)] if loop.robot.n > loop.task_dim else []),
     ]  # fmt: skip
@@ -310,8 +311,8 @@ def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float
     residual = identity_residuals(traj)["dissipation"]
     claims = [
         conditioning_claim(traj, settings.sigma_min),
-        on_run("V(T) - V(0) = int (-nu^T K nu + x^T G w)", "(43) with w", traj, residual, f"<= {IDENTITY_TOL:g}",
-               residual <= IDENTITY_TOL),
+        on_run(f"{storage_of(traj)}(T) - {storage_of(traj)}(0) = int (-nu^T K nu + x^T G w)", "(43) with w", traj,
+               residual, f"<= {IDENTITY_TOL:g}", residual <= IDENTITY_TOL),
     ]  # fmt: skip
     if gamma is None:
         return [*claims, Claim("dissipation inequality at the certified gamma", "Theorem 2, (44)-(45)",
@@ -368,9 +369,9 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, conv
                    inconclusive=True)
     )  # fmt: skip
     return [
-        on_run(f"dV/dt + |{x_}|^2/2 - gamma^2 |{w_}|^2/2 <= 0 pointwise", "Theorem 2, (44)", traj,
+        on_run(f"d{storage}/dt + |{x_}|^2/2 - gamma^2 |{w_}|^2/2 <= 0 pointwise", "Theorem 2, (44)", traj,
                float(lhs44.max()), f"<= {tol:.1e}", bool(lhs44.max() <= tol), f"gamma = {gamma:.6g}, {run}"),
-        on_run(f"int |{x_}|^2 <= gamma^2 int |{w_}|^2 + 2 V(0) at every time", "Theorem 2, (45)", traj,
+        on_run(f"int |{x_}|^2 <= gamma^2 int |{w_}|^2 + 2 {storage}(0) at every time", "Theorem 2, (45)", traj,
                float(slack45.min()), "slack >= 0", bool(slack45.min() >= 0), f"V(0) = {traj['V'][0, 0]:.2g}, {run}"),
         on_run(f"measured gain sqrt(int |{x_}|^2 / int |{w_}|^2) <= gamma", "Theorem 2", traj, ratio,
                f"<= {gamma:.6g}", ratio <= gamma, run),
