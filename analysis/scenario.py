@@ -416,17 +416,17 @@ def integral_start(scenario: Scenario) -> float:
 
 
 def compensation(scenario: Scenario, robot: Robot) -> np.ndarray | None:
-    """The law's friction model ``[bhat; chat; epshat]`` of ``[controller] friction_compensation``
+    """The law's friction model ``[bhat; chat; epshat]`` of ``[gains] friction_compensation``
     (docs/math.md, fact 19.2), or None (``"none"``)."""
-    model, n = scenario.controller.friction_compensation, robot.n
+    model, n = scenario.gains.friction_compensation, robot.n
     if model == "none":
         return None
     if scenario.loop == "planar":
-        raise ScenarioError("controller.friction_compensation: built for the paper's loop, not the planar one")
+        raise ScenarioError("gains.friction_compensation: built for the paper's loop, not the planar one")
     if model == "urdf":
         viscous, coulomb = joint_dynamics(robot.urdf, robot.joints)
         return np.concatenate([viscous, coulomb, [FrictionModel().smoothing]]).astype(float)
-    where = "controller.friction_compensation"
+    where = "gains.friction_compensation"
     viscous, coulomb = _vector(model.viscous, n, f"{where}.viscous"), _vector(model.coulomb, n, f"{where}.coulomb")
     return np.concatenate([viscous, coulomb, [model.smoothing]]).astype(float)
 

@@ -214,29 +214,6 @@ class WeightsSection(_Strict):
 GainValue = Positive | Annotated[list[Positive], Field(min_length=1)]
 
 
-class GainsSection(_Strict):
-    """The gains of (42) and, optionally, the integral gain of ``u_xi = -K_xi xi - K_I z_I``
-    (docs/math.md, fact 20): ``k_i`` (N m/rad; a scalar for every joint, or one per joint), or
-    ``k_i_factor`` (``K_I = k_i_factor K_xi``, joint by joint), not both; neither: no integral
-    action. ``integral_start``: the time (s) from which ``z_I`` integrates (0 before); default the
-    end of the start's transient: the planned reference's hold plus duration, the ramp's end, else 0."""
-
-    k_xi: GainValue
-    k_c: GainValue
-    k_e: GainValue
-    k_i: GainValue | None = None
-    k_i_factor: Positive | None = None
-    integral_start: NonNegative | None = None
-
-    @model_validator(mode="after")
-    def _one_integral_gain(self) -> GainsSection:
-        if self.k_i is not None and self.k_i_factor is not None:
-            raise ValueError("give k_i or k_i_factor, not both")
-        if self.integral_start is not None and self.k_i is None and self.k_i_factor is None:
-            raise ValueError("integral_start: needs k_i or k_i_factor (integral action)")
-        return self
-
-
 class FrictionModel(_Strict):
     """A friction model ``b v + c tanh(v / smoothing)``: viscous ``b`` and Coulomb ``c`` (a scalar
     for every joint, or one per joint)."""
@@ -246,12 +223,31 @@ class FrictionModel(_Strict):
     smoothing: Positive = 0.05
 
 
-class ControllerSection(_Strict):
-    """What the law adds to (35), (42). ``friction_compensation``: ``"none"``, ``"urdf"`` (the URDF's
-    ``<dynamics damping friction>``) or a model ``{viscous, coulomb, smoothing}``, fed forward on the
-    law's ``qd_d`` (never the measured ``qd``: docs/math.md, fact 19)."""
+class GainsSection(_Strict):
+    """The gains of (42) and, optionally, the integral gain of ``u_xi = -K_xi xi - K_I z_I``
+    (docs/math.md, fact 20): ``k_i`` (N m/rad; a scalar for every joint, or one per joint), or
+    ``k_i_factor`` (``K_I = k_i_factor K_xi``, joint by joint), not both; neither: no integral
+    action. ``integral_start``: the time (s) from which ``z_I`` integrates (0 before); default the
+    end of the start's transient: the planned reference's hold plus duration, the ramp's end, else 0.
+    ``friction_compensation``: what the law adds to (35): ``"none"``, ``"urdf"`` (the URDF's ``<dynamics
+    damping friction>``) or a model ``{viscous, coulomb, smoothing}``, fed forward on the law's ``qd_d``
+    (never the measured ``qd``: docs/math.md, fact 19)."""
 
+    k_xi: GainValue
+    k_c: GainValue
+    k_e: GainValue
+    k_i: GainValue | None = None
+    k_i_factor: Positive | None = None
+    integral_start: NonNegative | None = None
     friction_compensation: Literal["none", "urdf"] | FrictionModel = "none"
+
+    @model_validator(mode="after")
+    def _one_integral_gain(self) -> GainsSection:
+        if self.k_i is not None and self.k_i_factor is not None:
+            raise ValueError("give k_i or k_i_factor, not both")
+        if self.integral_start is not None and self.k_i is None and self.k_i_factor is None:
+            raise ValueError("integral_start: needs k_i or k_i_factor (integral action)")
+        return self
 
 
 class DisturbanceSection(_Strict):
@@ -594,7 +590,6 @@ class Scenario(_Strict):
     start: StartSection = StartSection()
     weights: WeightsSection
     gains: GainsSection
-    controller: ControllerSection = ControllerSection()
     disturbance: DisturbancesSection = DisturbancesSection()
     simulation: SimulationSection = SimulationSection()
     implementation: ImplementationSection | None = None

@@ -92,16 +92,16 @@ def test_fact_18_5_the_envelope_with_the_plant_s_friction_is_vacuous_on_the_cell
 
 @pytest.mark.slow
 def test_fact_19_2a_an_exact_compensation_recovers_the_frictionless_envelope(cell):
-    """(19.2a) With ``[controller] friction_compensation`` the plant's own model (viscous and Coulomb exact,
+    """(19.2a) With ``[gains] friction_compensation`` the plant's own model (viscous and Coulomb exact,
     the same smoothing) the residual's bound is 0 and no cross term is left: the friction record is
     CERTIFIED with the frictionless envelope's ``c_inf`` and bounds exactly. With the model's smoothing
     changed (0.06 rad/s) the residual's Coulomb bound is ``chat`` itself and it is vacuous again."""
     spec, base = load(CELL)
     data = spec.model_dump()
-    data["controller"] = {"friction_compensation": dict(data["plant"]["friction"])}
+    data["gains"]["friction_compensation"] = dict(data["plant"]["friction"])
     exact = envelope_record(Case(type(spec).model_validate(data), base), search=False)
     assert exact["friction"]["certified"] and exact["friction"]["bounds"] == exact["bounds"]
     assert exact["friction"]["c_inf"] == pytest.approx(exact["ultimate_V"], rel=1e-12)
-    data["controller"]["friction_compensation"]["smoothing"] = 0.06
+    data["gains"]["friction_compensation"]["smoothing"] = 0.06
     blurred = envelope_record(Case(type(spec).model_validate(data), base), search=False)
     assert not blurred["friction"]["certified"] and blurred["friction"]["coulomb_bound"] == NOMINAL[6:12].tolist()
