@@ -131,6 +131,8 @@ class SampledSimulator(Simulator):
     def __init__(self, loop: ClosedLoop, settings: Settings) -> None:
         if not loop.sampled or settings.implementation is None:
             raise ValueError("SampledSimulator needs a loop built with sampled=True and an implementation")
+        if loop.friction is not None:
+            raise ValueError("SampledSimulator takes the plant's friction from the settings' errors, not the loop's")
         super().__init__(loop, settings)
         implementation = settings.implementation
         self.implementation = implementation
