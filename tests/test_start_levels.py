@@ -14,7 +14,6 @@ import math
 
 import numpy as np
 import pytest
-from test_start import planned, ramped
 
 from dvfc.analysis import start as start_module
 from dvfc.analysis.case import Case
@@ -23,6 +22,16 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 
 import reference as ref
 from conftest import scenario_dict
+
+
+def from_rest(start: dict):
+    """An edit: the idealised scenario from rest with the ``[start]`` section ``start``."""
+
+    def edit(data: dict) -> None:
+        data["start"] = start
+        data["robot"]["qd0"] = [0.0] * 6
+
+    return edit
 
 
 def statement_inputs(edit) -> dict:
@@ -47,7 +56,7 @@ def self_consistent(weights, theta_bar_deg: float) -> float:
 
 @pytest.fixture(scope="module")
 def planned_inputs():
-    return statement_inputs(planned(1.0))
+    return statement_inputs(from_rest({"reference": "planned", "duration": 1.0, "observer": "scenario"}))
 
 
 def test_envelope_level_covers_the_start_and_stays_within_the_self_consistent_level(planned_inputs):
@@ -130,14 +139,20 @@ def test_path_rate_slack_is_the_stated_lipschitz_constant_over_half_a_cell(plann
 @pytest.fixture(scope="module")
 def ramp_runs():
     """The ramp's statement (0.5 s) on the idealised scenario from rest: as computed, with the
-    visible level replaced by the stated level, and by just below its final step's bound."""
-    i = statement_inputs(ramped(0.5))
+    visible level replaced by the stated level, and by just below and just above its final step's
+    bound."""
+    i = statement_inputs(from_rest({"ramp": 0.5}))
     env = envelope(i["design"], i["camera"], i["disturbance"], i["start"], search=False)
     args = (i["design"], i["camera"], i["disturbance"], env, i["ramp"])
     plain = start_module.ramp_start(*args)
     out = {"plain": plain}
     with pytest.MonkeyPatch.context() as patch:
-        for name, level in (("at_level", plain["level"]), ("below_last", plain["ultimate_V_ramp"] * (1 - 1e-9))):
+        last = plain["ultimate_V_ramp"]
+        for name, level in (
+            ("at_level", plain["level"]),
+            ("below_last", last * (1 - 1e-9)),
+            ("above_last", last * (1 + 1e-9)),
+        ):
             patch.setattr(start_module, "visible_level", lambda *a, value=level, **k: value)
             out[name] = start_module.ramp_start(*args)
     return out
@@ -160,10 +175,15 @@ def test_ramp_visibility_never_starts_before_the_last_step_above_the_visible_lev
     """(16a.3): visibility from ``t_vis``, the first grid time after which every ``Vbar_j`` is at most
     the visible level. On the default the start (``V(0) = 0.077``) is above it, so ``t_vis`` is a
     positive multiple of the 0.01 s step; against a visible level just below the final step's bound
-    no grid time qualifies: visibility is not certified at all (not from the last step)."""
+    no grid time qualifies: visibility is not certified at all. Just above it (1 + 1e-9), only the
+    final step qualifies: the recursion approaches its limit from above (measured: each of the last
+    steps lowers ``Vbar`` by ~1e-4 relative), so ``t_vis`` is the final grid time, ``steps * h``, and
+    not the step before, whose bound is above the level."""
     plain, below = ramp_runs["plain"], ramp_runs["below_last"]
     assert plain["V0"] > plain["visible_level"] and plain["visible"] is False
     t_vis = plain["visible_from_s"]
     assert t_vis > 0 and abs(t_vis / plain["step_s"] - round(t_vis / plain["step_s"])) < 1e-9
     assert below["visible"] is False and below["visible_from_s"] is None
     assert "not certified at all" in below["reason"]
+    above = ramp_runs["above_last"]
+    assert above["visible_from_s"] == pytest.approx(above["steps"] * above["step_s"], rel=1e-12)
