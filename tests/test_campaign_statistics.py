@@ -53,9 +53,10 @@ def test_tolerance_rank_is_the_smallest_order_statistic_above_the_quantile_with_
 
 
 def test_tolerance_rank_covers_the_quantile_in_a_monte_carlo_of_exponential_runs():
-    """A measurement of the statement itself: 20,000 campaigns of 59 exponential draws each; the order
-    statistic of the stated rank lies above the true 95% quantile ``ln 20`` in at least 95% of them
-    (measured 95.2%; a 4-sigma binomial allowance of 0.6%), and one rank lower it does not."""
+    """A measurement of the statement itself: 20,000 campaigns of 59 exponential draws each (rank 59,
+    the largest); its order statistic lies above the true 95% quantile ``ln 20`` in at least 95% of
+    them (measured 95.27%, exact ``1 - 0.95^59 = 95.15%``; a 4-sigma binomial allowance of 0.6%),
+    and one rank lower it does not (measured 80.1%)."""
     rng = np.random.default_rng(12)
     runs, quantile = 59, 0.95
     rank = tolerance_rank(runs, quantile, 0.95)
