@@ -7,6 +7,7 @@ evaluated from the URDF's gravity."""
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import replace
 
 import numpy as np
@@ -14,7 +15,7 @@ import pytest
 import scipy.linalg
 
 from dvfc.analysis.multirate import implemented_record, lyapunov_check, multirate_loop
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
 
 STABLE = [
     np.array([[0.5, 10.0], [0.0, 0.5]]),
@@ -83,6 +84,7 @@ def saturating():
     return loop, s0, replace(settings, implementation=imp), lin.tau_eq
 
 
+@pytest.mark.slow
 def test_saturation_at_the_equilibrium_torque_puts_the_loop_outside_the_statement(saturating):
     """With the efforts scaled so that the most loaded joint's ``|g(q_eq)|`` is 1e-9 above its effort
     (every other joint inside), the held torque is clipped at the equilibrium: the linearisation
@@ -97,6 +99,7 @@ def test_saturation_at_the_equilibrium_torque_puts_the_loop_outside_the_statemen
     assert not record["applies"] and record["rho"] is None and "saturation" in record["reason"]
 
 
+@pytest.mark.slow
 def test_an_equilibrium_torque_exactly_at_its_effort_is_outside_the_statement(saturating):
     """``|g(q_eq)|`` exactly equal to the effort (a scale found by floating-point search so that the
     product is exact) sits on the clip's kink: "strictly inside the efforts" fails, not applicable."""
@@ -112,3 +115,24 @@ def test_an_equilibrium_torque_exactly_at_its_effort_is_outside_the_statement(sa
     assert imp.limits(loop.robot.limits).effort[k] == abs(tau[k])
     record = implemented_record(loop, s0, replace(settings, implementation=imp))
     assert not record["applies"] and record["rho"] is None and "saturation" in record["reason"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("plant", "words"),
+    [
+        ({"mass_scale": 1.2}, "plant differs from the model"),
+        ({"payload": {"mass": 0.5}}, "plant differs from the model"),
+    ],
+    ids=["mass-scale", "payload"],
+)
+def test_a_plant_other_than_the_model_puts_the_loop_outside_the_statement(plant, words):
+    """Fact 14 linearises at the model's equilibrium: a heavier plant (mass scale 1.2, or a 0.5 kg
+    payload) holds a different torque there, so the equilibrium moves and the computed monodromy is
+    not the loop's. The record says the statement does not apply, with no numbers."""
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["plant"] = plant
+    loop, s0, settings = build(Scenario.model_validate(data), DEFAULT_SCENARIO.parent)
+    assert settings.plant is not None
+    record = implemented_record(loop, s0, settings)
+    assert not record["applies"] and record["rho"] is None and words in record["reason"]

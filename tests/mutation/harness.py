@@ -553,6 +553,13 @@ MUTATIONS = (
         ("tests/test_multirate_statements.py::test_an_equilibrium_torque_exactly_at_its_effort_is_outside_the_statement",),
     ),
     Mutation(
+        "multirate-plant-unchecked",
+        "fact 14 applies to a plant other than the model (its equilibrium moves)",
+        "analysis/multirate.py",
+        (("    if settings.plant is not None:\n", "    if False:\n"),),
+        ("tests/test_multirate_statements.py::test_a_plant_other_than_the_model_puts_the_loop_outside_the_statement",),
+    ),
+    Mutation(
         "windows-lower-gamma-unsquared",
         "the window's lower limit with D_tau^2 / (2 gamma) instead of D_tau^2 / (2 gamma^2) (equal at gamma = 1)",
         "analysis/windows.py",
