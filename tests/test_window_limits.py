@@ -89,3 +89,19 @@ def test_a_joints_limit_alone_keeps_the_margin_when_the_others_break_the_hold_al
         k = np.zeros(3)
         k[i] = limit
         assert held_map_eigenvalues(mass, k, 1.0).min() == pytest.approx(-(1 - HOLD_MARGIN), abs=1e-12)
+
+
+def test_a_gain_exactly_at_one_half_admits_no_finite_gamma_and_is_below_its_window():
+    """Without a required gamma the window is open, ``k_xi,i > S_xi,i^2/2``: at ``k_xi,1 = 1/2``
+    exactly (unit weights) the reference ``P(gamma)`` (tests/reference.py, bisection on its smallest
+    eigenvalue) has no finite gamma, since its ``xi`` block is singular at every ``s > 0``, while at
+    ``1/2 + 1e-3`` it has one (the rest of ``P`` does not decide); the window reports the first
+    below and the second inside."""
+    plant = PlantWeights.unit(N)
+    k_c, k_e = np.full(6, 2.0), np.full(6, 3.0)
+    for k1, finite in ((0.5, False), (0.5 + 1e-3, True)):
+        k_xi = np.r_[k1, np.full(N - 1, 1.5)]
+        design = ref.Design(k_xi, k_c, k_e, (1.0, 1.0, 1.0, 1.0), np.array([0.1, 0.0, 0.4]), np.eye(3))
+        assert np.isfinite(design.gamma(np.eye(3))) == finite
+        windows = gain_windows(np.eye(N), k_xi, None, None, plant)
+        assert windows.below[0] == (not finite) and not windows.below[1:].any()

@@ -574,6 +574,13 @@ MUTATIONS = (
         ("tests/test_window_limits.py::test_window_lower_limit_is_where_the_reference_xi_block_of_p_loses_definiteness",),
     ),
     Mutation(
+        "windows-below-inclusive",
+        "a gain exactly at its open lower limit S_xi^2/2 counted inside its window (no finite gamma there)",
+        "analysis/windows.py",
+        (("        return self.k_xi <= self.lower\n", "        return self.k_xi < self.lower\n"),),
+        ("tests/test_window_limits.py::test_a_gain_exactly_at_one_half_admits_no_finite_gamma_and_is_below_its_window",),
+    ),
+    Mutation(
         "windows-joint-hold-without-margin",
         "the gains together break the hold only beyond h lambda_max > 2 (the 0.05 margin dropped)",
         "analysis/windows.py",
