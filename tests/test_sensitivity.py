@@ -49,6 +49,14 @@ def test_harmless_inputs_do_not_clear_the_floor():
     assert not any(above_floor(s, floor) for s in scores)
 
 
+@pytest.mark.parametrize("runs", [10, 25, 60, 64, 90, 99, 150, 299])
+def test_every_campaign_size_is_scored(runs):
+    """Every number of runs from 10 gets scores (SALib's slicing fails for some slice counts)."""
+    x, y = u_shaped(runs)
+    scores, floor = moment_independent(x, y)
+    assert all(s is not None for s in scores) and floor.pawn is not None
+
+
 def test_runs_that_did_not_complete_stand_in_above_every_finite_run_and_the_earlier_the_higher():
     closeness = np.array([0.5, 1.7, np.inf, np.inf])
     y = outcome(closeness, np.array([10.0, 10.0, 2.0, 8.0]), 10.0)
