@@ -30,6 +30,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy import stats
 
+from dvfc.analysis import sensitivity
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import INPUTS, MASSES, Dispersion, base_values, with_values
 from dvfc.analysis.grid import batches
@@ -131,7 +132,7 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
         "tracking_position": position, "tracking_angle_deg": angle, "tracking_ratio": ratio,
         "peak_torque_ratio": max(record["torque_commanded_ratio"]), "peak_speed_ratio": max(record["speed_ratio"]),
         "position_ratio": max(record["position_ratio"]), "closeness": max(ratio, *limits),
-        "wall_time": traj.wall_time,
+        "end_time": float(traj.t[-1]), "wall_time": traj.wall_time,
     }  # fmt: skip
     for key in spec.dispersion.keys:
         columns = spec.dispersion.columns_of(key)
@@ -292,7 +293,7 @@ def summarize(spec: CampaignSpec, table: pa.Table, confidence: float, p: float, 
         )
     else:
         tolerance["statement"] = f"{n} runs are too few to bound the {quantile:.0%} quantile at {confidence:.0%}"
-    sensitivity = sensitivities(spec, data, ratio, holds)
+    drivers, floor = sensitivities(spec, data, ratio, holds)
     closeness = np.nan_to_num(np.asarray(data["closeness"], dtype=float), posinf=np.finfo(float).max)
     order = np.lexsort((np.asarray(data["run"]), -closeness, holds))  # failures first, then the closest to failing
     worst = [{"run": int(data["run"][i]), "holds": bool(holds[i]), "reason": data["reason"][i],
@@ -309,7 +310,8 @@ def summarize(spec: CampaignSpec, table: pa.Table, confidence: float, p: float, 
         "zero_failure": {"p": p, "runs": zero_failure_runs(p, confidence),
                          "statement": f"{zero_failure_runs(p, confidence)} runs without a failure bound P(fail) by "
                                       f"{p:g} at {confidence:.0%} confidence"},
-        "tolerance": tolerance, "sensitivity": sensitivity, "worst": worst, "seed": spec.seed,
+        "tolerance": tolerance, "sensitivity": drivers, "sensitivity_floor": floor, "worst": worst,
+        "seed": spec.seed,
         "wall_time_per_run": float(np.mean(data["wall_time"])) if n else None,
     }  # fmt: skip
 
@@ -318,10 +320,19 @@ BINS = 4
 """Quantile bins of each drawn quantity for its failure rate."""
 
 
-def sensitivities(spec: CampaignSpec, data: dict, ratio: np.ndarray, holds: np.ndarray) -> list[dict]:
-    """Per drawn quantity, the Spearman rank correlation of the tracking ratio (tracking error over
-    its bound, infinite for a run that did not complete) with each entry, the quantity's the
-    largest in magnitude, and the failure rate per quantile bin of that entry; strongest first."""
+def sensitivities(spec: CampaignSpec, data: dict, ratio: np.ndarray, holds: np.ndarray) -> tuple[list[dict], dict]:
+    """Per drawn quantity, its entries' Spearman rank correlation with the tracking ratio (tracking
+    error over its bound, infinite for a run that did not complete), their moment-independent
+    scores for the closeness to failing (:mod:`dvfc.analysis.sensitivity`: delta, PAWN, against the
+    floor of an independent input) and the failure rate per quantile bin; the quantity's
+    strongest entry (by PAWN, else by the rank correlation) stated, strongest quantity first.
+    Also the floor and what it means."""
+    columns = [c for key in spec.dispersion.keys for c in spec.dispersion.columns_of(key)]
+    x = np.column_stack([np.asarray(data[c], dtype=float) for c in columns])
+    horizon = spec.case.settings.duration
+    y = sensitivity.outcome(np.asarray(data["closeness"], dtype=float), np.asarray(data["end_time"]), horizon)
+    scores, floor = sensitivity.moment_independent(x, y, seed=spec.seed)
+    by_column = dict(zip(columns, scores, strict=True))
     out = []
     for key in spec.dispersion.keys:
         entries = []
@@ -331,14 +342,23 @@ def sensitivities(spec: CampaignSpec, data: dict, ratio: np.ndarray, holds: np.n
             edges = np.quantile(x, np.linspace(0, 1, BINS + 1))
             which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, BINS - 1)
             rates = [float((~holds[which == b]).mean()) if np.any(which == b) else None for b in range(BINS)]
+            s = by_column[column]
             entries.append({"column": column, "spearman": None if math.isnan(rho) else rho,
+                            "pawn": None if s is None else s.pawn,
+                            "delta": None if s is None else s.delta, "delta_conf": None if s is None else s.delta_conf,
+                            "above_floor": sensitivity.above_floor(s, floor),
                             "bin_edges": edges.tolist(), "failure_rate": rates})  # fmt: skip
-        known = [e for e in entries if e["spearman"] is not None]
-        strongest = max(known, key=lambda e: abs(e["spearman"])) if known else entries[0]
-        out.append({"quantity": key, "spearman": strongest["spearman"], "column": strongest["column"],
-                    "failure_rate": strongest["failure_rate"], "bin_edges": strongest["bin_edges"],
+        strongest = max(entries, key=_strength)
+        out.append({"quantity": key, **{k: strongest[k] for k in (
+            "spearman", "delta", "delta_conf", "pawn", "above_floor", "column", "failure_rate", "bin_edges")},
                     "entries": entries})  # fmt: skip
-    return sorted(out, key=lambda e: -abs(e["spearman"]) if e["spearman"] is not None else 0.0)
+    floor_record = {"pawn": floor.pawn, "references": sensitivity.REFERENCES, "note": floor.note}
+    return sorted(out, key=lambda e: tuple(-v for v in _strength(e))), floor_record
+
+
+def _strength(entry: dict) -> tuple[float, float]:
+    """An entry's order of strength: its PAWN score (0 without), then its rank correlation's magnitude."""
+    return (entry["pawn"] or 0.0, abs(entry["spearman"] or 0.0))
 
 
 def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] | None = None) -> dict:

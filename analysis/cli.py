@@ -965,13 +965,16 @@ def show_campaign(result: dict) -> None:
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
     out.print(result["zero_failure"]["statement"], markup=False, soft_wrap=True)
     out.print(f"tolerance: {result['tolerance']['statement']}", markup=False, soft_wrap=True)
-    table = Table(title="Sensitivity of the tracking ratio (Spearman, measured)")
-    for name in ("quantity", "spearman", "failure rate per quartile"):
+    table = Table(title="Drivers of the closeness to failing (PAWN, delta, Spearman; measured)")
+    for name in ("quantity", "entry", "PAWN", "above floor", "delta", "spearman", "failure rate per quartile"):
         table.add_column(name)
     for e in result["sensitivity"]:
         rates = " ".join("-" if r is None else f"{r:.2f}" for r in e["failure_rate"])
-        table.add_row(e["quantity"], _number(e["spearman"]), rates)
+        above = {True: "yes", False: "no", None: "-"}[e["above_floor"]]
+        table.add_row(e["quantity"], e["column"], _number(e["pawn"]), above, _number(e["delta"]),
+                      _number(e["spearman"]), rates)  # fmt: skip
     out.print(table)
+    out.print(f"floor: {result['sensitivity_floor']['note']}", markup=False, soft_wrap=True)
     for w in result["worst"]:
         out.print(f"run {w['run']}: {'holds' if w['holds'] else 'fails'} ({w['reason']}); replay: {w['replay']}",
                   markup=False, soft_wrap=True)  # fmt: skip

@@ -248,7 +248,7 @@ def _dispersion_figures(dispersion: dict | None, loop: ClosedLoop) -> dict[str, 
     worst = summary_["worst"][0]
     return dict(zip(names, (
         figures.campaign_ecdf(runs, summary_["tolerance"]),
-        figures.sensitivity_bars(summary_["sensitivity"]),
+        figures.sensitivity_bars(summary_["sensitivity"], summary_["sensitivity_floor"]["pawn"]),
         figures.drivers_scatter(runs, summary_["sensitivity"]),
         figures.implemented_image(dispersion["worst"], camera.centre, (camera.width, camera.height),
                                   f"Features of run {worst['run']} (the worst) in the true image",

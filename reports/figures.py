@@ -288,18 +288,21 @@ def campaign_ecdf(runs: dict, tolerance: dict) -> str:
     return svg(fig)
 
 
-def sensitivity_bars(sensitivity: list[dict]) -> str:
-    """The Spearman rank correlation of the tracking ratio with each drawn quantity (its
-    strongest entry), strongest on top."""
-    known = [e for e in sensitivity if e["spearman"] is not None]
+def sensitivity_bars(sensitivity: list[dict], floor: float | None) -> str:
+    """Each drawn quantity's PAWN score (its strongest entry; the closeness to failing), strongest
+    on top, with the floor of the independent reference inputs."""
+    known = [e for e in sensitivity if e["pawn"] is not None]
     fig, ax = plt.subplots(figsize=(6.4, 0.35 * len(known) + 1.0))
-    rho = np.array([e["spearman"] for e in known])
-    ax.barh(np.arange(len(known)), rho, color=np.where(rho > 0, BOUNDED, CONTROL))
+    score = np.array([e["pawn"] for e in known])
+    above = np.array([bool(e["above_floor"]) for e in known])
+    ax.barh(np.arange(len(known)), score, color=np.where(above, BOUNDED, CONTROL))
     ax.set_yticks(np.arange(len(known)), [e["column"] for e in known])
     ax.invert_yaxis()
-    ax.axvline(0.0, color="black", lw=0.8)
-    ax.set_xlim(-1, 1)
-    ax.set_xlabel("Spearman rank correlation with the tracking ratio")
+    if floor is not None:
+        ax.axvline(floor, color="black", lw=0.8, ls="--", label="floor (independent inputs)")
+        ax.legend(loc="lower right")
+    ax.set_xlim(0, 1)
+    ax.set_xlabel("PAWN: largest KS distance of the closeness to failing over slices")
     return svg(fig)
 
 
