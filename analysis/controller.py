@@ -23,8 +23,9 @@ last ``B = latency + jitter + 1`` estimates (``7 B``), the sample counter ``k``,
 are constants); its clock is ``t_k``.
 
 Bad input never gives a non-finite torque; the step's status says what happened (:class:`Status`):
-an image whose features or estimate (21) are not finite, or whose capture sample is outside the
-ring, is dropped like a lost frame (the law's torque, status 1); non-finite ``q`` or ``qd`` give
+an image whose features are not finite, whose estimate (21) is not a possible estimation error
+(:func:`plausible`), or whose capture sample is outside the ring, is dropped like a lost frame (the
+law's torque, status 1); non-finite ``q`` or ``qd`` give
 gravity compensation ``g(q)`` at the last finite ``q`` with the estimate held (status 2); a law or
 observer that is not finite at finite joints (a singular ``J_b``) gives ``g(q_k)`` (status 3).
 Gravity compensation, not zero torque: a zero torque drops an arm under gravity, ``g(q)``
@@ -117,6 +118,15 @@ def _quaternion_product(a: cs.SX, b: cs.SX) -> cs.SX:
     return cs.vertcat(a[0] * b[0] - a[1:4].T @ b[1:4], a[0] * b[1:4] + b[0] * a[1:4] + cs.cross(a[1:4], b[1:4]))
 
 
+def plausible(e_e: cs.SX, loop: ClosedLoop) -> cs.SX:
+    """1 when an image's ``e_e`` (21) is finite and could be an estimation error: its rotational part
+    no longer than 1 (``e_R = sin(theta) axis`` of any rotation), its translational part no longer than
+    the designed standoff ``|p_d|`` (an image whose error exceeds the whole camera-to-target distance
+    is not of this target where the estimate expects it)."""
+    standoff = float(np.linalg.norm(np.asarray(cs.DM(loop.reference.translation)).ravel()))
+    return cs.logic_and(_finite(e_e), cs.logic_and(cs.norm_2(e_e[3:6]) <= 1, cs.norm_2(e_e[0:3]) <= standoff))
+
+
 def observer_step(pbar: cs.SX, quat: cs.SX, v_wc: cs.SX, u_e: cs.SX, h: float) -> cs.SX:
     """``[pbar; quat]`` after the exact flow of (12) over ``h`` with ``V_wc`` and ``u_e`` constant:
     ``gbar(h) = exp(-h hat(V_wc)) gbar exp(h hat(u_e))`` (docs/math.md, fact 22), the quaternion
@@ -124,7 +134,9 @@ def observer_step(pbar: cs.SX, quat: cs.SX, v_wc: cs.SX, u_e: cs.SX, h: float) -
     before, after = SE3.exp(-h * v_wc), SE3.exp(h * u_e)
     gbar = SE3(pbar, SO3(quaternion_to_matrix(quat)))
     p = (before @ gbar @ after).translation
-    turned = _quaternion_product(_quaternion_product(_quaternion_exp(-h * v_wc[3:6]), quat), _quaternion_exp(h * u_e[3:6]))
+    turned = _quaternion_product(
+        _quaternion_product(_quaternion_exp(-h * v_wc[3:6]), quat), _quaternion_exp(h * u_e[3:6])
+    )
     return cs.vertcat(p, turned / cs.norm_2(turned))
 
 
@@ -156,7 +168,7 @@ def step_function(case: Case) -> cs.Function:
     e_new = image(at_capture[:3], at_capture[3:], features)
     given = capture >= 0
     in_ring = cs.logic_and(cs.logic_and(capture <= k, capture > k - layout.ring), cs.floor(capture) == capture)
-    usable = cs.logic_and(cs.logic_and(given, in_ring), cs.logic_and(_finite(features), _finite(e_new)))
+    usable = cs.logic_and(cs.logic_and(given, in_ring), cs.logic_and(_finite(features), plausible(e_new, loop)))
     e_e = cs.if_else(usable, e_new, e_held)
     arguments = [loop.t, loop.state, loop.hold]
     law = cs.Function("law", arguments, [loop.tau, loop.camera_velocity, loop.u[n + 6 : n + 12]])
@@ -170,7 +182,11 @@ def step_function(case: Case) -> cs.Function:
     status = cs.if_else(
         cs.logic_not(joints),
         int(Status.BAD_JOINTS),
-        cs.if_else(cs.logic_not(working), int(Status.NOT_FINITE), cs.if_else(cs.logic_and(given, cs.logic_not(usable)), int(Status.IMAGE_REJECTED), int(Status.OK))),
+        cs.if_else(
+            cs.logic_not(working),
+            int(Status.NOT_FINITE),
+            cs.if_else(cs.logic_and(given, cs.logic_not(usable)), int(Status.IMAGE_REJECTED), int(Status.OK)),
+        ),
     )
     x_next = cs.vertcat(
         cs.if_else(fine, gbar_next, gbar),

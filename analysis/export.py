@@ -42,6 +42,16 @@ TEMPLATES = ("dvfc_controller.h.in", "dvfc_controller.c.in", "Makefile", "README
 COPIED = ("dvfc_timing.c", "replay.c", "ros2_control_example.cpp")
 
 
+TORQUE_TOLERANCE = 1e-12
+"""Largest relative difference of a torque between the compiled and the Python step :func:`check`
+accepts: the same operations in the same order agree to the bit; a libm whose ``sin``, ``cos`` or
+``sqrt`` round differently in the last bit moves a torque by a few ulps of its terms, far below this."""
+
+CLOSED_LOOP_TOLERANCE = 1e-9
+"""Largest difference of a joint position (rad) or speed (rad/s) between the loop closed by the
+compiled step and by the Python step that :func:`check` accepts (identical torques give 0)."""
+
+
 class ExportError(ValueError):
     """A scenario that cannot be exported (one line naming the field)."""
 
@@ -67,6 +77,18 @@ class Check:
     max_rel_torque_difference: float
     closed_loop_max_state_difference: float
 
+    @property
+    def passed(self) -> bool:
+        """Both within :data:`TORQUE_TOLERANCE` and :data:`CLOSED_LOOP_TOLERANCE`."""
+        return (self.max_rel_torque_difference <= TORQUE_TOLERANCE
+                and self.closed_loop_max_state_difference <= CLOSED_LOOP_TOLERANCE)  # fmt: skip
+
+    def text(self) -> str:
+        """One sentence for the export's README."""
+        return (f"{self.samples} samples, largest torque difference {self.max_abs_torque_difference:.3g} N m "
+                f"(relative {self.max_rel_torque_difference:.3g}), closed loop: joints within "
+                f"{self.closed_loop_max_state_difference:.3g}")  # fmt: skip
+
 
 @dataclass(frozen=True)
 class Timing:
@@ -90,7 +112,9 @@ class Timing:
 def exportable(case: Case) -> None:
     """Raise :class:`ExportError` when the case has no program to export."""
     if case.settings.implementation is None:
-        raise ExportError("implementation: the scenario has no [implementation] (control rate, camera): nothing to export")
+        raise ExportError(
+            "implementation: the scenario has no [implementation] (control rate, camera): nothing to export"
+        )
     if case.planar:
         raise ExportError("loop: the reduced planar loop cannot be exported; export the paper's loop")
 
@@ -101,8 +125,11 @@ def _fill(text: str, values: dict[str, object]) -> str:
     return text
 
 
-def generate(case: Case, directory: Path, check_text: str = "not run") -> Export:
-    """Write the export of ``case`` to ``directory`` (created); ``check_text`` goes to its README."""
+NOT_CHECKED = "not run: `dvfc export --check` runs it"
+
+
+def generate(case: Case, directory: Path) -> Export:
+    """Write the export of ``case`` to ``directory`` (created)."""
     exportable(case)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -131,7 +158,7 @@ def generate(case: Case, directory: Path, check_text: str = "not run") -> Export
         "SZ_W": function.sz_w(),
         "X0": ", ".join(repr(float(v)) for v in controller.initial_state()),
         "CFLAGS": " ".join(CFLAGS),
-        "CHECK": check_text,
+        "CHECK": NOT_CHECKED,
     }
     source = resources.files("dvfc.analysis.export_c")
     for name in TEMPLATES:
@@ -142,6 +169,12 @@ def generate(case: Case, directory: Path, check_text: str = "not run") -> Export
              "README.md", *COPIED]  # fmt: skip
     return Export(directory, tuple(directory / n for n in names), directory / "dvfc_controller.h",
                   controller.layout.size)  # fmt: skip
+
+
+def record_check(export: Export, result: Check) -> None:
+    """Say in the export's README what :func:`check` found."""
+    readme = export.directory / "README.md"
+    readme.write_text(readme.read_text().replace(f"({NOT_CHECKED})", f"({result.text()})"))
 
 
 def build(export: Export) -> Path:
@@ -269,3 +302,24 @@ def _initial_features(case: Case) -> np.ndarray:
     loop = case.loop
     function = cs.Function("f0", [loop.t, loop.state], [loop.features])
     return np.asarray(function(0.0, case.s0)).ravel()
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """What ``dvfc export`` did: the export, and with ``--check`` the check and the timing of the
+    compiled step (with an image at every call, the slower case)."""
+
+    export: Export
+    check: Check | None = None
+    timing: Timing | None = None
+
+
+def export_controller(case: Case, directory: Path, *, checked: bool = False, calls: int = 100_000) -> ExportResult:
+    """Export ``case``'s controller to ``directory``; with ``checked``, :func:`check` it over the
+    scenario's duration and time ``calls`` steps."""
+    export = generate(case, directory)
+    if not checked:
+        return ExportResult(export)
+    result, _ = check(case, export)
+    record_check(export, result)
+    return ExportResult(export, result, timing(case, compiled_controller(case, export), calls))

@@ -29,7 +29,9 @@ from dvfc.analysis.controller import Controller
 from dvfc.analysis.sampled import SampledSimulator, as_implemented
 from dvfc.models.errors import PlantErrors, controller_features, friction_torque, true_features
 
-StepFunction = Callable[[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray | None, int], tuple[np.ndarray, np.ndarray]]
+StepFunction = Callable[
+    [np.ndarray, float, np.ndarray, np.ndarray, np.ndarray | None, int], tuple[np.ndarray, np.ndarray]
+]
 """``(state, t, q, qd, features or None, capture step) -> (tau, next state)``: :meth:`Controller.step`."""
 
 
@@ -62,7 +64,9 @@ class Plant:
         n = loop.robot.n
         self.errors = settings.errors or PlantErrors.none(loop.camera, n)
         joints, held, t = cs.SX.sym("x", 2 * n), cs.SX.sym("tau", n), cs.SX.sym("t")
-        rate = cs.Function("plant_rate", [loop.t, cs.vertcat(loop.q, loop.qd), loop.hold], [cs.vertcat(loop.qd, loop.qdd)])
+        rate = cs.Function(
+            "plant_rate", [loop.t, cs.vertcat(loop.q, loop.qd), loop.hold], [cs.vertcat(loop.qd, loop.qdd)]
+        )
         friction = cs.DM(self.errors.friction_vector())
         step = imp.period / imp.substeps
 
