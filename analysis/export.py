@@ -293,11 +293,11 @@ def timing(case: Case, compiled: CompiledController, calls: int = 100_000, image
     """The compiled step timed over ``calls`` calls at the case's start (``q0``, ``qd0``, the
     features of the initial pose), with an image at every call or none."""
     n = compiled.n
-    features = _initial_features(case) if image else None
+    features = initial_features(case) if image else None
     return Timing.of(compiled.time_steps(calls, case.s0[:n], case.s0[n : 2 * n], features), image)
 
 
-def _initial_features(case: Case) -> np.ndarray:
+def initial_features(case: Case) -> np.ndarray:
     """The features (11) at the case's initial state."""
     loop = case.loop
     function = cs.Function("f0", [loop.t, loop.state], [loop.features])

@@ -175,3 +175,37 @@ def software_in_the_loop(
         status=status,
         message=message,
     )
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """A software-in-the-loop run against the sampled simulator's run of the same case (the same
+    images, noise and plant), at the simulator's output samples: the largest differences of the joint
+    positions (rad), speeds (rad/s) and held torques (N m), and the largest torque of the run. A
+    measurement; docs/math.md, fact 22 says where the difference comes from (the observer stepped
+    on the samples)."""
+
+    samples: int
+    max_position_difference: float
+    max_speed_difference: float
+    max_torque_difference: float
+    peak_torque: float
+
+
+def compare_with_sampled(case: Case, run: SilRun) -> Comparison:
+    """``run`` against :class:`~dvfc.analysis.sampled.SampledSimulator` over the same horizon."""
+    imp = case.settings.implementation
+    duration = len(run.tau) * imp.period
+    trajectory = as_implemented(case.loop, replace(case.settings, duration=duration)).run(case.s0)
+    n = case.loop.robot.n
+    steps = np.round(trajectory.t * imp.control_rate).astype(int)
+    kept = steps < len(run.tau)
+    states, steps = trajectory.signals["state"][kept], steps[kept]
+    torque = trajectory.signals["tau_applied"][kept]
+    return Comparison(
+        samples=int(kept.sum()),
+        max_position_difference=float(np.abs(states[:, :n] - run.q[steps]).max()),
+        max_speed_difference=float(np.abs(states[:, n : 2 * n] - run.qd[steps]).max()),
+        max_torque_difference=float(np.abs(torque - run.tau[steps]).max()),
+        peak_torque=float(np.abs(run.tau).max()),
+    )

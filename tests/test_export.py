@@ -37,19 +37,17 @@ def exported(case, tmp_path_factory):
     return generate(case, tmp_path_factory.mktemp("ur5"))
 
 
+SEVEN_JOINTS = Path(__file__).parent / "data" / "xarm7_sampled.toml"
+"""The xArm 7 as implemented at 2 kHz (the file says why)."""
+
+
 def user_arm_scenario(folder: Path) -> Path:
-    """The xArm 7 of examples/xarm7_circle.toml as a user's URDF file (copied into ``folder``), run as
-    implemented at 2 kHz (the wrist-7 hold limit is 0.135 at 500 Hz, below any certified gain), from
-    a planned start, with a 60 Hz camera 20 ms late and 0.5 px noise."""
-    data = tomllib.loads((EXAMPLES / "xarm7_circle.toml").read_text())
+    """:data:`SEVEN_JOINTS` with its arm read from a user's URDF file (the xArm 7's, copied into
+    ``folder``)."""
+    data = tomllib.loads(SEVEN_JOINTS.read_text())
     shutil.copy(builtin_urdf("xarm7"), folder / "my_arm.urdf")
     del data["robot"]["model"]
     data["robot"]["urdf"] = "my_arm.urdf"
-    data["gains"]["k_xi"] = [10.0, 10.0, 10.0, 10.0, 5.0, 5.0, 0.4]
-    data["simulation"]["jit"] = False
-    data["start"] = {"reference": "planned", "duration": 2.0, "observer": "image"}
-    data["implementation"] = {"control_rate": 2000.0, "camera_rate": 60.0, "latency": 0.02, "e_e": "image",
-                              "pixel_noise": 0.5, "substeps": 2}  # fmt: skip
     path = folder / "xarm7.toml"
     path.write_text(tomli_w.dumps(data))
     return path
