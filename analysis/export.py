@@ -92,20 +92,22 @@ class Check:
 
 @dataclass(frozen=True)
 class Timing:
-    """Wall time of the compiled step (microseconds), over ``calls`` calls: a measurement on this
-    machine, with an image at every call (``image``) or none."""
+    """Time of the compiled step (microseconds), over ``calls`` calls: a measurement on this machine,
+    with an image at every call (``image``) or none, in wall time (``cpu`` False: what a control
+    cycle sees, preemption by other processes included) or the thread's CPU time (the step's own cost)."""
 
     calls: int
     image: bool
+    cpu: bool
     min_us: float
     median_us: float
     p999_us: float
     max_us: float
 
     @staticmethod
-    def of(seconds: np.ndarray, image: bool) -> Timing:
+    def of(seconds: np.ndarray, image: bool, cpu: bool) -> Timing:
         us = np.asarray(seconds) * 1e6
-        return Timing(len(us), image, float(us.min()), float(np.median(us)), float(np.quantile(us, 0.999)),
+        return Timing(len(us), image, cpu, float(us.min()), float(np.median(us)), float(np.quantile(us, 0.999)),
                       float(us.max()))  # fmt: skip
 
 
@@ -209,7 +211,7 @@ class CompiledController:
         self.lib.dvfc_step.argtypes = [pointer, ctypes.c_double, pointer, pointer, pointer, ctypes.c_int, pointer]
         self.lib.dvfc_step.restype = ctypes.c_int
         self.lib.dvfc_init.argtypes = [pointer]
-        self.lib.dvfc_time_steps.argtypes = [ctypes.c_long, pointer, pointer, pointer, pointer]
+        self.lib.dvfc_time_steps.argtypes = [ctypes.c_long, pointer, pointer, pointer, ctypes.c_int, pointer]
         self.lib.dvfc_time_steps.restype = ctypes.c_int
         self.last_status = 0
 
@@ -234,12 +236,14 @@ class CompiledController:
                                               int(capture_step), self._p(tau))  # fmt: skip
         return tau, x
 
-    def time_steps(self, calls: int, q: np.ndarray, qd: np.ndarray, features: np.ndarray | None) -> np.ndarray:
-        """The wall time (s) of each of ``calls`` steps (``dvfc_time_steps``)."""
+    def time_steps(
+        self, calls: int, q: np.ndarray, qd: np.ndarray, features: np.ndarray | None, cpu: bool = False
+    ) -> np.ndarray:
+        """The wall time (or the thread's CPU time) in seconds of each of ``calls`` steps (``dvfc_time_steps``)."""
         seconds = np.zeros(calls)
         q, qd = (np.ascontiguousarray(v, dtype=float) for v in (q, qd))
         f = None if features is None else np.ascontiguousarray(features, dtype=float)
-        self.lib.dvfc_time_steps(calls, self._p(q), self._p(qd), self._p(f), self._p(seconds))
+        self.lib.dvfc_time_steps(calls, self._p(q), self._p(qd), self._p(f), int(cpu), self._p(seconds))
         return seconds
 
 
@@ -289,12 +293,14 @@ def check(case: Case, export: Export, duration: float | None = None) -> tuple[Ch
     return result, reference
 
 
-def timing(case: Case, compiled: CompiledController, calls: int = 100_000, image: bool = True) -> Timing:
+def timing(
+    case: Case, compiled: CompiledController, calls: int = 100_000, image: bool = True, cpu: bool = False
+) -> Timing:
     """The compiled step timed over ``calls`` calls at the case's start (``q0``, ``qd0``, the
-    features of the initial pose), with an image at every call or none."""
+    features of the initial pose), with an image at every call or none, in wall or CPU time."""
     n = compiled.n
     features = initial_features(case) if image else None
-    return Timing.of(compiled.time_steps(calls, case.s0[:n], case.s0[n : 2 * n], features), image)
+    return Timing.of(compiled.time_steps(calls, case.s0[:n], case.s0[n : 2 * n], features, cpu), image, cpu)
 
 
 def initial_features(case: Case) -> np.ndarray:
@@ -307,11 +313,12 @@ def initial_features(case: Case) -> np.ndarray:
 @dataclass(frozen=True)
 class ExportResult:
     """What ``dvfc export`` did: the export, and with ``--check`` the check and the timing of the
-    compiled step (with an image at every call, the slower case)."""
+    compiled step with an image at every call, in wall time and in the thread's CPU time."""
 
     export: Export
     check: Check | None = None
     timing: Timing | None = None
+    cpu_timing: Timing | None = None
 
 
 def export_controller(case: Case, directory: Path, *, checked: bool = False, calls: int = 100_000) -> ExportResult:
@@ -322,4 +329,5 @@ def export_controller(case: Case, directory: Path, *, checked: bool = False, cal
         return ExportResult(export)
     result, _ = check(case, export)
     record_check(export, result)
-    return ExportResult(export, result, timing(case, compiled_controller(case, export), calls))
+    compiled = compiled_controller(case, export)
+    return ExportResult(export, result, timing(case, compiled, calls), timing(case, compiled, calls, cpu=True))

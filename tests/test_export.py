@@ -215,3 +215,23 @@ def test_export_bad_input_is_one_line_and_exit_2(tmp_path, arguments, field):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and field in lines[0] and "Traceback" not in result.output
     assert not (tmp_path / "c").exists()
+
+
+@pytest.mark.slow
+def test_export_check_json_reports_the_check_and_the_timing(tmp_path):
+    """``dvfc export --check --json -`` on the default scenario cut to 0.2 s: the check's samples and
+    zero differences, the timing of 1e5 calls, the README saying what the check found."""
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["simulation"]["duration"] = 0.2
+    scenario = tmp_path / "short.toml"
+    scenario.write_text(tomli_w.dumps(data))
+    result = runner.invoke(app, ["export", str(scenario), "--out", str(tmp_path / "c"), "--check", "--json", "-"])
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.stdout)
+    assert record["check"]["samples"] == 100 and record["check"]["passed"]
+    assert record["check"]["max_abs_torque_difference"] == 0.0
+    assert record["check"]["closed_loop_max_state_difference"] == 0.0
+    timing = record["timing"]
+    assert timing["calls"] == 100_000 and 0 < timing["min_us"] <= timing["median_us"] <= timing["p999_us"]
+    assert "100 samples, largest torque difference 0 N m" in (tmp_path / "c" / "README.md").read_text()
+    assert (tmp_path / "c" / "sil_inputs.csv").is_file()
