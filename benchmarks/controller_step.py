@@ -17,6 +17,7 @@ a property of its real-time kernel too. Goal: p99.9 at most 50 us.
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -49,6 +50,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--calls", type=int, default=100_000)
     calls = parser.parse_args().calls
+    load = os.getloadavg()
+    print(f"load average {load[0]:.1f} on {os.cpu_count()} cores (the tail of the wall times is the machine's)")
     for name, path in ARMS:
         case = dvfc.load(path)
         with tempfile.TemporaryDirectory() as folder:
