@@ -25,9 +25,9 @@ are constants); its clock is ``t_k``.
 Bad input never gives a non-finite torque; the step's status says what happened (:class:`Status`):
 an image whose features are not finite, whose estimate (21) is not a possible estimation error
 (:func:`plausible`), or whose capture sample is outside the ring, is dropped like a lost frame (the
-law's torque, status 1); non-finite ``q`` or ``qd`` give
-gravity compensation ``g(q)`` at the last finite ``q`` with the estimate held (status 2); a law or
-observer that is not finite at finite joints (a singular ``J_b``) gives ``g(q_k)`` (status 3).
+law's torque, status 1); non-finite ``q`` or ``qd`` give gravity compensation ``g(q)`` at the last
+finite ``q`` with the estimate held (status 2); a law or observer that is not finite at finite
+joints (a singular ``J_b``) gives ``g(q_k)`` (status 3).
 Gravity compensation, not zero torque: a zero torque drops an arm under gravity, ``g(q)``
 holds it where it is (it floats, undamped); the caller's own safety layer (a protective stop, brakes)
 decides what follows a non-zero status.
