@@ -1008,6 +1008,7 @@ def export_record(done: ExportResult) -> dict:
               "check": None, "timing": None}  # fmt: skip
     if done.check is not None:
         c = done.check
+        record["files"].append(str(c.inputs))
         record["check"] = {"samples": c.samples, "max_abs_torque_difference": c.max_abs_torque_difference,
                            "max_rel_torque_difference": c.max_rel_torque_difference,
                            "closed_loop_max_state_difference": c.closed_loop_max_state_difference,

@@ -69,9 +69,11 @@ class Export:
 @dataclass(frozen=True)
 class Check:
     """The compiled step against the Python step: over ``samples`` control samples of a
-    software-in-the-loop run, the largest torque difference (the same inputs) and the largest
-    difference of the plant's joints when the C step closes the loop instead."""
+    software-in-the-loop run (its inputs written to ``inputs`` for ``replay.c``), the largest torque
+    difference (the same inputs) and the largest difference of the plant's joints when the C step
+    closes the loop instead."""
 
+    inputs: Path
     samples: int
     max_abs_torque_difference: float
     max_rel_torque_difference: float
@@ -284,12 +286,15 @@ def check(case: Case, export: Export, duration: float | None = None) -> tuple[Ch
     scale = np.maximum(np.abs(reference.tau), np.finfo(float).tiny)
     closed = software_in_the_loop(case, c_step.step, duration=duration, controller=controller)
     joints = np.hstack([reference.q, reference.qd]), np.hstack([closed.q, closed.qd])
-    length = min(len(joints[0]), len(joints[1]))
-    state_difference = float(np.abs(joints[0][:length] - joints[1][:length]).max()) if length else 0.0
-    if len(joints[0]) != len(joints[1]):
-        state_difference = float("inf")
-    result = Check(len(reference.tau), float(difference.max(initial=0.0)), float((difference / scale).max(initial=0.0)),
-                   state_difference)  # fmt: skip
+    same_length = len(joints[0]) == len(joints[1])  # a run cut short by one step only: a difference
+    state_difference = float(np.abs(joints[0] - joints[1]).max()) if same_length else float("inf")
+    result = Check(
+        inputs=export.directory / "sil_inputs.csv",
+        samples=len(reference.tau),
+        max_abs_torque_difference=float(difference.max(initial=0.0)),
+        max_rel_torque_difference=float((difference / scale).max(initial=0.0)),
+        closed_loop_max_state_difference=state_difference,
+    )
     return result, reference
 
 

@@ -18,7 +18,15 @@ from typer.testing import CliRunner
 import dvfc
 from dvfc.analysis.cli import app
 from dvfc.analysis.controller import Controller
-from dvfc.analysis.export import CLOSED_LOOP_TOLERANCE, TORQUE_TOLERANCE, check, compiled_controller, generate, replay
+from dvfc.analysis.export import (
+    CLOSED_LOOP_TOLERANCE,
+    TORQUE_TOLERANCE,
+    build,
+    check,
+    compiled_controller,
+    generate,
+    replay,
+)
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.analysis.sil import software_in_the_loop
 from dvfc.models.robot import builtin_urdf
@@ -127,6 +135,21 @@ def test_compiled_step_returns_a_finite_safe_torque_and_a_code_on_bad_input(case
         expected = python.evaluate(x, 0.0, q, qd, features, capture)
     assert code == int(expected.status) == (2 if bad in ("nan_q", "inf_qd", "null_q") else 1)
     assert np.isfinite(tau).all() and np.array_equal(tau, expected.tau)
+
+
+LIBM = {"sin", "cos", "sincos", "tan", "sqrt", "fmod", "fmin", "fmax", "fabs", "floor", "ceil", "exp", "log",
+        "atan2", "asin", "acos", "atan", "pow", "tanh", "sinh", "cosh"}  # fmt: skip
+
+
+@pytest.mark.slow
+def test_the_compiled_library_needs_nothing_beyond_libm(exported):
+    """The built library's undefined symbols (``nm -u``, weak ones aside) are libm functions only:
+    no allocator, no I/O, no locks (the timing file's ``clock_gettime`` aside)."""
+    if shutil.which("nm") is None:
+        pytest.skip("nm needed")
+    listing = subprocess.run(["nm", "-u", str(build(exported))], check=True, capture_output=True, text=True).stdout
+    needed = {line.split()[-1].split("@")[0] for line in listing.splitlines() if line.split()[0] != "w"}
+    assert needed - {"clock_gettime"} <= LIBM, needed
 
 
 @pytest.mark.slow
