@@ -41,6 +41,7 @@ from dvfc.analysis.certify import (
     NOT_APPLICABLE,
     GainPoint,
 )
+from dvfc.analysis.export import ExportError, ExportResult, Timing, export_controller, exportable
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, runs_done, tracking_bound
 from dvfc.analysis.multirate import implemented_text
@@ -981,3 +982,66 @@ def show_campaign(result: dict) -> None:
     if (found := result.get("worst_case_search")) is not None:
         out.print(f"worst case found ({found['statement']}): closeness to failure {found['worst_closeness']:.4g}; "
                   f"replay: {found['replay']}", markup=False, soft_wrap=True)  # fmt: skip
+
+
+@app.command("export")
+def export_command(
+    scenario: ScenarioArg = DEFAULT_SCENARIO,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Folder of the exported C code.")] = None,
+    json_target: JsonOpt = None,
+    check: Annotated[bool, typer.Option("--check", help="Compile, replay a simulated run, compare.")] = False,
+) -> None:
+    """Export the controller as C (dvfc_controller.h/.c over CasADi's generated step)."""
+    case = load_case(scenario)
+    check_json_target(json_target)
+    try:
+        exportable(case)
+    except ExportError as exc:
+        raise fail(str(exc)) from exc
+    directory = prepare_out_dir(out_dir or Path("out") / case.name / "controller")
+    with err.status("exporting" + (", compiling and checking" if check else "")):
+        try:
+            done = export_controller(case, directory, checked=check)
+        except ExportError as exc:
+            raise fail(str(exc)) from exc
+    emit(export_record(done), None, json_target, show_export)
+    if done.check is not None and not done.check.passed:
+        err.print("check failed: the compiled step differs from the Python step", markup=False, soft_wrap=True)
+        raise typer.Exit(1)
+
+
+def export_record(done: ExportResult) -> dict:
+    """The JSON of ``dvfc export`` (docs/cli.md)."""
+    e = done.export
+    record = {"files": [str(f) for f in e.files], "api": str(e.api), "state_size": e.state_size,
+              "check": None, "timing": None}  # fmt: skip
+    if done.check is not None:
+        c = done.check
+        record["files"].append(str(c.inputs))
+        record["check"] = {"samples": c.samples, "max_abs_torque_difference": c.max_abs_torque_difference,
+                           "max_rel_torque_difference": c.max_rel_torque_difference,
+                           "closed_loop_max_state_difference": c.closed_loop_max_state_difference,
+                           "passed": c.passed}  # fmt: skip
+    if done.timing is not None:
+        record["timing"] = timing_record(done.timing)
+        record["timing"]["thread_cpu"] = timing_record(done.cpu_timing)
+    return record
+
+
+def timing_record(t: Timing) -> dict:
+    return {"calls": t.calls, "image": t.image, "min_us": t.min_us, "median_us": t.median_us, "p999_us": t.p999_us,
+            "max_us": t.max_us}  # fmt: skip
+
+
+def show_export(record: dict) -> None:
+    """Human output of ``export``."""
+    out.print(f"exported: {record['api']} ({len(record['files'])} files, state of {record['state_size']} doubles)",
+              markup=False, soft_wrap=True)  # fmt: skip
+    if (c := record["check"]) is not None:
+        out.print(f"check over {c['samples']} samples: largest torque difference {c['max_abs_torque_difference']:.3g} "
+                  f"N m, closed loop {c['closed_loop_max_state_difference']:.3g}", markup=False, soft_wrap=True)
+    if (t := record["timing"]) is not None:
+        c = t["thread_cpu"]
+        out.print(f"step time (measured, {t['calls']} calls with an image): median {t['median_us']:.3g} us, "
+                  f"p99.9 {t['p999_us']:.3g} us, max {t['max_us']:.3g} us wall; CPU time p99.9 {c['p999_us']:.3g} us, "
+                  f"max {c['max_us']:.3g} us", markup=False, soft_wrap=True)

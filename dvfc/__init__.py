@@ -12,6 +12,7 @@ scenario read, validated and built once)::
     verification = dvfc.verify(case)         # every claim of the paper on simulated runs
     margins = dvfc.margins(case, "out/m")    # where the loop as implemented stops holding (measured)
     html, pdf = dvfc.report(case, "out/r")   # the design-review report
+    program = dvfc.controller(case)          # the controller as the robot runs it, one step a sample
 
 Everything else lives in the layers: :mod:`dvfc.models` (the symbolic model), :mod:`dvfc.analysis`
 (runs, certificates, checks, synthesis) and :mod:`dvfc.reports`. The names are imported on first
@@ -27,10 +28,11 @@ if TYPE_CHECKING:
     import numpy as np
 
     from dvfc.analysis.case import Case
+    from dvfc.analysis.controller import Controller
     from dvfc.analysis.grid import GainMap
     from dvfc.analysis.simulate import Trajectory
 
-__all__ = ["Case", "certify", "gain_map", "load", "margins", "report", "simulate", "verify"]
+__all__ = ["Case", "certify", "controller", "gain_map", "load", "margins", "report", "simulate", "verify"]
 
 
 def __getattr__(name: str):
@@ -57,6 +59,18 @@ def simulate(case: Case) -> Trajectory:
     from dvfc.analysis.sampled import as_implemented
 
     return as_implemented(case.loop, case.settings).run(case.s0)
+
+
+def controller(case: Case) -> Controller:
+    """The case's controller as the program a robot runs (its ``[implementation]`` needed): one
+    step per control sample from the sampled ``q``, ``qd`` and, when one arrives, an image,
+    ``.step(state, t, q, qd, features_or_None, capture_step) -> (tau, state)`` from
+    ``.initial_state()``; ``dvfc export`` generates the same step as C."""
+    from dvfc.analysis.controller import Controller
+    from dvfc.analysis.export import exportable
+
+    exportable(case)
+    return Controller(case)
 
 
 def certify(case: Case, *, lower_bounds: bool = True) -> dict:

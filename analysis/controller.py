@@ -1,0 +1,255 @@
+"""The certified controller as the program that runs on the robot: one step per control sample.
+
+A real controller sees ``q_k``, ``qd_k`` once per control period ``h`` and, now and then, an
+image captured some samples earlier. :func:`step_function` builds that program as one CasADi
+function from the symbolic loop of :mod:`dvfc.models.loop` (the law (35), (42), the observer
+(12), the image estimate (21)); the same graph is evaluated from Python (:class:`Controller`)
+and generated as C (:mod:`dvfc.analysis.export`). One step at ``t_k``:
+
+1. the estimate ``gbar_k`` is written to the ring buffer's slot ``k mod B``;
+2. if an image arrives (``capture >= 0``), captured at sample ``c`` (``k - B < c <= k``), its
+   ``e_e`` is (21) with the estimate ``gbar_c`` of the capture time (read from the ring) and
+   replaces the held one; otherwise the held ``e_e`` stays;
+3. the torque is the law (35), (42) at ``(t_k, q_k, qd_k, gbar_k)`` with the held ``e_e``, to be
+   held over ``[t_k, t_k + h)``;
+4. the observer advances by the exact flow of (12) over one period with the sampled camera
+   velocity ``V_wc = J_b(q_k) qd_k`` and ``u_e`` held: ``gbar_(k+1) = exp(-h hat(V_wc)) gbar_k
+   exp(h hat(u_e))`` (docs/math.md, fact 22: local error ``O(h^2)``).
+
+State (flat, :class:`Layout`): ``gbar = [pbar; quat]`` (7), the held ``e_e`` (6), the ring of the
+last ``B = latency + jitter + 1`` estimates (``7 B``), the sample counter ``k``, the last finite
+``q`` (``n``), and an integral state (``n``, zero: the law has none yet). A planned reference
+(docs/math.md, fact 16b) is part of the program (its start ``gbar(0)``, goal, duration and hold
+are constants); its clock is ``t_k``.
+
+Bad input never gives a non-finite torque; the step's status says what happened (:class:`Status`):
+an image whose features are not finite, whose estimate (21) is not a possible estimation error
+(:func:`plausible`), or whose capture sample is outside the ring, is dropped like a lost frame (the
+law's torque, status 1); non-finite ``q`` or ``qd`` give gravity compensation ``g(q)`` at the last
+finite ``q`` with the estimate held (status 2); a law or observer that is not finite at finite
+joints (a singular ``J_b``) gives ``g(q_k)`` (status 3).
+Gravity compensation, not zero torque: a zero torque drops an arm under gravity, ``g(q)``
+holds it where it is (it floats, undamped); the caller's own safety layer (a protective stop, brakes)
+decides what follows a non-zero status.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from enum import IntEnum
+
+import casadi as cs
+import numpy as np
+
+from dvfc.analysis.case import Case
+from dvfc.analysis.compile import Buffered
+from dvfc.models.lie import SE3, SO3, quaternion_to_matrix
+from dvfc.models.loop import ClosedLoop
+
+LARGEST = float(np.finfo(float).max)
+"""``|x| <= LARGEST`` is false exactly for NaN and infinities (IEEE comparisons with NaN are false)."""
+
+
+class Status(IntEnum):
+    """What one step did (the C step's return code)."""
+
+    OK = 0
+    IMAGE_REJECTED = 1
+    """An image was given but dropped: features or (21) not finite, or capture outside the ring."""
+    BAD_JOINTS = 2
+    """``q`` or ``qd`` not finite: gravity compensation at the last finite ``q``, estimate held."""
+    NOT_FINITE = 3
+    """The law or the observer not finite at finite joints: gravity compensation at ``q_k``."""
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each part of the controller's flat state lies, for ``n`` joints and a ring of
+    ``ring`` estimates."""
+
+    n: int
+    ring: int
+
+    @property
+    def gbar(self) -> slice:
+        return slice(0, 7)
+
+    @property
+    def e_e(self) -> slice:
+        return slice(7, 13)
+
+    def slot(self, j: int) -> slice:
+        """The ring's slot ``j``: the estimate of a sample ``k`` with ``k mod ring = j``."""
+        return slice(13 + 7 * j, 20 + 7 * j)
+
+    @property
+    def counter(self) -> int:
+        return 13 + 7 * self.ring
+
+    @property
+    def q_last(self) -> slice:
+        return slice(self.counter + 1, self.counter + 1 + self.n)
+
+    @property
+    def integral(self) -> slice:
+        return slice(self.counter + 1 + self.n, self.counter + 1 + 2 * self.n)
+
+    @property
+    def size(self) -> int:
+        return self.counter + 1 + 2 * self.n
+
+
+def _finite(x: cs.SX) -> cs.SX:
+    """1 when every entry of ``x`` is finite, else 0 (:data:`LARGEST`)."""
+    return cs.logic_all(cs.fabs(x) <= LARGEST)
+
+
+def _quaternion_exp(w: cs.SX) -> cs.SX:
+    """The unit quaternion of ``exp(hat(w))``: ``[cos(theta/2); sin(theta/2) w / theta]``, with the
+    series of ``sin(theta/2)/theta`` below ``1e-4`` (error below ``1e-18``)."""
+    theta2 = w.T @ w
+    theta = cs.sqrt(theta2)
+    half = cs.if_else(theta2 < 1e-8, 0.5 - theta2 / 48, cs.sin(theta / 2) / theta)
+    return cs.vertcat(cs.cos(theta / 2), half * w)
+
+
+def _quaternion_product(a: cs.SX, b: cs.SX) -> cs.SX:
+    """``a (x) b`` for quaternions ``[w, x, y, z]`` (rotation ``R_a R_b``)."""
+    return cs.vertcat(a[0] * b[0] - a[1:4].T @ b[1:4], a[0] * b[1:4] + b[0] * a[1:4] + cs.cross(a[1:4], b[1:4]))
+
+
+def plausible(e_e: cs.SX, loop: ClosedLoop) -> cs.SX:
+    """1 when an image's ``e_e`` (21) is finite and could be an estimation error: its rotational part
+    no longer than 1 (``e_R = sin(theta) axis`` of any rotation), its translational part no longer than
+    the designed standoff ``|p_d|`` (an image whose error exceeds the whole camera-to-target distance
+    is not of this target where the estimate expects it)."""
+    standoff = float(np.linalg.norm(np.asarray(cs.DM(loop.reference.translation)).ravel()))
+    return cs.logic_and(_finite(e_e), cs.logic_and(cs.norm_2(e_e[3:6]) <= 1, cs.norm_2(e_e[0:3]) <= standoff))
+
+
+def observer_step(pbar: cs.SX, quat: cs.SX, v_wc: cs.SX, u_e: cs.SX, h: float) -> cs.SX:
+    """``[pbar; quat]`` after the exact flow of (12) over ``h`` with ``V_wc`` and ``u_e`` constant:
+    ``gbar(h) = exp(-h hat(V_wc)) gbar exp(h hat(u_e))`` (docs/math.md, fact 22), the quaternion
+    renormalised."""
+    before, after = SE3.exp(-h * v_wc), SE3.exp(h * u_e)
+    gbar = SE3(pbar, SO3(quaternion_to_matrix(quat)))
+    p = (before @ gbar @ after).translation
+    turned = _quaternion_product(
+        _quaternion_product(_quaternion_exp(-h * v_wc[3:6]), quat), _quaternion_exp(h * u_e[3:6])
+    )
+    return cs.vertcat(p, turned / cs.norm_2(turned))
+
+
+def program_loop(case: Case) -> ClosedLoop:
+    """The loop the program evaluates: the case's (the law's model, numbers baked in) in its
+    sampled form, ``e_e`` a held input."""
+    return replace(case.loop, sampled=True, plant=None)
+
+
+def ring_size(case: Case) -> int:
+    """Estimates the ring keeps: the latency plus its largest jitter, in periods, plus one."""
+    imp = case.settings.implementation
+    return imp.latency_steps + imp.latency_jitter + 1
+
+
+def step_function(case: Case) -> cs.Function:
+    """One control step of the case's controller, ``dvfc_program(t, q, qd, features, capture, x)
+    -> (tau, x_next, status)`` (see the module's description; ``capture < 0``: no image)."""
+    loop = program_loop(case)
+    n, m, h = loop.robot.n, loop.camera.m, case.settings.implementation.period
+    layout = Layout(n, ring_size(case))
+    t, q, qd = cs.SX.sym("t"), cs.SX.sym("q", n), cs.SX.sym("qd", n)
+    features, capture, x = cs.SX.sym("features", 2 * m), cs.SX.sym("capture"), cs.SX.sym("x", layout.size)
+    gbar, e_held, k = x[layout.gbar], x[layout.e_e], x[layout.counter]
+    slots = [cs.if_else(cs.fmod(k, layout.ring) == j, gbar, x[layout.slot(j)]) for j in range(layout.ring)]
+    chosen = cs.fmod(capture, layout.ring)
+    at_capture = sum(cs.if_else(chosen == j, slot, cs.DM.zeros(7)) for j, slot in enumerate(slots))
+    image = cs.Function("image_estimate", [loop.pbar, loop.quat, features], [loop.image_estimate(features)])
+    e_new = image(at_capture[:3], at_capture[3:], features)
+    given = capture >= 0
+    in_ring = cs.logic_and(cs.logic_and(capture <= k, capture > k - layout.ring), cs.floor(capture) == capture)
+    usable = cs.logic_and(cs.logic_and(given, in_ring), cs.logic_and(_finite(features), plausible(e_new, loop)))
+    e_e = cs.if_else(usable, e_new, e_held)
+    arguments = [loop.t, loop.state, loop.hold]
+    law = cs.Function("law", arguments, [loop.tau, loop.camera_velocity, loop.u[n + 6 : n + 12]])
+    tau, v_wc, u_e = law(t, cs.vertcat(q, qd, gbar), cs.vertcat(cs.DM.zeros(n), e_e))
+    gbar_next = observer_step(gbar[:3], gbar[3:], v_wc, u_e, h)
+    joints = cs.logic_and(_finite(q), _finite(qd))
+    working = cs.logic_and(_finite(tau), _finite(gbar_next))
+    fine = cs.logic_and(joints, working)
+    q_safe = cs.if_else(_finite(q), q, x[layout.q_last])
+    gravity = cs.Function("gravity", [loop.robot.q], [loop.robot.gravity])(q_safe)
+    status = cs.if_else(
+        cs.logic_not(joints),
+        int(Status.BAD_JOINTS),
+        cs.if_else(
+            cs.logic_not(working),
+            int(Status.NOT_FINITE),
+            cs.if_else(cs.logic_and(given, cs.logic_not(usable)), int(Status.IMAGE_REJECTED), int(Status.OK)),
+        ),
+    )
+    x_next = cs.vertcat(
+        cs.if_else(fine, gbar_next, gbar),
+        cs.if_else(fine, e_e, e_held),
+        *slots,
+        k + 1,
+        q_safe,
+        x[layout.integral],
+    )
+    return cs.Function(
+        "dvfc_program",
+        [t, q, qd, features, capture, x],
+        [cs.if_else(fine, tau, gravity), x_next, status],
+        ["t", "q", "qd", "features", "capture", "x"],
+        ["tau", "x_next", "status"],
+    )
+
+
+@dataclass(frozen=True)
+class Step:
+    """What one step returns: the torque to hold over the period, the next state, the status."""
+
+    tau: np.ndarray
+    state: np.ndarray
+    status: Status
+
+
+class Controller:
+    """The case's controller as a program (:func:`step_function`), called from Python."""
+
+    def __init__(self, case: Case) -> None:
+        self.case = case
+        loop = program_loop(case)
+        self.n, self.m = loop.robot.n, loop.camera.m
+        self.period = case.settings.implementation.period
+        self.layout = Layout(self.n, ring_size(case))
+        self.function = step_function(case)
+        self._call = Buffered(self.function)
+
+    def initial_state(self) -> np.ndarray:
+        """The state at ``t = 0``: the case's initial estimate ``gbar(0)``, no ``e_e`` yet, the ring
+        filled with ``gbar(0)``, ``k = 0``, the initial ``q`` as the last finite one."""
+        s0, layout = self.case.s0, self.layout
+        x = np.zeros(layout.size)
+        gbar0 = s0[2 * self.n : 2 * self.n + 7]
+        x[layout.gbar] = gbar0
+        for j in range(layout.ring):
+            x[layout.slot(j)] = gbar0
+        x[layout.q_last] = s0[: self.n]
+        return x
+
+    def step(
+        self, state: np.ndarray, t: float, q: np.ndarray, qd: np.ndarray, features: np.ndarray | None, capture_step: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(tau, next state)`` of one step (numpy in and out); ``features`` None: no image."""
+        result = self.evaluate(state, t, q, qd, features, capture_step)
+        return result.tau, result.state
+
+    def evaluate(
+        self, state: np.ndarray, t: float, q: np.ndarray, qd: np.ndarray, features: np.ndarray | None, capture_step: int
+    ) -> Step:
+        """One step with its :class:`Status`."""
+        image = features is not None
+        f = np.asarray(features, dtype=float) if image else np.zeros(2 * self.m)
+        tau, x_next, status = self._call(t, q, qd, f, float(capture_step) if image else -1.0, state)
+        return Step(tau.ravel(), x_next.ravel(), Status(int(status.ravel()[0])))
