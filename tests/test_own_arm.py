@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import tomllib
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -17,7 +18,7 @@ from dvfc.analysis.margins import TrackingBound, judge
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build
 from dvfc.analysis.verify import implemented
-from dvfc.models.robot import builtin_urdf
+from dvfc.models.robot import Robot, RobotModelError, builtin_urdf
 
 from conftest import scenario_dict
 from test_cli import setter, write
@@ -190,3 +191,83 @@ def test_a_diverged_run_reports_figures_up_to_its_stop(tmp_path):
     assert s["stopped"] and s["final_at"] == s["t_final"] < s["stopped_at"]
     assert f"max |tau| applied {s['max_torque']:.4g} N m" in " ".join(result.stdout.replace("│", " ").split())
     assert f"final (at {s['final_at']:.4g} s, the last sample before the stop)" in result.stdout
+
+
+Z1 = Path(__file__).parent / "data" / "z1_bracket.urdf"
+
+
+def on_own_urdf(tmp_path: Path, text: str, name: str = "arm.urdf"):
+    """An edit running the scenario on the URDF ``text`` (written to ``tmp_path``), a Z1-like arm
+    with its camera on ``camera_link``, the target 0.35 m ahead of the camera."""
+    (tmp_path / name).write_text(text)
+
+    def edit(data: dict) -> None:
+        data["robot"] = {"urdf": str(tmp_path / name), "camera_frame": "camera_link",
+                         "q0": [0.5, 1.0, -2.0, 1.0, 0.3, 0.5]}  # fmt: skip
+        for key in ("xyz", "rpy"):
+            data["target"].pop(key)
+        data["target"]["relative_to_camera"] = {"xyz": [0.0, 0.0, 0.35], "rpy": [0.0, 0.0, 0.0]}
+
+    return edit
+
+
+def refused(tmp_path: Path, edit, command: str = "simulate") -> str:
+    """The one line of ``command`` refusing the scenario of ``edit`` (exit 2, nothing written)."""
+    out = tmp_path / "out"
+    options = [] if command == "pose" else ["--out", str(out)]
+    result = runner.invoke(app, [command, str(write(tmp_path, edit)), *options])
+    assert result.exit_code == 2, result.output
+    assert not out.exists() and "Traceback" not in result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize(("old", "new", "says"), [
+    ('effort="60"', 'effort="0"', "effort limit 0 must be a positive number (N m)"),
+    ('effort="60"', 'effort="-40"', "effort limit -40 must be a positive number (N m)"),
+    ('lower="0.0" upper="2.967" effort="60" velocity="3.1415"', 'lower="0.0" upper="2.967" effort="60" velocity="0"',
+     "velocity limit 0 must be a positive number (rad/s)"),
+    ('upper="2.967" effort="60" velocity="3.1415"', 'upper="2.967" effort="60"', "no velocity limit"),
+])  # fmt: skip
+def test_a_zero_negative_or_missing_effort_or_velocity_limit_is_refused_naming_the_joint(old, new, says, tmp_path):
+    """A URDF has no "unlimited" effort or velocity: 0 would make every run's torque ratio 0 ("within
+    the limit") while the arm applies tens of N m. Refused in one line naming the joint and field."""
+    text = Z1.read_text()
+    assert text.count(old) == 1
+    line = refused(tmp_path, on_own_urdf(tmp_path, text.replace(old, new)))
+    assert line.startswith(f"error: robot.urdf: joint 'joint2' of arm.urdf: {says}"), line
+
+
+def test_a_continuous_joint_has_no_position_limits_and_may_give_no_effort_or_velocity(tmp_path):
+    """The URDF ignores a continuous joint's lower/upper (the example-robot-data Jaco2 gives +-2 pi
+    there): no position limit; and no effort or velocity limit when it gives no ``<limit>`` (a
+    ``<limit>`` without them is refused, as the URDF requires them)."""
+    text = Z1.read_text().replace('"joint1" type="revolute"', '"joint1" type="continuous"')
+    first, second = ('<limit lower="-2.618" upper="2.618" effort="30" velocity="3.1415"/>',
+                     '<limit lower="-2.618" upper="2.618"/>')  # fmt: skip
+    for name, limit in (("given.urdf", first), ("none.urdf", "")):
+        (tmp_path / name).write_text(text.replace(first, limit))
+        limits = Robot(tmp_path / name, "camera_link").limits
+        assert (limits.lower[0], limits.upper[0]) == (-math.inf, math.inf)
+        assert (limits.effort[0], limits.velocity[0]) == ((30.0, 3.1415) if limit else (math.inf, math.inf))
+        assert (limits.effort[1], limits.lower[1], limits.upper[1]) == (60.0, 0.0, 2.967)
+    (tmp_path / "partial.urdf").write_text(text.replace(first, second))
+    with pytest.raises(RobotModelError, match=r"^joint 'joint1' of partial.urdf: no effort limit \(<limit effort="):
+        Robot(tmp_path / "partial.urdf", "camera_link")
+
+
+def test_moving_links_without_inertial_data_are_refused_naming_them(tmp_path):
+    """Joints 5 and 6 move nothing with mass (link05; link06 and everything fixed to it have no
+    ``<inertial>``): ``M(q)`` is singular. One line naming those links, exit 2, for every command
+    that builds the arm (before, a run stopped at t = 0 and certify certified it)."""
+    text = Z1.read_text()
+    for link in ("link05", "link06", "gripperStator", "gripperMover", "camera_bracket", "camera_link"):
+        text, count = re.subn(rf'(<link name="{link}">)<inertial>.*?</inertial>', r"\1", text)
+        assert count == 1
+    for command in ("pose", "simulate", "certify"):
+        line = refused(tmp_path, on_own_urdf(tmp_path, text), command)
+        assert line == (
+            "error: robot.urdf: arm.urdf: link(s) 'link05', 'link06' carry no <inertial> mass or inertia, nor does "
+            "anything fixed to them: M(q) would be singular; give each moving link its inertial data"
+        ), (command, line)
