@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from dvfc.analysis.calibration import read_calibration
 from dvfc.analysis.cli import app
 from dvfc.analysis.margins import TrackingBound, judge
 from dvfc.analysis.sampled import as_implemented
@@ -259,9 +260,12 @@ def test_a_continuous_joint_has_no_position_limits_and_may_give_no_effort_or_vel
 
 def test_moving_links_without_inertial_data_are_refused_naming_them(tmp_path):
     """Joints 5 and 6 move nothing with mass (link05; link06 and everything fixed to it have no
-    ``<inertial>``): ``M(q)`` is singular. One line naming those links, exit 2, for every command
+    ``<inertial>``): ``M(q)`` is singular (a link without one carrying a body with mass is fine). One line naming those links, exit 2, for every command
     that builds the arm (before, a run stopped at t = 0 and certify certified it)."""
     text = Z1.read_text()
+    carried, count = re.subn(r'(<link name="link06">)<inertial>.*?</inertial>', r"\1", text)
+    (tmp_path / "carried.urdf").write_text(carried)
+    assert count == 1 and Robot(tmp_path / "carried.urdf", "camera_link").n == 6  # the gripper fixed to it has mass
     for link in ("link05", "link06", "gripperStator", "gripperMover", "camera_bracket", "camera_link"):
         text, count = re.subn(rf'(<link name="{link}">)<inertial>.*?</inertial>', r"\1", text)
         assert count == 1
@@ -271,3 +275,63 @@ def test_moving_links_without_inertial_data_are_refused_naming_them(tmp_path):
             "error: robot.urdf: arm.urdf: link(s) 'link05', 'link06' carry no <inertial> mass or inertia, nor does "
             "anything fixed to them: M(q) would be singular; give each moving link its inertial data"
         ), (command, line)
+
+
+REALSENSE = """image_width: 1280
+image_height: 720
+camera_name: color
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [908.3, 0.0, 641.1, 0.0, 907.9, 362.4, 0.0, 0.0, 1.0]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [0.0, 0.0, 0.0, 0.0, 0.0]
+"""
+"""A RealSense-like colour camera's ROS ``camera_info`` YAML (5 coefficients, plumb_bob)."""
+
+
+def calibrated(tmp_path: Path, text: str):
+    """An edit giving the scenario's camera the calibration file ``text`` (written beside it)."""
+    (tmp_path / "cam.yaml").write_text(text)
+
+    def edit(data: dict) -> None:
+        data["camera"] = {"calibration": "cam.yaml"}
+
+    return edit
+
+
+@pytest.mark.parametrize(("text", "says"), [
+    (REALSENSE.replace("image_height: 720\n", ""),
+     "missing field image_height (or height): the image height in pixels"),
+    (REALSENSE.replace("362.4, 0.0, 0.0, 1.0]", "362.4, 0.0, 0.0]"),
+     "camera_matrix: expected 9 entries (a 3x3 matrix, row by row), got 8"),
+    (REALSENSE.replace("data: [0.0, 0.0, 0.0, 0.0, 0.0]", "data: [0.1, 0.0, 0.0, 0.0, 0.0, 0.2, 0.0, 0.0]"),
+     "distortion_coefficients: 8 coefficients with nonzero entries past the fifth (a rational, thin-prism or tilted "
+     "model) are not supported (supported: plumb_bob, OpenCV's 5 coefficients [k1, k2, p1, p2, k3], and "
+     "rational_polynomial with k4 = k5 = k6 = 0)"),
+    (REALSENSE.replace("plumb_bob", "equidistant"), "distortion_model: 'equidistant' is not supported (supported:"),
+    (REALSENSE.replace("  cols: 3\n", "  cols: 3\n data: ["), "not valid YAML: line 7, column 2: "),
+    (REALSENSE.replace("908.3, 0.0", "908.3, 1.5"), "camera_matrix: expected a pinhole matrix [fx, 0, cx, 0, fy, cy, "
+     "0, 0, 1] (no skew), got [908.3, 1.5, 641.1, 0, 907.9, 362.4, 0, 0, 1]"),
+    (REALSENSE.replace("image_width: 1280", "image_width: 1280.5"),
+     "image_width: expected a positive whole number of pixels, got 1280.5"),
+])  # fmt: skip
+def test_a_bad_calibration_file_is_one_line_naming_the_file_and_the_field(text, says, tmp_path):
+    line = refused(tmp_path, calibrated(tmp_path, text), "pose")
+    assert line.startswith(f"error: camera.calibration: {tmp_path / 'cam.yaml'}: {says}"), line
+
+
+def test_a_camera_info_message_as_ros2_topic_echo_prints_it_reads(tmp_path):
+    """``sensor_msgs/CameraInfo`` as ``ros2 topic echo --once`` prints it: ``height``, ``width``,
+    ``k``, ``d``, then ``---``; the same intrinsics as the calibration file's."""
+    echoed = ("header:\n  stamp:\n    sec: 0\n    nanosec: 0\n  frame_id: camera_color_optical_frame\nheight: 720\n"
+              "width: 1280\ndistortion_model: plumb_bob\nd:\n- 0.0\n- 0.0\n- 0.0\n- 0.0\n- 0.0\nk:\n- 908.3\n- 0.0\n"
+              "- 641.1\n- 0.0\n- 907.9\n- 362.4\n- 0.0\n- 0.0\n- 1.0\n---\n")  # fmt: skip
+    (tmp_path / "echo.yaml").write_text(echoed)
+    (tmp_path / "file.yaml").write_text(REALSENSE)
+    echo, file = read_calibration(tmp_path / "echo.yaml"), read_calibration(tmp_path / "file.yaml")
+    assert echo == file and (echo.fx, echo.fy, echo.principal_point) == (908.3, 907.9, (641.1, 362.4))
+    assert (echo.width, echo.height, echo.distortion) == (1280, 720, (0.0,) * 5)
