@@ -335,3 +335,26 @@ def test_a_camera_info_message_as_ros2_topic_echo_prints_it_reads(tmp_path):
     echo, file = read_calibration(tmp_path / "echo.yaml"), read_calibration(tmp_path / "file.yaml")
     assert echo == file and (echo.fx, echo.fy, echo.principal_point) == (908.3, 907.9, (641.1, 362.4))
     assert (echo.width, echo.height, echo.distortion) == (1280, 720, (0.0,) * 5)
+
+
+@pytest.mark.parametrize(("edit", "says"), [
+    (setter("robot.mount", {"xyz": [0.0, 0.0, 55.7], "rpy": [0.0, 0.0, 0.0]}),
+     "robot.mount.xyz[2]: 55.7 m is not a plausible length in a robot cell (|x| <= 10 m); lengths are in metres "
+     "(55.7 mm = 0.0557 m)"),
+    (setter("robot.mount", {"xyz": [0.0, 0.0, 0.0], "rpy": [180.0, 0.0, 0.0]}),
+     "robot.mount.rpy[0]: 180 rad is beyond 2 pi in magnitude: angles are in radians (180 deg = 3.142 rad)"),
+    (setter("reference.rpy", [0.0, -90.0, 0.0]), "reference.rpy[1]: -90 rad is beyond 2 pi in magnitude"),
+    (setter("target.xyz", [487.0, 109.0, 82.0]), "target.xyz[0]: 487 m is not a plausible length"),
+    (setter("target.points", [[50.0, 50.0, 0.0], [-50.0, 50.0, 0.0], [-50.0, -50.0, 0.0], [50.0, -50.0, 0.0]]),
+     "target.points[0][0]: 50 m is not a plausible length"),
+    (setter("robot.q0", [8.6, -83.1, 83.1, -97.4, -83.1, 11.5]), "robot.q0[0]: 8.6 rad is beyond 2 pi in magnitude"),
+    (setter("observer.error_rpy", [0.0, 0.0, 7.0]), "observer.error_rpy[2]: 7 rad is beyond 2 pi in magnitude"),
+    (setter("implementation", {"control_rate": 500.0, "latency": 40.0}),
+     "implementation.latency: 40 s is more than 1 s: times are in seconds (40 ms = 0.04 s)"),
+])  # fmt: skip
+def test_a_length_in_mm_or_an_angle_in_degrees_or_a_latency_in_ms_is_flagged_naming_the_field(edit, says, tmp_path):
+    """A robot cell is within 10 m, an angle within 2 pi, a camera's latency within a second: beyond,
+    the value is taken for a unit mistake (before, a mount in mm surfaced as an inverse-kinematics
+    failure "55.7 m or rad away", and rpy = [180, 0, 0] or latency = 40 ran)."""
+    line = refused(tmp_path, edit)
+    assert line.startswith(f"error: {says}"), line
