@@ -260,8 +260,9 @@ def test_a_continuous_joint_has_no_position_limits_and_may_give_no_effort_or_vel
 
 def test_moving_links_without_inertial_data_are_refused_naming_them(tmp_path):
     """Joints 5 and 6 move nothing with mass (link05; link06 and everything fixed to it have no
-    ``<inertial>``): ``M(q)`` is singular (a link without one carrying a body with mass is fine). One line naming those links, exit 2, for every command
-    that builds the arm (before, a run stopped at t = 0 and certify certified it)."""
+    ``<inertial>``): ``M(q)`` is singular (a link without one carrying a body with mass is fine).
+    One line naming those links, exit 2, for every command that builds the arm (before, a run
+    stopped at t = 0 and certify certified it)."""
     text = Z1.read_text()
     carried, count = re.subn(r'(<link name="link06">)<inertial>.*?</inertial>', r"\1", text)
     (tmp_path / "carried.urdf").write_text(carried)
