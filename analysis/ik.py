@@ -209,13 +209,10 @@ def _best_conditioned(robot: Robot, goal: np.ndarray, search: _Search, found: li
         for near in found:
             solved = solver(x0=near, lbx=search.lower, ubx=search.upper, lbg=lbg, ubg=ubg)["x"]
             x = np.clip(np.asarray(solved).ravel(), search.lower, search.upper)
-            candidates = [x, near]  # the least-squares solution itself when conditioning loses the goal
-            for y in candidates:
-                position, rotation = search.errors(y)
-                if max(position, rotation) > REACHED:
-                    continue
-                c = _configuration(robot, y, position, rotation)
+            # the least-squares solution itself when conditioning loses the goal
+            y = next((y for y in (x, near) if max(search.errors(y)) <= REACHED), None)
+            if y is not None:
+                c = _configuration(robot, y, *search.errors(y))
                 if best is None or c.sigma_min > best.sigma_min:
                     best = c
-                break
     return best

@@ -134,3 +134,15 @@ def test_an_unreachable_goal_reports_the_closest_configuration_found(monkeypatch
         f"the closest found (5 starts, then 4 of 4096 screened) is {position:.3g} m and {rotation:.3g} rad away, "
         f"at q = [{q}]"
     )
+
+
+def test_a_solution_whose_conditioning_loses_the_goal_is_kept_as_least_squares_found_it(monkeypatch):
+    """IPOPT's conditioning returning a point off the goal (here: every solve returns its start moved
+    by 0.1 rad) does not lose the solution bounded least squares reached: that one is returned."""
+    robot = Robot(builtin_urdf("ur5"), BUILTIN_CAMERA_FRAME["ur5"])
+    goal = camera_at(robot, np.asarray(START["ur5"]))
+    monkeypatch.setattr(cs, "nlpsol", lambda *args, **kwargs: lambda **given: {"x": cs.DM(given["x0"]) + 0.1})
+    config = solve_configuration(robot, goal)
+    reached = camera_at(robot, config.q)
+    assert np.linalg.norm(reached[:3, 3] - goal[:3, 3]) < 1e-9
+    assert config.position_error <= ik.REACHED and config.rotation_error <= ik.REACHED
