@@ -21,7 +21,7 @@ The camera's goal is ``g_wc* = g_wo(0) g_d^-1``. The search has three stages.
    that reach the goal.
 
 A joint without position limits (a continuous joint) is searched over ``[-pi, pi]``, every angle
-it can take; the others over their limits narrowed by :data:`LIMIT_MARGIN`.
+it can take; the others over their limits narrowed by :data:`LIMIT_MARGIN` (:func:`_bounds`).
 """
 
 from __future__ import annotations
@@ -80,12 +80,14 @@ class Configuration:
 
 
 def _bounds(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
-    """The position limits narrowed by :data:`LIMIT_MARGIN`; ``[-pi, pi]`` where there are none."""
-    limited = np.isfinite(robot.limits.lower) & np.isfinite(robot.limits.upper)
-    lower = np.where(limited, robot.limits.lower, -np.pi)
-    upper = np.where(limited, robot.limits.upper, np.pi)
-    margin = np.where(limited, np.minimum(LIMIT_MARGIN, (upper - lower) / 4), 0.0)
-    return lower + margin, upper - margin
+    """The position limits narrowed by :data:`LIMIT_MARGIN`; a side without a limit is a full turn
+    from the other side's limit, or ``-pi``/``pi`` where there is neither (every angle)."""
+    low, high = robot.limits.lower, robot.limits.upper
+    finite_low, finite_high = np.isfinite(low), np.isfinite(high)
+    lower = np.where(finite_low, low, np.where(finite_high, high - 2 * np.pi, -np.pi))
+    upper = np.where(finite_high, high, np.where(finite_low, low + 2 * np.pi, np.pi))
+    margin = np.minimum(LIMIT_MARGIN, (upper - lower) / 4)
+    return lower + np.where(finite_low, margin, 0.0), upper - np.where(finite_high, margin, 0.0)
 
 
 def sobol(lower: np.ndarray, upper: np.ndarray, size: int, seed: int) -> np.ndarray:

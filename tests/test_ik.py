@@ -6,6 +6,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from importlib.metadata import distribution
 from pathlib import Path
+from types import SimpleNamespace
 
 import casadi as cs
 import numpy as np
@@ -13,7 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dvfc.analysis import ik
-from dvfc.analysis.ik import LIMIT_MARGIN, NoConfigurationError, solve_configuration
+from dvfc.analysis.ik import LIMIT_MARGIN, NoConfigurationError, _bounds, solve_configuration
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build
 from dvfc.models.robot import BUILTIN_CAMERA_FRAME, Robot, builtin_urdf
 
@@ -146,3 +147,14 @@ def test_a_solution_whose_conditioning_loses_the_goal_is_kept_as_least_squares_f
     reached = camera_at(robot, config.q)
     assert np.linalg.norm(reached[:3, 3] - goal[:3, 3]) < 1e-9
     assert config.position_error <= ik.REACHED and config.rotation_error <= ik.REACHED
+
+
+def test_the_search_box_keeps_every_limit_and_a_full_turn_where_there_is_none():
+    """Both limits: narrowed by the margin; one: the margin on its side, a full turn from it on
+    the other; none (a continuous joint): ``[-pi, pi]``, every angle, without a margin."""
+    inf, pi = np.inf, np.pi
+    limits = SimpleNamespace(lower=np.array([-inf, 0.0, -inf, -1.0]), upper=np.array([inf, inf, 1.0, 1.0]))
+    lower, upper = _bounds(SimpleNamespace(limits=limits))
+    m = LIMIT_MARGIN
+    assert np.allclose(lower, [-pi, m, 1 - 2 * pi, -1 + m], rtol=0, atol=1e-15)
+    assert np.allclose(upper, [pi, 2 * pi, 1 - m, 1 - m], rtol=0, atol=1e-15)
