@@ -14,7 +14,7 @@ from typing import Annotated, Literal
 
 import casadi as cs
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.messages import one_line
@@ -31,6 +31,41 @@ Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Vector3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 
+CELL_SIZE = 10.0
+"""Largest length (m) a robot cell holds: a position or length beyond it is taken for one given in mm."""
+LONGEST_LATENCY = 1.0
+"""Largest latency (s) accepted: a longer one is taken for one given in ms."""
+
+
+def _radians(value: float) -> float:
+    """An angle (rad); above ``2 pi`` in magnitude it is taken for one given in degrees."""
+    if abs(value) > 2 * math.pi:
+        raise ValueError(f"{value:g} rad is beyond 2 pi in magnitude: angles are in radians ({value:g} deg = "
+                         f"{math.radians(value):.4g} rad)")  # fmt: skip
+    return value
+
+
+def _metres(value: float) -> float:
+    """A position or length (m); beyond :data:`CELL_SIZE` it is taken for one given in mm."""
+    if abs(value) > CELL_SIZE:
+        raise ValueError(f"{value:g} m is not a plausible length in a robot cell (|x| <= {CELL_SIZE:g} m); lengths "
+                         f"are in metres ({value:g} mm = {value / 1000:.4g} m)")  # fmt: skip
+    return value
+
+
+def _seconds(value: float) -> float:
+    """A latency (s); above :data:`LONGEST_LATENCY` it is taken for one given in ms."""
+    if value > LONGEST_LATENCY:
+        raise ValueError(f"{value:g} s is more than {LONGEST_LATENCY:g} s: times are in seconds ({value:g} ms = "
+                         f"{value / 1000:.4g} s)")  # fmt: skip
+    return value
+
+
+Angle = Annotated[float, Field(allow_inf_nan=False), AfterValidator(_radians)]
+Length = Annotated[float, Field(allow_inf_nan=False), AfterValidator(_metres)]
+Angles3 = Annotated[list[Angle], Field(min_length=3, max_length=3)]
+Position3 = Annotated[list[Length], Field(min_length=3, max_length=3)]
+
 
 class _Strict(BaseModel):
     """No unknown keys, no coercion (a string or a boolean is never a number)."""
@@ -39,8 +74,8 @@ class _Strict(BaseModel):
 
 
 class Pose(_Strict):
-    xyz: Vector3 = [0.0, 0.0, 0.0]
-    rpy: Vector3 = [0.0, 0.0, 0.0]
+    xyz: Position3 = [0.0, 0.0, 0.0]
+    rpy: Angles3 = [0.0, 0.0, 0.0]
 
     def se3(self) -> SE3:
         return SE3.from_xyz_rpy(self.xyz, self.rpy)
@@ -50,7 +85,7 @@ class RobotSection(_Strict):
     model: str | None = None
     urdf: str | None = None
     camera_frame: str | None = None
-    q0: list[Finite] | Literal["auto"]
+    q0: list[Angle] | Literal["auto"]
     qd0: list[Finite] | None = None
     mount: Pose = Pose()
     armature: list[Annotated[float, Field(ge=0, allow_inf_nan=False)]] | None = None
@@ -112,7 +147,7 @@ class CameraSection(_Strict):
 
 class MotionSection(_Strict):
     kind: Literal["static", "circle", "circle_spin"] = "static"
-    radius: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    radius: Annotated[float, Field(ge=0, allow_inf_nan=False), AfterValidator(_metres)] = 0.0
     period: Positive = 1.0
     normal: Vector3 = [0.0, 0.0, 1.0]
     spin_axis: Vector3 = [0.0, 0.0, 1.0]
@@ -135,9 +170,9 @@ class TargetSection(_Strict):
     g_wc(q0) g_co``, so ``xyz = [0, 0, d]`` puts it on the optical axis at depth ``d``), and
     its motion."""
 
-    points: Annotated[list[Vector3], Field(min_length=4)]
-    xyz: Vector3 | None = None
-    rpy: Vector3 = [0.0, 0.0, 0.0]
+    points: Annotated[list[Position3], Field(min_length=4)]
+    xyz: Position3 | None = None
+    rpy: Angles3 = [0.0, 0.0, 0.0]
     relative_to_camera: Pose | None = None
     motion: MotionSection = MotionSection()
 
@@ -179,8 +214,8 @@ class ReferenceSection(Pose):
 class ObserverSection(_Strict):
     """Initial estimation error ``g_ee(0)``: ``gbar(0) = g(0) g_ee(0)^-1``."""
 
-    error_xyz: Vector3 = [0.0, 0.0, 0.0]
-    error_rpy: Vector3 = [0.0, 0.0, 0.0]
+    error_xyz: Position3 = [0.0, 0.0, 0.0]
+    error_rpy: Angles3 = [0.0, 0.0, 0.0]
 
 
 class StartSection(_Strict):
@@ -255,7 +290,7 @@ class DisturbanceSection(_Strict):
     amplitude: Finite | list[Finite] | None = None
     start: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
     frequency: Positive | None = None
-    phase: Finite = 0.0
+    phase: Angle = 0.0
     rms: Annotated[float, Field(ge=0, allow_inf_nan=False)] | list[Finite] | None = None
     bandwidth: Positive | None = None
     seed: int = 0
@@ -305,7 +340,7 @@ class ImplementationSection(_Strict):
 
     control_rate: Positive
     camera_rate: Positive | None = None
-    latency: NonNegative = 0.0
+    latency: Annotated[float, Field(ge=0, allow_inf_nan=False), AfterValidator(_seconds)] = 0.0
     pixel_noise: NonNegative = 0.0
     quantization: NonNegative = 0.0
     e_e: Literal["ideal", "image"] | None = None
@@ -356,7 +391,7 @@ class PayloadSection(_Strict):
     (m, link frame), inertia about it ``[ixx, ixy, ixz, iyy, iyz, izz]`` (kg m^2)."""
 
     mass: NonNegative
-    com: Vector3 = [0.0, 0.0, 0.0]
+    com: Position3 = [0.0, 0.0, 0.0]
     inertia: Annotated[list[Finite], Field(min_length=6, max_length=6)] = [0.0] * 6
 
 
@@ -391,7 +426,7 @@ class PlantSection(_Strict):
     mass_scale: Positive = 1.0
     mount: Pose | None = None
     camera: PlantCameraSection | None = None
-    target_points: list[Vector3] | None = None
+    target_points: list[Position3] | None = None
     friction: FrictionSection | Literal["urdf"] | None = None
 
     @property

@@ -217,19 +217,87 @@ def coupling(chain: list[str], mimic: dict[str, Mimic]) -> tuple[list[str], list
     return joints, moving, t, np.array([rows[name][1] for name in moving])
 
 
+def _limit_value(joint: ET.Element, key: str, urdf: Path) -> float:
+    """One attribute of a joint's ``<limit>``: ``effort`` and ``velocity`` positive and finite (the
+    URDF requires both in every ``<limit>``, and a ``<limit>`` on a revolute joint; a continuous
+    joint without one has none: ``inf``), ``lower`` and ``upper`` finite (``-inf``/``inf`` when
+    absent; a continuous joint's are ignored, as the URDF ignores them)."""
+    name, kind, limit = joint.get("name"), joint.get("type"), joint.find("limit")
+    text = None if limit is None else limit.get(key)
+    if key in ("lower", "upper") and (text is None or kind == "continuous"):
+        return -math.inf if key == "lower" else math.inf
+    if limit is None and kind == "continuous":
+        return math.inf
+    unit = {"effort": "N m", "velocity": "rad/s", "lower": "rad", "upper": "rad"}[key]
+    if text is None:
+        raise RobotModelError(
+            f"joint {name!r} of {urdf.name}: no {key} limit (<limit {key}=...>, {unit}; the URDF requires "
+            "effort and velocity in every <limit> and a <limit> on a revolute joint)"
+        )
+    try:
+        value = float(text)
+    except ValueError:
+        raise RobotModelError(f"joint {name!r} of {urdf.name}: {key} limit {text!r} is not a number") from None
+    if not math.isfinite(value) or (key in ("effort", "velocity") and value <= 0):
+        raise RobotModelError(
+            f"joint {name!r} of {urdf.name}: {key} limit {text} must be a positive number ({unit}); "
+            "give the joint's rated value (a URDF has no 'unlimited' value)"
+        )
+    return value
+
+
 def joint_limits(urdf: Path, joints: list[str]) -> JointLimits:
-    """The ``<limit>`` attributes of ``joints`` (in that order) from the URDF."""
-    by_name = {j.get("name"): j.find("limit") for j in _parse(urdf).findall("joint")}  # not <transmission>
-    values = {key: [] for key in ("effort", "velocity", "lower", "upper")}
-    default = {"effort": math.inf, "velocity": math.inf, "lower": -math.inf, "upper": math.inf}
+    """The ``<limit>`` attributes of ``joints`` (in that order) from the URDF, checked
+    (:func:`_limit_value`; ``lower <= upper``).
+
+    Raises
+    ------
+    RobotModelError
+        A zero, negative, non-finite or non-numeric limit, an effort or velocity limit missing
+        on a revolute joint, or ``lower > upper``: the message names the joint and the field.
+    """
+    by_name = {j.get("name"): j for j in _parse(urdf).findall("joint")}  # not <transmission>
+    values: dict[str, list[float]] = {key: [] for key in ("effort", "velocity", "lower", "upper")}
     for name in joints:
-        limit = by_name.get(name)
+        joint = by_name[name]
         for key, out in values.items():
-            text = None if limit is None else limit.get(key)
-            out.append(default[key] if text is None else float(text))
-    for key in ("effort", "velocity"):  # a zero limit in a URDF means "not given"
-        values[key] = [math.inf if v <= 0 else v for v in values[key]]
+            out.append(_limit_value(joint, key, urdf))
+        if values["lower"][-1] > values["upper"][-1]:
+            raise RobotModelError(
+                f"joint {name!r} of {urdf.name}: lower limit {values['lower'][-1]:g} exceeds upper limit "
+                f"{values['upper'][-1]:g}"
+            )
     return JointLimits(**{key: np.asarray(v) for key, v in values.items()})
+
+
+def massless_links(urdf: Path, moving: list[str]) -> list[str]:
+    """The child links of the joints ``moving`` that carry no mass or inertia, nor does anything
+    fixed to them (joints outside ``moving`` count as fixed, :func:`frozen_urdf`): a joint
+    moving no inertia makes ``M(q)`` of (33) singular."""
+    root = _parse(urdf)
+    heavy = set()
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        mass = None if inertial is None else inertial.find("mass")
+        inertia = None if inertial is None else inertial.find("inertia")
+        values = [mass.get("value", "0")] if mass is not None else []
+        values += [inertia.get(k, "0") for k in ("ixx", "iyy", "izz")] if inertia is not None else []
+        try:
+            if any(float(v) > 0 for v in values):
+                heavy.add(link.get("name"))
+        except ValueError:
+            heavy.add(link.get("name"))  # not a number: the dynamics' parser names it
+    joints = [j for j in root.findall("joint") if j.find("parent") is not None and j.find("child") is not None]
+    rigid: dict[str, list[str]] = {}
+    for j in joints:
+        if j.get("name") not in moving:
+            rigid.setdefault(j.find("parent").get("link"), []).append(j.find("child").get("link"))
+
+    def carries(link: str) -> bool:
+        return link in heavy or any(carries(child) for child in rigid.get(link, ()))
+
+    children = [j.find("child").get("link") for j in joints if j.get("name") in moving]
+    return [link for link in children if not carries(link)]
 
 
 def joint_dynamics(urdf: Path, joints: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -320,6 +388,12 @@ class Robot:
         )
         """``joints``: the independent joints of the chain (``q``); ``moving``: every joint the
         dynamics move, ``q_moving = coupling q + offset`` (:func:`coupling`)."""
+        joint_limits(self.urdf, self.moving)  # a bad limit is bad input now, not a wrong verdict after a run
+        if massless := massless_links(self.urdf, self.moving):
+            raise RobotModelError(
+                f"{self.urdf.name}: link(s) {', '.join(map(repr, massless))} carry no <inertial> mass or inertia, "
+                "nor does anything fixed to them: M(q) would be singular; give each moving link its inertial data"
+            )
         if self.armature and len(self.armature) != self.n:
             raise RobotModelError(f"armature: expected {self.n} entries (one per joint), got {len(self.armature)}")
         try:
@@ -328,7 +402,7 @@ class Robot:
                 text = perturbed_urdf(text, self.frame, self.payload, self.mass_scale)
             self._kindyn = KinDynComputations(text, self.moving)
         except Exception as exc:  # adam raises bare exceptions on malformed files
-            raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {exc}") from exc
+            raise RobotModelError(f"cannot build dynamics from {self.urdf.name}: {' '.join(str(exc).split())}") from exc
         try:
             if self.moving == self.joints:
                 self.mass_bounds: MassBounds = mass_matrix_bounds(self.urdf, self.joints, self.armature)

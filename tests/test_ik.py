@@ -3,12 +3,18 @@ URDF's position limits, on every built-in arm, with no IPOPT text on the standar
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
+from importlib.metadata import distribution
+from pathlib import Path
+from types import SimpleNamespace
+
 import casadi as cs
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dvfc.analysis.ik import LIMIT_MARGIN
+from dvfc.analysis import ik
+from dvfc.analysis.ik import LIMIT_MARGIN, NoConfigurationError, _bounds, solve_configuration
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build
 from dvfc.models.robot import BUILTIN_CAMERA_FRAME, Robot, builtin_urdf
 
@@ -48,3 +54,107 @@ def test_auto_q0_reaches_the_reference_within_the_limits(name, capfd):
     reference = np.asarray(cs.DM(loop.reference.as_matrix()))
     assert np.linalg.norm(relative[:3, 3] - reference[:3, 3]) < 1e-6
     assert np.linalg.norm(relative[:3, :3] - reference[:3, :3]) < 1e-6
+
+
+JACO2_CAMERA = "j2s6s200_end_effector"
+Q_STAR = np.array([3.1, 2.9, 1.2, 3.1, 3.0, 3.1])
+"""A configuration of the limited Jaco2 below within its limits (joints 1, 4, 6 continuous)."""
+
+
+def limited_jaco2(folder: Path) -> Path:
+    """example-robot-data's Kinova Jaco2 (j2s6s200) with joints 2 and 3 limited to 0.15 rad either
+    side of 2.9 and 1.2 rad (and joint 5 to its own [0.52, 5.76])."""
+    urdf = Path(distribution("example-robot-data").locate_file(
+        "cmeel.prefix/share/example-robot-data/robots/kinova_description/robots/kinova.urdf"))  # fmt: skip
+    root = ET.parse(urdf).getroot()
+    for joint in root.findall("joint"):
+        centre = {"j2s6s200_joint_2": 2.9, "j2s6s200_joint_3": 1.2}.get(joint.get("name"))
+        if centre is not None:
+            joint.find("limit").set("lower", repr(centre - 0.15))
+            joint.find("limit").set("upper", repr(centre + 0.15))
+    path = folder / "jaco2.urdf"
+    path.write_text(ET.tostring(root, encoding="unicode"))
+    return path
+
+
+def camera_at(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """``g_wc(q)`` by the arm's forward kinematics."""
+    return np.asarray(cs.Function("g", [robot.q], [robot.camera_pose.as_matrix()])(q))
+
+
+@pytest.mark.parametrize("offset", [0.0, pytest.param(0.03, marks=pytest.mark.slow)])
+def test_auto_q0_finds_a_configuration_within_tight_limits(offset, tmp_path):
+    """The goal is the camera's pose at ``Q_STAR`` (or 3 cm from it along the camera's x axis): a
+    configuration within the limits attains it, and the search finds one (the 12 starts around
+    the middle of the limits it replaced stopped 0.0129 m or rad away, 0.0149 with the offset):
+    the pose error recomputed from its forward kinematics is below 1e-9 m and 1e-9 rad."""
+    robot = Robot(limited_jaco2(tmp_path), JACO2_CAMERA)
+    goal = camera_at(robot, Q_STAR)
+    goal[:3, 3] += offset * goal[:3, 0]
+    config = solve_configuration(robot, goal)
+    limits = robot.limits
+    assert np.all(config.q >= limits.lower + LIMIT_MARGIN - 1e-12) and np.all(config.q <= limits.upper - LIMIT_MARGIN)
+    reached = camera_at(robot, config.q)
+    assert np.linalg.norm(reached[:3, 3] - goal[:3, 3]) < 1e-9
+    assert Rotation.from_matrix(goal[:3, :3].T @ reached[:3, :3]).magnitude() < 1e-9
+
+
+@pytest.mark.slow
+def test_the_global_search_finds_a_configuration_the_local_starts_miss(monkeypatch, tmp_path):
+    """With two local starts (the middle of the limits and one Sobol point) none reaches this goal;
+    the global search's screened starts do (and without them the search fails)."""
+    robot = Robot(limited_jaco2(tmp_path), JACO2_CAMERA)
+    goal = camera_at(robot, np.array([-2.893, 2.907, 1.189, -2.75, 3.876, 2.216]))
+    monkeypatch.setattr(ik, "STARTS", 2)
+    reached = camera_at(robot, solve_configuration(robot, goal).q)
+    assert np.linalg.norm(reached[:3, 3] - goal[:3, 3]) < 1e-9
+    monkeypatch.setattr(ik, "GLOBAL_STARTS", 0)
+    with pytest.raises(NoConfigurationError):
+        solve_configuration(robot, goal)
+
+
+def test_an_unreachable_goal_reports_the_closest_configuration_found(monkeypatch, tmp_path):
+    """3 m above the arm's reach: one line with the position (m) and rotation (rad) errors of the
+    closest configuration found, and that configuration, whose pose is that far from the goal."""
+    robot = Robot(limited_jaco2(tmp_path), JACO2_CAMERA)
+    goal = camera_at(robot, Q_STAR)
+    goal[2, 3] += 3.0
+    monkeypatch.setattr(ik, "STARTS", 5)
+    monkeypatch.setattr(ik, "GLOBAL_STARTS", 4)
+    with pytest.raises(NoConfigurationError) as caught:
+        solve_configuration(robot, goal)
+    closest = caught.value.closest
+    pose = camera_at(robot, closest.q)
+    position = np.linalg.norm(pose[:3, 3] - goal[:3, 3])
+    rotation = Rotation.from_matrix(goal[:3, :3].T @ pose[:3, :3]).magnitude()
+    assert 2.0 < position < 3.0 and closest.position_error == pytest.approx(position, rel=1e-9)
+    assert closest.rotation_error == pytest.approx(rotation, rel=1e-9, abs=1e-12)
+    q = ", ".join(f"{v:.4g}" for v in closest.q)
+    assert str(caught.value) == (
+        "no configuration within the position limits puts the camera at the reference pose relative to the target: "
+        f"the closest found (5 starts, then 4 of 4096 screened) is {position:.3g} m and {rotation:.3g} rad away, "
+        f"at q = [{q}]"
+    )
+
+
+def test_a_solution_whose_conditioning_loses_the_goal_is_kept_as_least_squares_found_it(monkeypatch):
+    """IPOPT's conditioning returning a point off the goal (here: every solve returns its start moved
+    by 0.1 rad) does not lose the solution bounded least squares reached: that one is returned."""
+    robot = Robot(builtin_urdf("ur5"), BUILTIN_CAMERA_FRAME["ur5"])
+    goal = camera_at(robot, np.asarray(START["ur5"]))
+    monkeypatch.setattr(cs, "nlpsol", lambda *args, **kwargs: lambda **given: {"x": cs.DM(given["x0"]) + 0.1})
+    config = solve_configuration(robot, goal)
+    reached = camera_at(robot, config.q)
+    assert np.linalg.norm(reached[:3, 3] - goal[:3, 3]) < 1e-9
+    assert config.position_error <= ik.REACHED and config.rotation_error <= ik.REACHED
+
+
+def test_the_search_box_keeps_every_limit_and_a_full_turn_where_there_is_none():
+    """Both limits: narrowed by the margin; one: the margin on its side, a full turn from it on
+    the other; none (a continuous joint): ``[-pi, pi]``, every angle, without a margin."""
+    inf, pi = np.inf, np.pi
+    limits = SimpleNamespace(lower=np.array([-inf, 0.0, -inf, -1.0]), upper=np.array([inf, inf, 1.0, 1.0]))
+    lower, upper = _bounds(SimpleNamespace(limits=limits))
+    m = LIMIT_MARGIN
+    assert np.allclose(lower, [-pi, m, 1 - 2 * pi, -1 + m], rtol=0, atol=1e-15)
+    assert np.allclose(upper, [pi, 2 * pi, 1 - m, 1 - m], rtol=0, atol=1e-15)
