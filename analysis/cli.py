@@ -41,6 +41,7 @@ from dvfc.analysis.certify import (
     GainPoint,
 )
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
+from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, runs_done, tracking_bound
 from dvfc.analysis.multirate import implemented_text
 from dvfc.analysis.output import (
@@ -358,6 +359,7 @@ def show(result: dict) -> None:
     at = f" (at {s['final_at']:.4g} s, the last sample before the stop)" if s["stopped"] else ""
     rows = [
         ("status", s["status"]),
+        *([] if (how := result.get("integration")) is None else [("integration", SubstepChoice.from_dict(how).text)]),
         ("horizon", f"{s['t_final']:.3g} s in {s['wall_time']:.3g} s wall"
          + (f", stopped at {s['stopped_at']:.4g} s" if s["stopped"] else "")),
         (f"final{at} tracking error g_d^-1 g: position, angle", f"{f['tracking_position']:.3e} m, "
