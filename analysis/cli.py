@@ -31,6 +31,7 @@ from dvfc.analysis.campaign import (
     CampaignSpec,
     read_runs,
     run_campaign,
+    shared_simulator,
     summarize,
     worst_case,
 )
@@ -229,7 +230,7 @@ def simulate(
         disable=not err.is_terminal,
     ) as bar:
         task = bar.add_task("compiling" if settings.jit else spec.name, total=settings.duration)
-        simulator = as_implemented(loop, settings)
+        simulator = as_implemented(loop, settings) if replayed is None else shared_simulator(case).for_run(settings)
         bar.update(task, description=spec.name)
         lines = None if err.is_terminal else ProgressLines(f"simulate {spec.name}", settings.duration, "s")
 

@@ -391,11 +391,18 @@ class SampledSimulator(Simulator):
                 return SubstepChoice(k, True, imp.step_error, float(estimate), bool(estimate <= imp.step_error))
             k *= 2
 
-    def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
-        """Run the sampled loop from ``s0`` over the settings' horizon (``substeps = "auto"``:
-        chosen at the first run of this simulator and its copies, :meth:`choose_substeps`)."""
+    def settle(self, s0: np.ndarray) -> SampledSimulator:
+        """This simulator with its substeps chosen from ``s0`` now (``"auto"``; otherwise, or when
+        already chosen, unchanged): every run of it and of its copies (:meth:`for_run`) then
+        integrates the same way, whatever their own start (a campaign's runs)."""
         if self._periods.period is None:
             self._periods.set(self.choose_substeps(s0), self._compiled_period)
+        return self
+
+    def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
+        """Run the sampled loop from ``s0`` over the settings' horizon (``substeps = "auto"``:
+        chosen at the first run of this simulator and its copies, :meth:`settle`)."""
+        self.settle(s0)
         st, imp, loop = self.settings, self.implementation, self.loop
         n, h = loop.robot.n, imp.period
         steps = round(st.duration * imp.control_rate)

@@ -20,6 +20,7 @@ import numpy as np
 
 from dvfc.analysis.adversary import worst_disturbance
 from dvfc.analysis.envelope import DisturbanceBounds, level_bounds
+from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import linearize, sharpest_from_rest, weight_diagonals
 from dvfc.analysis.quiet import silenced
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
@@ -35,7 +36,9 @@ from dvfc.models.target import TargetMotion
 IDENTITY_TOL = 1e-6
 IMPLEMENTED_TOL = 1e-5
 """Bound on fact 11's residual on the run as implemented: RK4 at the control period truncates
-(1.4e-6 on the default example at 500 Hz); CVODES restarted at every sample meets 1e-6."""
+(7e-6 with one step a period on the default example at 500 Hz, 4e-7 with the two its local error
+target chooses); CVODES restarted at every sample meets 1e-6. A residual above it names the
+setting that brings it within (:func:`integration_hint`)."""
 
 
 class ClaimStatus(StrEnum):
@@ -602,6 +605,26 @@ def implemented_storage(traj: Trajectory) -> float:
     return float(np.abs(gap).max() / scale)
 
 
+def integration_hint(traj: Trajectory, residual: float, tol: float) -> str:
+    """Which setting brings fact 11's residual on the sampled run ``traj`` within ``tol``: the
+    identity is exact, so its residual is the integration's. RK4's falls 16-fold each time its
+    steps a period double (order 4, ``tests/test_sampled.py``): the fewest doubled substeps whose
+    predicted residual is at most ``tol / 2``, and a ``step_error`` that makes ``"auto"`` choose
+    them (the estimate scales alike: 4 times its prediction there, a factor 4 from the estimates of
+    the next and previous counts); CVODES's follows its tolerances."""
+    choice = SubstepChoice.of_run(traj.stats)
+    if choice.substeps is None:
+        return "integration error: lower [simulation] rtol and atol (CVODES restarted at every sample)"
+    k = choice.substeps
+    doublings = max(1, math.ceil(math.log2(residual / (tol / 2)) / 4))
+    finer = k * 2**doublings
+    setting = f"set [implementation] substeps = {finer}"
+    if choice.estimate is not None:
+        setting += f" or step_error <= {4 * choice.estimate / 16**doublings:.1g}"  # between the estimates of k', k'/2
+    return (f"integration error (the identity is exact; RK4's truncation falls 16-fold each time its steps double): "
+            f"{setting} (predicted residual {residual / 16**doublings:.1g})")
+
+
 def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Trajectory | None = None) -> list[Claim]:
     """The run as implemented (:func:`dvfc.analysis.sampled.as_implemented`: the scenario's
     controller, plant and image; ``run`` when already made) against what the robot can do:
@@ -622,13 +645,18 @@ def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Traje
         + ("; clipped at the limit (saturate)" if clipped else "")
     )
     storage = implemented_storage(traj)
+    storage_detail = ("the storage of the loop as implemented: hold, camera and plant errors enter through the "
+                      "channels of u_xi (delta) and u_e (eps, inside u^T nu); exact, measured to the integrator's "
+                      "truncation")  # fmt: skip
+    if settings.implementation is not None:
+        storage_detail += f" ({SubstepChoice.of_run(traj.stats).text})"
+        if storage > IMPLEMENTED_TOL:
+            storage_detail = f"{integration_hint(traj, storage, IMPLEMENTED_TOL)}; {storage_detail}"
     return [
         Claim(f"the {how} run completes", "as implemented", traj.t[-1], f"t = {settings.duration:g} s",
               None if traj.status == "ok" else False, traj.message),
         on_run(f"V(t) - V(0) = int (u^T nu + x^T G w + xi^T delta) on the {how} run", "docs/math.md, fact 11",
-               traj, storage, f"<= {IMPLEMENTED_TOL:g}", storage <= IMPLEMENTED_TOL,
-               "the storage of the loop as implemented: hold, camera and plant errors enter through the channels "
-               "of u_xi (delta) and u_e (eps, inside u^T nu); exact, measured to the integrator's truncation"),
+               traj, storage, f"<= {IMPLEMENTED_TOL:g}", storage <= IMPLEMENTED_TOL, storage_detail),
         Claim("torques within effort limits", "URDF <limit effort>", torque.max(), "max peak |tau| / effort <= 1",
               None if torque.max() <= 1 or clipped else False, torque_detail),
         Claim("joint speeds within velocity limits", "URDF <limit velocity>", speed.max(),
