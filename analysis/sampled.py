@@ -112,8 +112,9 @@ PROBES = 8
 """Probe states of the pilot run (at most; its first sample and largest torque and speed among them)."""
 
 
-def step_doubling(coarse: cs.Function, fine: cs.Function, t: float, s: np.ndarray, e: np.ndarray,
-                  held: tuple[np.ndarray, ...]) -> float:
+def step_doubling(
+    coarse: cs.Function, fine: cs.Function, t: float, s: np.ndarray, e: np.ndarray, held: tuple[np.ndarray, ...]
+) -> float:
     """The relative local error of one control period from ``(t, s)`` with ``e`` and ``held`` (the
     effort limits, friction and design) by the ``coarse`` period map, estimated by the ``fine``
     one in twice the steps: RK4's error falls 16-fold when its step halves, so the coarse error is
