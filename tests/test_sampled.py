@@ -371,6 +371,7 @@ def test_a_fact_11_failure_from_truncation_names_the_setting_that_fixes_it(coars
     assert claim.status == "FAIL" and "; integration error" in claim.detail, claim.as_dict()
     setting = claim.detail.split("set [implementation] ")[1]
     substeps, step_error = int(setting.split("substeps = ")[1].split()[0]), float(setting.split("<= ")[1].split()[0])
-    for fixed in (as_built_run(coarse, substeps=substeps), as_built_run(coarse, step_error=step_error)):
+    finer = as_built_run(coarse, substeps=substeps), as_built_run(coarse, substeps="auto", step_error=step_error)
+    for fixed in finer:
         again = next(c for c in implemented(loop, s0, settings, fixed) if c.reference == "docs/math.md, fact 11")
         assert again.status == "PASS", again.as_dict()
