@@ -43,12 +43,27 @@ error of summing several terms each accumulated over thousands of output steps (
 running total at each); a violation of 1e-9 of the terms, 1000 times more, still fails."""
 
 
-def roundoff(*terms: np.ndarray | float) -> float:
+STORAGE_ULPS = 4
+"""Ulps of the numbers it cancels (:func:`storage_floor`) to which the storage is evaluated."""
+
+
+def roundoff(*terms: np.ndarray | float, floor: float = 0.0) -> float:
     """The tolerance of comparing with zero a slack made of ``terms``: :data:`ROUNDOFF` times the sum
-    of their largest magnitudes over the run (a slack ``>= -roundoff(...)`` passes). The storage
-    ``V`` is known only to a few ulp of the numbers its rotation errors ``(3 - tr R) / 2`` cancel
-    (2.2e-16 at the xArm7's equilibrium), far below this on any run with terms above 1e-3."""
-    return ROUNDOFF * float(sum(np.max(np.abs(np.asarray(t, dtype=float)), initial=0.0) for t in terms))
+    of their largest magnitudes over the run, plus ``floor``, the round-off of a term computed from
+    larger numbers than itself (:func:`storage_floor`). A slack ``>= -roundoff(...)`` passes."""
+    return ROUNDOFF * float(sum(np.max(np.abs(np.asarray(t, dtype=float)), initial=0.0) for t in terms)) + floor
+
+
+def storage_floor(loop: ClosedLoop | None) -> float:
+    """The round-off of one evaluation of the storage, whatever its size: each rotation error
+    ``phi(R) = (3 - tr R) / 2`` (Lemma 1, (29)) subtracts numbers up to 3, so ``V`` is known to
+    :data:`STORAGE_ULPS` ulp of ``3/2 (w_rc + w_re)`` (it evaluates to 2.2e-16, one ulp of 1, at the
+    xArm7's equilibrium ``x = 0``); 0 for the planar storage (P8), a sum of squares. None: the
+    kinematic storages of :func:`kinematic_claims` (unit weights)."""
+    if isinstance(loop, PlanarLoop):
+        return 0.0
+    rotation = 2.0 if loop is None else float(loop.weights.w_rc) + float(loop.weights.w_re)
+    return STORAGE_ULPS * float(np.finfo(float).eps) * 1.5 * rotation
 
 
 IMPLEMENTED_TOL = 1e-5
@@ -249,7 +264,7 @@ def lemma_2(
             break
     residual = identity_residuals(traj)["passivity"]
     low = float(traj.integrals["supply_u_nu"].min()) + traj["V"][0, 0]
-    tol = roundoff(traj.integrals["supply_u_nu"], traj["V"][0, 0])
+    tol = roundoff(traj.integrals["supply_u_nu"], traj["V"][0, 0], floor=storage_floor(loop))
     if traj.status in LEFT_REGION:
         why = f"the run left the lemma's region even with the input at {scale:g} of its nominal size: {traj.message}"
         return [Claim(*names[0][:2], residual, names[0][2], None, why, inconclusive=True),
@@ -302,7 +317,7 @@ def kinematic_claims(loop: ClosedLoop, s0: np.ndarray, seed: int = 2, duration: 
         claims.append(Claim(name, ref, residual, f"<= {IDENTITY_TOL:g}", residual <= IDENTITY_TOL,
                             f"from the scenario's start, V(0) = {v[i, 0]:.6g}"))  # fmt: skip
         low = float(integrals[i].min() + v[i, 0])
-        tol = roundoff(integrals[i], v[i, 0])
+        tol = roundoff(integrals[i], v[i, 0], floor=storage_floor(None))
         claims.append(
             Claim(f"{name.split(' = ')[1]} >= -V(0)", ref, low, f">= -{tol:.1e} (round-off of the terms)", low >= -tol)
         )
@@ -342,7 +357,8 @@ def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float
                                inconclusive=True)]  # fmt: skip
     _, rest, converged = sharpest_from_rest(loop, lin)
     weights = None if loop.performance is None else weight_diagonals(loop)
-    return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged, weights=weights)]
+    return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged, weights=weights,
+                                       v_floor=storage_floor(loop))]
 
 
 ATTAINED = 0.95
@@ -350,7 +366,7 @@ ATTAINED = 0.95
 
 
 def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, converged: bool = True,
-                     weights: tuple[np.ndarray, np.ndarray] | None = None) -> list[Claim]:
+                     weights: tuple[np.ndarray, np.ndarray] | None = None, v_floor: float = 0.0) -> list[Claim]:
     """Theorem 2 where it constrains gamma: from ``x(0) = 0`` (``V(0) = 0``) under the worst
     disturbance of the linearisation, (45) reads ``int |x|^2 <= gamma^2 int |w|^2`` at every time,
     so the measured gain ``sqrt(int |x|^2 / int |w|^2)`` must not exceed gamma, and (44) holds
@@ -360,8 +376,9 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, conv
     (:func:`dvfc.analysis.linearize.sharpest_from_rest`), said when it falls short. ``weights``:
     the diagonals of ``S`` and ``D_w`` of the generalized plant (docs/math.md, fact 17): the claims
     then read ``z = S x`` for ``x`` and ``d = D_w^-1 w`` for ``w`` (None: the paper's, unit). The
-    integral slack of (45) and the gain are compared to :func:`roundoff` of their terms (from rest
-    ``V(0)`` is zero only to round-off, of either sign)."""
+    integral slack of (45) and the gain are compared to :func:`roundoff` of their terms, ``v_floor``
+    the round-off of ``V(0)`` (:func:`storage_floor`: from rest ``V(0)`` is zero only to it, of
+    either sign, however small the run's integrals)."""
     x, w = _error_state(traj), traj["w"]
     if weights is not None:
         x, w = x * weights[0], w / weights[1]
@@ -369,7 +386,7 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, conv
     x2, w2 = traj.integrals["z_squared"], traj.integrals["d_squared"]
     x_, w_ = ("x", "w") if weights is None else ("z", "d")
     slack45 = gamma**2 * w2 + 2 * traj["V"][0, 0] - x2
-    tol45 = roundoff(gamma**2 * w2, 2 * traj["V"][0, 0], x2)
+    tol45 = roundoff(gamma**2 * w2, 2 * traj["V"][0, 0], x2, floor=2 * v_floor)
     tol = 1e-9 * gamma**2 * float((w * w).sum(1).max())  # round-off of (44) relative to its terms
     ratio = float(np.sqrt(x2[-1] / w2[-1]))
     run = f"from x(0) = 0 under the linearisation's worst disturbance, {traj.t[-1]:g} s" + (
