@@ -360,7 +360,6 @@ def show(result: dict) -> None:
     at = f" (at {s['final_at']:.4g} s, the last sample before the stop)" if s["stopped"] else ""
     rows = [
         ("status", s["status"]),
-        *([] if (how := result.get("integration")) is None else [("integration", SubstepChoice.from_dict(how).text)]),
         ("horizon", f"{s['t_final']:.3g} s in {s['wall_time']:.3g} s wall"
          + (f", stopped at {s['stopped_at']:.4g} s" if s["stopped"] else "")),
         (f"final{at} tracking error g_d^-1 g: position, angle", f"{f['tracking_position']:.3e} m, "
@@ -377,6 +376,7 @@ def show(result: dict) -> None:
         ("Lemma 2 identity residual", f"{r['passivity']:.2e}"),
         ("(43) identity residual", f"{r['dissipation']:.2e}"),
         ("max |e_e(image) - e_e|", f"{s['image_estimate_gap_max']:.3e}"),
+        *([] if (how := result.get("integration")) is None else [("integration", SubstepChoice.from_dict(how).text)]),
     ]
     for name, value in rows:
         table.add_row(name, str(value))

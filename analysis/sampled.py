@@ -108,6 +108,9 @@ PILOT_HORIZON = 0.3
 """Seconds of the pilot run whose states probe the substeps (:meth:`SampledSimulator.choose_substeps`):
 on the default example the local error reaches its level of the whole run by 0.2 s."""
 
+PILOT_ROWS = 30
+"""Output rows of the pilot run (about), among which the probes are taken."""
+
 PROBES = 8
 """Probe states of the pilot run (at most; its first sample and largest torque and speed among them)."""
 
@@ -124,6 +127,8 @@ def step_doubling(
     the step; their increments change sign (``u^T nu``), so they are not a scale."""
     (a, *_), (b, *_) = ([np.asarray(v).ravel() for v in f(s, t, e, *held)] for f in (coarse, fine))
     gap, change = np.abs(a - b).max(), np.abs(b - s).max()
+    if not math.isfinite(gap):
+        return math.inf
     return 0.0 if gap == 0 else 16 / 15 * gap / change if change > 0 else math.inf
 
 
@@ -375,7 +380,9 @@ class SampledSimulator(Simulator):
         torque and joint speed, and others evenly spread)."""
         imp = self.implementation
         pilot = copy.copy(self)
-        pilot.settings = replace(self.settings, duration=min(self.settings.duration, PILOT_HORIZON))
+        duration, h = min(self.settings.duration, PILOT_HORIZON), imp.period
+        rows_every = max(1, math.floor(duration / h / PILOT_ROWS)) * h  # whatever the run's output step
+        pilot.settings = replace(self.settings, duration=duration, dt=rows_every)
         pilot._periods = _Periods()
         pilot._periods.set(SubstepChoice(1), self._period_function)
         traj = pilot.run(s0)
