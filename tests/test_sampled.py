@@ -307,6 +307,7 @@ def test_auto_substeps_bring_fact_11_within_its_tolerance_where_one_step_does_no
     assert implemented_storage(traj) <= IMPLEMENTED_TOL / 10
 
 
+@pytest.mark.slow
 def test_auto_chooses_the_fewest_steps_meeting_the_target(coarse):
     """The chosen ``k`` against the relative local error of one period measured against CVODES at
     1e-10 (an independent integrator) from six states along the run: at most the target with ``k``
@@ -333,6 +334,7 @@ def test_auto_chooses_the_fewest_steps_meeting_the_target(coarse):
     assert true_error(k) <= target < true_error(k // 2)
 
 
+@pytest.mark.slow
 def test_explicit_substeps_are_run_as_given(as_built):
     """An integer ``substeps`` is used as given, with no pilot run: the run is the one ``"auto"``
     gives when it chooses that number, bit for bit, and is recorded as the scenario's choice."""
@@ -360,6 +362,7 @@ def test_a_campaign_simulator_chooses_once_for_all_its_runs(coarse):
     assert other.substeps is sim.substeps
 
 
+@pytest.mark.slow
 def test_a_fact_11_failure_from_truncation_names_the_setting_that_fixes_it(coarse):
     """With a loose target (1e-6) ``"auto"`` keeps one step a period and fact 11's identity fails:
     the claim says it is integration error and names the ``substeps`` and the ``step_error`` that
