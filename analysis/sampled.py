@@ -6,9 +6,10 @@ plant, the observer and the quadratures are integrated over exactly ``[t_k, t_k 
 the sample-and-hold is not approximated by a fast continuous loop. Over one period the
 held-torque dynamics are smooth and not stiff (no feedback acts inside it), so the
 default integrator is the classical Runge-Kutta method (RK4, error ``O(h^4)``, four
-right-hand sides per period); CVODES restarted at every sample, error-controlled at the
-run's tolerances, is the reference (``integrator = "cvodes"``). At each sample the
-controller
+right-hand sides per step), in the fewest steps a period that meet a local error target
+(``substeps = "auto"``, :meth:`SampledSimulator.choose_substeps`) or in a given number;
+CVODES restarted at every sample, error-controlled at the run's tolerances, is the
+reference (``integrator = "cvodes"``). At each sample the controller
 
 1. takes the image captured ``latency`` earlier, if one arrives now: the actual features
    ``f`` (11) plus Gaussian pixel noise, rounded to the pixel grid, turned into ``e_e`` by
