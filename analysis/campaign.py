@@ -141,11 +141,12 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
 
 
 def simulate_run(spec: CampaignSpec, run: int, simulator: SampledSimulator | None = None) -> tuple[dict, Trajectory]:
-    """Run ``run`` of the campaign (on ``simulator``'s compiled functions when given): its row
+    """Run ``run`` of the campaign on ``simulator``'s compiled functions (default: the process's
+    :func:`shared_simulator`, so that a replayed run integrates as the campaign did): its row
     and trajectory."""
     values = spec.values(run)
     settings, s0 = spec.run_settings(run, values)
-    sim = as_implemented(spec.case.loop, settings) if simulator is None else simulator.for_run(settings)
+    sim = (shared_simulator(spec.case) if simulator is None else simulator).for_run(settings)
     traj = sim.run(s0)
     return row(spec, run, traj, settings, values), traj
 
@@ -177,7 +178,7 @@ def shared_simulator(case: Case) -> SampledSimulator:
     if key in _simulators:
         _simulators.move_to_end(key)
         return _simulators[key][1]
-    simulator = as_implemented(case.loop, campaign_settings(case))
+    simulator = as_implemented(case.loop, campaign_settings(case)).settle(case.s0)  # substeps: the case's start
     _simulators[key] = (case, simulator)  # the case held: its id stays its own while cached
     if len(_simulators) > SIMULATORS:
         _simulators.popitem(last=False)

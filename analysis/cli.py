@@ -31,6 +31,7 @@ from dvfc.analysis.campaign import (
     CampaignSpec,
     read_runs,
     run_campaign,
+    shared_simulator,
     summarize,
     worst_case,
 )
@@ -43,6 +44,7 @@ from dvfc.analysis.certify import (
 )
 from dvfc.analysis.export import ExportError, ExportResult, Timing, export_controller, exportable
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
+from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, runs_done, tracking_bound
 from dvfc.analysis.multirate import implemented_text
 from dvfc.analysis.output import (
@@ -230,7 +232,7 @@ def simulate(
         disable=not err.is_terminal,
     ) as bar:
         task = bar.add_task("compiling" if settings.jit else spec.name, total=settings.duration)
-        simulator = as_implemented(loop, settings)
+        simulator = as_implemented(loop, settings) if replayed is None else shared_simulator(case).for_run(settings)
         bar.update(task, description=spec.name)
         lines = None if err.is_terminal else ProgressLines(f"simulate {spec.name}", settings.duration, "s")
 
@@ -376,6 +378,7 @@ def show(result: dict) -> None:
         ("Lemma 2 identity residual", f"{r['passivity']:.2e}"),
         ("(43) identity residual", f"{r['dissipation']:.2e}"),
         ("max |e_e(image) - e_e|", f"{s['image_estimate_gap_max']:.3e}"),
+        *([] if (how := result.get("integration")) is None else [("integration", SubstepChoice.from_dict(how).text)]),
     ]
     for name, value in rows:
         table.add_row(name, str(value))

@@ -10,6 +10,84 @@ import numpy as np
 
 from dvfc.models.robot import JointLimits
 
+STEP_ERROR = 1e-8
+"""Default target on the relative local error of one control period (``substeps = "auto"``)."""
+
+MAX_AUTO_SUBSTEPS = 16
+"""The most RK4 steps a period ``substeps = "auto"`` chooses: the error falls 16-fold a doubling, so
+16 steps are 65536 times more accurate than one; the period is compiled whole, and its code (and
+compile time) grows with the steps."""
+
+
+@dataclass(frozen=True)
+class SubstepChoice:
+    """How the held-torque dynamics are integrated over a control period, and why.
+
+    ``substeps``: RK4 steps a period (None: CVODES); ``auto``: chosen from the target
+    ``step_error``; ``estimate``: the estimated relative local error of one period at
+    ``substeps`` (step doubling, :func:`dvfc.analysis.sampled.step_doubling`; None when not
+    estimated); ``met``: whether the estimate meets the target (False: even
+    :data:`MAX_AUTO_SUBSTEPS` does not)."""
+
+    substeps: int | None
+    auto: bool = False
+    step_error: float | None = None
+    estimate: float | None = None
+    met: bool = True
+
+    @classmethod
+    def fixed(cls, imp: Implementation) -> SubstepChoice:
+        """The scenario's own choice: ``substeps`` RK4 steps, or CVODES."""
+        return cls(imp.substeps if imp.integrator == "rk4" else None)
+
+    @classmethod
+    def of_run(cls, stats: dict[str, float]) -> SubstepChoice:
+        """The choice a sampled run recorded in its ``stats`` (:attr:`stats`)."""
+        if "substeps" not in stats:
+            return cls(None)
+        if "step_error" not in stats:
+            return cls(int(stats["substeps"]))
+        target, estimate = stats["step_error"], stats["step_error_estimate"]
+        return cls(int(stats["substeps"]), True, target, estimate, estimate <= target)
+
+    @classmethod
+    def from_dict(cls, record: dict) -> SubstepChoice:
+        """The choice of its :meth:`as_dict`."""
+        return cls(record["substeps"], record["chosen"] == "auto", record["step_error"],
+                   record["estimated_step_error"], record["met"])  # fmt: skip
+
+    @property
+    def text(self) -> str:
+        """How the periods are integrated, in words (the printed summary)."""
+        if self.substeps is None:
+            return "CVODES restarted at every sample"
+        how = f"RK4, {self.substeps} step{'s' if self.substeps > 1 else ''} a control period"
+        if not self.auto:
+            return how
+        verdict = "<=" if self.met else "ABOVE"
+        return f"{how} (auto: estimated local error {self.estimate:.2g} {verdict} step_error {self.step_error:g})"
+
+    @property
+    def stats(self) -> dict[str, float]:
+        """What a run records of it (:attr:`dvfc.analysis.simulate.Trajectory.stats`): the RK4
+        steps a period and, when chosen, the target and the estimate."""
+        if self.substeps is None:
+            return {}
+        if not self.auto:
+            return {"substeps": self.substeps}
+        return {"substeps": self.substeps, "step_error": self.step_error, "step_error_estimate": self.estimate}
+
+    def as_dict(self) -> dict:
+        """JSON-ready (summary.json's ``integration``)."""
+        return {
+            "integrator": "cvodes" if self.substeps is None else "rk4",
+            "substeps": self.substeps,
+            "chosen": "auto" if self.auto else "scenario",
+            "step_error": self.step_error,
+            "estimated_step_error": self.estimate,
+            "met": self.met,
+        }
+
 
 @dataclass(frozen=True, kw_only=True)
 class Implementation:
@@ -31,11 +109,14 @@ class Implementation:
     velocity_limits
         ``"report"``: record joint speeds above the URDF's limits; ``"stop"``: end the run
         with status ``"velocity_limit"`` at the first sample where one is exceeded.
-    integrator, substeps
+    integrator, substeps, step_error
         How the held-torque dynamics are integrated from one sample to the next: ``"rk4"``,
         the classical fourth-order Runge-Kutta method in ``substeps`` equal steps per control
         period (error ``O((h/substeps)^4)``), or ``"cvodes"``, CVODES restarted at every
-        sample with the run's error tolerances (about 5x slower).
+        sample with the run's error tolerances (about 5x slower). ``substeps = "auto"``: the
+        fewest of 1, 2, 4, ... :data:`MAX_AUTO_SUBSTEPS` whose relative local error over one
+        period, estimated by step doubling at the start of the run, is at most ``step_error``
+        (:class:`SubstepChoice`; docs/implementation.md).
     latency_jitter, frame_drop, outlier_probability, outlier_size
         Timing and detection faults, drawn per image from the run's fault stream
         (:meth:`arrivals`): up to ``latency_jitter`` further whole control periods of latency
@@ -53,7 +134,8 @@ class Implementation:
     velocity_limits: Literal["report", "stop"] = "report"
     seed: int = 0
     integrator: Literal["rk4", "cvodes"] = "rk4"
-    substeps: int = 1
+    substeps: int | Literal["auto"] = "auto"
+    step_error: float = STEP_ERROR
     latency_jitter: int = 0
     frame_drop: float = 0.0
     outlier_probability: float = 0.0

@@ -42,6 +42,7 @@ from dvfc.analysis.envelope import (
 )
 from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.grid import GridSpec, SweepState
+from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import MARGINAL_POLES, linearize, sharpest_from_rest
 from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.output import append_log, read_log
@@ -181,6 +182,7 @@ def simulation_result(case: Case, trajectory: Trajectory, outputs: dict[str, Pat
         "scenario": case.name,
         "mode": loop.mode,
         "implementation": implementation_record(settings),
+        "integration": None if settings.implementation is None else SubstepChoice.of_run(trajectory.stats).as_dict(),
         "summary": summary(trajectory),
         "limits": limit_record(trajectory, robot_limits(loop, settings)),
         "outputs": {name: str(path) for name, path in outputs.items()},

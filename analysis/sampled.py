@@ -6,9 +6,10 @@ plant, the observer and the quadratures are integrated over exactly ``[t_k, t_k 
 the sample-and-hold is not approximated by a fast continuous loop. Over one period the
 held-torque dynamics are smooth and not stiff (no feedback acts inside it), so the
 default integrator is the classical Runge-Kutta method (RK4, error ``O(h^4)``, four
-right-hand sides per period); CVODES restarted at every sample, error-controlled at the
-run's tolerances, is the reference (``integrator = "cvodes"``). At each sample the
-controller
+right-hand sides per step), in the fewest steps a period that meet a local error target
+(``substeps = "auto"``, :meth:`SampledSimulator.choose_substeps`) or in a given number;
+CVODES restarted at every sample, error-controlled at the run's tolerances, is the
+reference (``integrator = "cvodes"``). At each sample the controller
 
 1. takes the image captured ``latency`` earlier, if one arrives now: the actual features
    ``f`` (11) plus Gaussian pixel noise, rounded to the pixel grid, turned into ``e_e`` by
@@ -40,12 +41,13 @@ import copy
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import casadi as cs
 import numpy as np
 
 from dvfc.analysis.compile import Buffered, compiled
+from dvfc.analysis.implementation import MAX_AUTO_SUBSTEPS, SubstepChoice
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.parametric import parameter_vector
 from dvfc.analysis.simulate import Settings, Simulator, Trajectory, joint_peaks
@@ -109,6 +111,47 @@ def limit_record(traj: Trajectory, limits: JointLimits) -> dict:
     }
 
 
+PILOT_HORIZON = 0.3
+"""Seconds of the pilot run whose states probe the substeps (:meth:`SampledSimulator.choose_substeps`):
+on the default example the local error reaches its level of the whole run by 0.2 s."""
+
+PILOT_ROWS = 30
+"""Output rows of the pilot run (about), among which the probes are taken."""
+
+PROBES = 8
+"""Probe states of the pilot run (at most; its first sample and largest torque and speed among them)."""
+
+
+def step_doubling(
+    coarse: cs.Function, fine: cs.Function, t: float, s: np.ndarray, e: np.ndarray, held: tuple[np.ndarray, ...]
+) -> float:
+    """The relative local error of one control period from ``(t, s)`` with ``e`` and ``held`` (the
+    effort limits, friction and design) by the ``coarse`` period map, estimated by the ``fine``
+    one in twice the steps: RK4's error falls 16-fold when its step halves, so the coarse error is
+    ``16/15 (x_k - x_2k)`` (Richardson). Relative to the state's change over the period (infinity
+    norms; 0 when both are zero): how many digits of the period's increment are right, whatever
+    the state's offset. The quadratures are read off the same stages, so they are as accurate as
+    the step; their increments change sign (``u^T nu``), so they are not a scale."""
+    (a, *_), (b, *_) = ([np.asarray(v).ravel() for v in f(s, t, e, *held)] for f in (coarse, fine))
+    gap, change = np.abs(a - b).max(), np.abs(b - s).max()
+    if not math.isfinite(gap):
+        return math.inf
+    return 0.0 if gap == 0 else 16 / 15 * gap / change if change > 0 else math.inf
+
+
+@dataclass
+class _Periods:
+    """The control period's map a simulator and its copies (:meth:`SampledSimulator.for_run`) run
+    on, built once its substeps are known: at construction, or at the first run for ``"auto"``."""
+
+    choice: SubstepChoice | None = None
+    period: cs.Function | None = None
+    chunks: dict[int, Buffered] = field(default_factory=dict)
+
+    def set(self, choice: SubstepChoice, build: Callable[[int | None], cs.Function]) -> None:
+        self.choice, self.period = choice, build(choice.substeps)
+
+
 @dataclass(frozen=True, order=True)
 class _Stop:
     """Why and where a sampled run ends: the law's steps kept are ``k < tau_end``, the samples
@@ -153,21 +196,14 @@ class SampledSimulator(Simulator):
             law = compiled(law, jacobian=False)
         commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e), *design)
         applied = cs.if_else(commanded > effort, effort, cs.if_else(commanded < -effort, -effort, commanded))
-        if implementation.integrator == "rk4":
-            after, quad = self._rk4(t, s, applied, e, friction, design)
-        else:
-            result = self._cvodes()(x0=s, p=cs.vertcat(t, applied, e, *design))
-            after, quad = result["xf"], result["qf"]
-        for q in loop.quaternions:
-            after[q] = after[q] / cs.norm_2(after[q])
-        if loop.integral:
-            after[loop.integral_slice] = self._integral_update(t, s, e, commanded, effort, design)
-        period = cs.Function("dvfc_period", [s, t, e, effort, friction, *design], [after, commanded, applied, quad])
+        self._symbols = (t, s, e, effort, friction, design, commanded, applied)
         last = cs.Function("dvfc_last", [t, s, e, effort, *design], [commanded, applied])  # at t = T: the law only
         if settings.jit and implementation.integrator == "rk4":
-            period, last = compiled(period, jacobian=False, level="-O2"), compiled(last, jacobian=False)
-        self._period, self._last = period, Buffered(last)
-        self._chunks: dict[int, Buffered] = {}
+            last = compiled(last, jacobian=False)
+        self._last = Buffered(last)
+        self._periods = _Periods()  # shared by the copies of :meth:`for_run`
+        if implementation.integrator == "cvodes" or implementation.substeps != "auto":
+            self._periods.set(SubstepChoice.fixed(implementation), self._compiled_period)
         noise = cs.SX.sym("noise", model.features.numel())
         p = [] if model.parameters is None else [model.parameters]  # the image depends on the target's radius
         if self.errors is None:
@@ -210,13 +246,35 @@ class SampledSimulator(Simulator):
         camera ``errors``), with ``noise`` added to the pixels, for the run's :attr:`design`."""
         return self._image_function(t, s, noise, *errors, *self.design)
 
+    def _period_function(self, substeps: int | None) -> cs.Function:
+        """One control period from ``(s, t)`` with ``e``, the effort limits and the friction held:
+        the state after it, the commanded and applied torques, the quadratures' increments, by
+        ``substeps`` RK4 steps (None: CVODES); by CasADi's virtual machine."""
+        t, s, e, effort, friction, design, commanded, applied = self._symbols
+        if substeps is None:
+            result = self._cvodes()(x0=s, p=cs.vertcat(t, applied, e, *design))
+            after, quad = result["xf"], result["qf"]
+        else:
+            after, quad = self._rk4(t, s, applied, e, friction, design, substeps)
+        for q in self.loop.quaternions:
+            after[q] = after[q] / cs.norm_2(after[q])
+        if self.loop.integral:
+            after[self.loop.integral_slice] = self._integral_update(t, s, e, commanded, effort, design)
+        return cs.Function("dvfc_period", [s, t, e, effort, friction, *design], [after, commanded, applied, quad])
+
+    def _compiled_period(self, substeps: int | None) -> cs.Function:
+        """:meth:`_period_function`, compiled whole under ``jit`` when RK4 (CVODES calls the
+        compiled DAE)."""
+        period = self._period_function(substeps)
+        return compiled(period, jacobian=False, level="-O2") if self.settings.jit and substeps is not None else period
+
     def _rk4(
-        self, t: cs.MX, s: cs.MX, applied: cs.MX, e: cs.MX, friction: cs.MX, design: list[cs.MX]
+        self, t: cs.MX, s: cs.MX, applied: cs.MX, e: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int
     ) -> tuple[cs.MX, cs.MX]:
         """The state after one control period from ``(t, s)`` with the torque ``applied`` and
         ``e`` held, less the plant's friction at each stage's joint speeds, and the
-        quadratures' increments: :attr:`Implementation.substeps` classical RK4 steps (the
-        model's functions called with ``design``, :attr:`Simulator.design`)."""
+        quadratures' increments: ``substeps`` classical RK4 steps (the model's functions
+        called with ``design``, :attr:`Simulator.design`)."""
         model, n = self.model, self.loop.robot.n
         held = cs.Function("dvfc_held", model.arguments[0], [model.state_rate, model.quadratures])
         values = (("t", t), ("x", s), ("tau", applied), ("e", e), ("friction", friction), *(("p", d) for d in design))
@@ -228,9 +286,9 @@ class SampledSimulator(Simulator):
         def rate(time: cs.MX, state: cs.MX) -> list[cs.MX]:
             return stage(time, state, applied, e, friction, *design)
 
-        step = self.implementation.period / self.implementation.substeps
+        step = self.implementation.period / substeps
         quad = cs.MX.zeros(len(QUADRATURES))
-        for i in range(self.implementation.substeps):
+        for i in range(substeps):
             t0 = t + i * step
             k1, q1 = rate(t0, s)
             k2, q2 = rate(t0 + step / 2, s + step / 2 * k1)
@@ -270,9 +328,10 @@ class SampledSimulator(Simulator):
         the state at the first, with the times, the held ``e_e`` and the effort limits of each
         (one column per period); the states after each, the torques and quadratures of each.
         (Given the columns, not built from one, the call costs about half as much.)"""
-        if count not in self._chunks:
-            self._chunks[count] = Buffered(self._period.mapaccum("dvfc_chunk", count, [0], [0]))
-        return self._chunks[count]
+        chunks = self._periods.chunks
+        if count not in chunks:
+            chunks[count] = Buffered(self._periods.period.mapaccum("dvfc_chunk", count, [0], [0]))
+        return chunks[count]
 
     def _image(self, noise: cs.SX) -> list[cs.SX]:
         """What one image gives: the true features ``f`` (11), the exact ``e_e`` (15), the
@@ -332,8 +391,50 @@ class SampledSimulator(Simulator):
             return e_ideal, f"feature {int(outside[0])} left the image at t = {t:.4g} s"
         return (e_image if image else e_ideal), None
 
+    @property
+    def substeps(self) -> SubstepChoice | None:
+        """How the periods are integrated (None: ``"auto"``, chosen at the first run)."""
+        return self._periods.choice
+
+    def choose_substeps(self, s0: np.ndarray) -> SubstepChoice:
+        """The fewest RK4 steps a period, of 1, 2, 4, ... :data:`MAX_AUTO_SUBSTEPS`, whose relative
+        local error (:func:`step_doubling`) is at most the implementation's ``step_error`` at every
+        probe: the states of a pilot run from ``s0`` over its first :data:`PILOT_HORIZON` (one RK4
+        step a period, by the virtual machine; its first sample, the samples of its largest
+        torque and joint speed, and others evenly spread)."""
+        imp = self.implementation
+        pilot = copy.copy(self)
+        duration, h = min(self.settings.duration, PILOT_HORIZON), imp.period
+        rows_every = max(1, math.floor(duration / h / PILOT_ROWS)) * h  # whatever the run's output step
+        pilot.settings = replace(self.settings, duration=duration, dt=rows_every)
+        pilot._periods = _Periods()
+        pilot._periods.set(SubstepChoice(1), self._period_function)
+        traj = pilot.run(s0)
+        peaks = [int(np.argmax(np.abs(traj[name]).max(axis=1))) for name in ("tau", "qd")]
+        rows = sorted({*np.linspace(0, len(traj.t) - 1, PROBES - 2).astype(int).tolist(), *peaks})
+        probes = [(traj.t[r], traj["state"][r], traj["e_e"][r]) for r in rows]
+        held = (self._effort, self._friction, *self.design)
+        functions = {1: self._period_function(1)}
+        k = 1
+        while True:
+            functions[2 * k] = self._period_function(2 * k)
+            estimate = max(step_doubling(functions[k], functions[2 * k], t, s, e, held) for t, s, e in probes)
+            if estimate <= imp.step_error or k == MAX_AUTO_SUBSTEPS:
+                return SubstepChoice(k, True, imp.step_error, float(estimate), bool(estimate <= imp.step_error))
+            k *= 2
+
+    def settle(self, s0: np.ndarray) -> SampledSimulator:
+        """This simulator with its substeps chosen from ``s0`` now (``"auto"``; otherwise, or when
+        already chosen, unchanged): every run of it and of its copies (:meth:`for_run`) then
+        integrates the same way, whatever their own start (a campaign's runs)."""
+        if self._periods.period is None:
+            self._periods.set(self.choose_substeps(s0), self._compiled_period)
+        return self
+
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
-        """Run the sampled loop from ``s0`` over the settings' horizon."""
+        """Run the sampled loop from ``s0`` over the settings' horizon (``substeps = "auto"``:
+        chosen at the first run of this simulator and its copies, :meth:`settle`)."""
+        self.settle(s0)
         st, imp, loop = self.settings, self.implementation, self.loop
         n, h = loop.robot.n, imp.period
         steps = round(st.duration * imp.control_rate)
@@ -466,7 +567,7 @@ class SampledSimulator(Simulator):
             status=stop.status,
             message=stop.message,
             wall_time=time.perf_counter() - start,
-            stats={"steps": stop.tau_end, "samples": stop.qd_end - 1},
+            stats={"steps": stop.tau_end, "samples": stop.qd_end - 1, **self._periods.choice.stats},
             peaks=peaks,
             stopped_at=None if stop.status == "ok" else stop.step * h,
         )

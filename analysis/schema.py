@@ -16,7 +16,7 @@ import casadi as cs
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from dvfc.analysis.implementation import Implementation
+from dvfc.analysis.implementation import STEP_ERROR, Implementation
 from dvfc.analysis.messages import one_line
 from dvfc.models.camera import Camera
 from dvfc.models.lie import SE3
@@ -349,7 +349,8 @@ class ImplementationSection(_Strict):
     velocity_limits: Literal["report", "stop"] = "report"
     seed: int = 0
     integrator: Literal["rk4", "cvodes"] = "rk4"
-    substeps: Annotated[int, Field(ge=1, le=1000)] = 1
+    substeps: Annotated[int, Field(ge=1, le=1000)] | Literal["auto"] = "auto"
+    step_error: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = STEP_ERROR
     latency_jitter: Annotated[int, Field(ge=0, le=1000)] = 0
     frame_drop: Probability = 0.0
     outliers: OutlierSection = OutlierSection()
@@ -379,6 +380,7 @@ class ImplementationSection(_Strict):
             seed=self.seed,
             integrator=self.integrator,
             substeps=self.substeps,
+            step_error=self.step_error,
             latency_jitter=self.latency_jitter,
             frame_drop=self.frame_drop,
             outlier_probability=self.outliers.probability,

@@ -5,8 +5,10 @@ must meet and whether it does. Measurements that the paper does not claim (the i
 loop's gap from the ideal one) are reported with ``passed = None``.
 
 Bounds: identity residuals are relative (see :func:`dvfc.analysis.simulate.identity_residuals`)
-and must be <= 1e-6 at CVODES tolerances 1e-10; pointwise inequalities are checked
-with an absolute slack of 1e-9 times the storage scale (round-off of the evaluation).
+and must be <= 1e-6 at CVODES tolerances 1e-10; pointwise inequalities on the storage along a
+run are checked with a slack of 1e-9 times the storage scale (the integration's error in ``V``);
+a slack of computed terms compared with zero (an integral inequality, a distance outside a
+region) with :func:`roundoff` of its terms (docs/math.md, "Tolerances").
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 
 from dvfc.analysis.adversary import worst_disturbance
 from dvfc.analysis.envelope import DisturbanceBounds, level_bounds
+from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import linearize, sharpest_from_rest, weight_diagonals
 from dvfc.analysis.quiet import silenced
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
@@ -33,9 +36,41 @@ from dvfc.models.planar import PlanarLoop
 from dvfc.models.target import TargetMotion
 
 IDENTITY_TOL = 1e-6
+
+ROUNDOFF = 1e-12
+"""Relative round-off of a slack of computed terms: 1e-12 is about 4500 ulp of double precision, the
+error of summing several terms each accumulated over thousands of output steps (an ulp of the
+running total at each); a violation of 1e-9 of the terms, 1000 times more, still fails."""
+
+
+STORAGE_ULPS = 4
+"""Ulps of the numbers it cancels (:func:`storage_floor`) to which the storage is evaluated."""
+
+
+def roundoff(*terms: np.ndarray | float, floor: float = 0.0) -> float:
+    """The tolerance of comparing with zero a slack made of ``terms``: :data:`ROUNDOFF` times the sum
+    of their largest magnitudes over the run, plus ``floor``, the round-off of a term computed from
+    larger numbers than itself (:func:`storage_floor`). A slack ``>= -roundoff(...)`` passes."""
+    return ROUNDOFF * float(sum(np.max(np.abs(np.asarray(t, dtype=float)), initial=0.0) for t in terms)) + floor
+
+
+def storage_floor(loop: ClosedLoop | None) -> float:
+    """The round-off of one evaluation of the storage, whatever its size: each rotation error
+    ``phi(R) = (3 - tr R) / 2`` (Lemma 1, (29)) subtracts numbers up to 3, so ``V`` is known to
+    :data:`STORAGE_ULPS` ulp of ``3/2 (w_rc + w_re)`` (it evaluates to 2.2e-16, one ulp of 1, at the
+    xArm7's equilibrium ``x = 0``); 0 for the planar storage (P8), a sum of squares. None: the
+    kinematic storages of :func:`kinematic_claims` (unit weights)."""
+    if isinstance(loop, PlanarLoop):
+        return 0.0
+    rotation = 2.0 if loop is None else float(loop.weights.w_rc) + float(loop.weights.w_re)
+    return STORAGE_ULPS * float(np.finfo(float).eps) * 1.5 * rotation
+
+
 IMPLEMENTED_TOL = 1e-5
 """Bound on fact 11's residual on the run as implemented: RK4 at the control period truncates
-(1.4e-6 on the default example at 500 Hz); CVODES restarted at every sample meets 1e-6."""
+(7e-6 with one step a period on the default example at 500 Hz, 4e-7 with the two its local error
+target chooses); CVODES restarted at every sample meets 1e-6. A residual above it names the
+setting that brings it within (:func:`integration_hint`)."""
 
 
 class ClaimStatus(StrEnum):
@@ -226,7 +261,7 @@ def lemma_2(
     makes the check INCONCLUSIVE, not the claim false."""
     n, task = loop.robot.n, loop.task_dim
     names = (("V(T) - V(0) = int u^T nu (random smooth u, w = 0)", "Lemma 2, (40)-(41)", f"<= {IDENTITY_TOL:g}"),
-             ("int u^T nu >= -beta, beta = V(0)", "Lemma 2, (37)", ">= 0"))  # fmt: skip
+             ("int u^T nu >= -beta, beta = V(0)", "Lemma 2, (37)", ">= 0 to round-off"))  # fmt: skip
     for attempt in range(tries):
         scale = size * 0.25**attempt
         amplitude = scale * np.concatenate([np.full(n, 0.5), np.full(2 * task, 0.02)])
@@ -236,6 +271,7 @@ def lemma_2(
             break
     residual = identity_residuals(traj)["passivity"]
     low = float(traj.integrals["supply_u_nu"].min()) + traj["V"][0, 0]
+    tol = roundoff(traj.integrals["supply_u_nu"], traj["V"][0, 0], floor=storage_floor(loop))
     if traj.status in LEFT_REGION:
         why = f"the run left the lemma's region even with the input at {scale:g} of its nominal size: {traj.message}"
         return [Claim(*names[0][:2], residual, names[0][2], None, why, inconclusive=True),
@@ -243,7 +279,7 @@ def lemma_2(
     detail = "" if attempt == 0 else f"input scaled to {scale:g} of its nominal size to keep the run inside the region"
     return [
         on_run(*names[0][:2], traj, residual, names[0][2], residual <= IDENTITY_TOL, detail),
-        on_run(*names[1][:2], traj, low, names[1][2], low >= 0, detail),
+        on_run(*names[1][:2], traj, low, f">= -{tol:.1e} (round-off of the terms)", low >= -tol, detail),
     ]
 
 
@@ -288,7 +324,10 @@ def kinematic_claims(loop: ClosedLoop, s0: np.ndarray, seed: int = 2, duration: 
         claims.append(Claim(name, ref, residual, f"<= {IDENTITY_TOL:g}", residual <= IDENTITY_TOL,
                             f"from the scenario's start, V(0) = {v[i, 0]:.6g}"))  # fmt: skip
         low = float(integrals[i].min() + v[i, 0])
-        claims.append(Claim(f"{name.split(' = ')[1]} >= -V(0)", ref, low, ">= 0", low >= 0))
+        tol = roundoff(integrals[i], v[i, 0], floor=storage_floor(None))
+        claims.append(
+            Claim(f"{name.split(' = ')[1]} >= -V(0)", ref, low, f">= -{tol:.1e} (round-off of the terms)", low >= -tol)
+        )
     return claims
 
 
@@ -325,7 +364,8 @@ def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float
                                inconclusive=True)]  # fmt: skip
     _, rest, converged = sharpest_from_rest(loop, lin)
     weights = None if loop.performance is None else weight_diagonals(loop)
-    return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged, weights=weights)]
+    return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged, weights=weights,
+                                       v_floor=storage_floor(loop))]
 
 
 ATTAINED = 0.95
@@ -333,7 +373,7 @@ ATTAINED = 0.95
 
 
 def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, converged: bool = True,
-                     weights: tuple[np.ndarray, np.ndarray] | None = None) -> list[Claim]:
+                     weights: tuple[np.ndarray, np.ndarray] | None = None, v_floor: float = 0.0) -> list[Claim]:
     """Theorem 2 where it constrains gamma: from ``x(0) = 0`` (``V(0) = 0``) under the worst
     disturbance of the linearisation, (45) reads ``int |x|^2 <= gamma^2 int |w|^2`` at every time,
     so the measured gain ``sqrt(int |x|^2 / int |w|^2)`` must not exceed gamma, and (44) holds
@@ -342,7 +382,10 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, conv
     ``converged``: whether the run's gain had converged in its horizon
     (:func:`dvfc.analysis.linearize.sharpest_from_rest`), said when it falls short. ``weights``:
     the diagonals of ``S`` and ``D_w`` of the generalized plant (docs/math.md, fact 17): the claims
-    then read ``z = S x`` for ``x`` and ``d = D_w^-1 w`` for ``w`` (None: the paper's, unit)."""
+    then read ``z = S x`` for ``x`` and ``d = D_w^-1 w`` for ``w`` (None: the paper's, unit). The
+    integral slack of (45) and the gain are compared to :func:`roundoff` of their terms, ``v_floor``
+    the round-off of ``V(0)`` (:func:`storage_floor`: from rest ``V(0)`` is zero only to it, of
+    either sign, however small the run's integrals)."""
     x, w = _error_state(traj), traj["w"]
     if weights is not None:
         x, w = x * weights[0], w / weights[1]
@@ -353,6 +396,7 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, conv
     x2, w2 = traj.integrals["z_squared"], traj.integrals["d_squared"]
     x_, w_ = ("x", "w") if weights is None else ("z", "d")
     slack45 = gamma**2 * w2 + 2 * traj[storage][0, 0] - x2
+    tol45 = roundoff(gamma**2 * w2, 2 * traj[storage][0, 0], x2, floor=2 * v_floor)
     tol = 1e-9 * gamma**2 * float((w * w).sum(1).max())  # round-off of (44) relative to its terms
     ratio = float(np.sqrt(x2[-1] / w2[-1]))
     run = f"from x(0) = 0 under the linearisation's worst disturbance, {traj.t[-1]:g} s" + (
@@ -372,9 +416,10 @@ def from_rest_claims(traj: Trajectory, gamma: float, gamma_lower: float, *, conv
         on_run(f"d{storage}/dt + |{x_}|^2/2 - gamma^2 |{w_}|^2/2 <= 0 pointwise", "Theorem 2, (44)", traj,
                float(lhs44.max()), f"<= {tol:.1e}", bool(lhs44.max() <= tol), f"gamma = {gamma:.6g}, {run}"),
         on_run(f"int |{x_}|^2 <= gamma^2 int |{w_}|^2 + 2 {storage}(0) at every time", "Theorem 2, (45)", traj,
-               float(slack45.min()), "slack >= 0", bool(slack45.min() >= 0), f"V(0) = {traj['V'][0, 0]:.2g}, {run}"),
+               float(slack45.min()), f"slack >= -{tol45:.1e} (round-off of the terms)", bool(slack45.min() >= -tol45),
+               f"V(0) = {traj['V'][0, 0]:.2g}, {run}"),
         on_run(f"measured gain sqrt(int |{x_}|^2 / int |{w_}|^2) <= gamma", "Theorem 2", traj, ratio,
-               f"<= {gamma:.6g}", ratio <= gamma, run),
+               f"<= {gamma:.6g}", ratio <= gamma + roundoff(gamma, ratio), run),
         attained,
     ]  # fmt: skip
 
@@ -441,9 +486,11 @@ def feature_region_claim(traj: Trajectory, centre: np.ndarray, env: dict) -> Cla
     Vacuous, so MEASURED with the reason, when no step has ``V <= c`` or the boxes are not
     certified visible (``env["visible"]``: a box crosses the image border or a depth can reach
     zero), since being inside them then keeps no feature in view."""
-    name, bound = "every feature inside its certified box while V <= c", "<= 0 px (distance outside the box)"
+    name = "every feature inside its certified box while V <= c"
     boxes = np.asarray(env["boxes_px"])
     pixels = traj["f"].reshape(len(traj.t), -1, 2) + centre
+    tol = roundoff(pixels, boxes)
+    bound = f"<= {tol:.1e} px (distance outside the box; round-off of the pixels)"
     inside = traj["V"][:, 0] <= env["level"]
     out = np.maximum(boxes[None, :, :2] - pixels, pixels - boxes[None, :, 2:]).max(axis=(1, 2))[inside]
     steps = f"{int(inside.sum())} of {len(traj.t)} steps have V <= c = {env['level']:.4g}"
@@ -456,7 +503,7 @@ def feature_region_claim(traj: Trajectory, centre: np.ndarray, env: dict) -> Cla
         return Claim(name, "fact 8", worst, bound, None,
                      f"vacuous: the certified boxes are not within the image ({where}), so being inside them "
                      f"keeps no feature in view; {steps}")  # fmt: skip
-    return on_run(name, "fact 8", traj, worst, bound, worst <= 0, steps)
+    return on_run(name, "fact 8", traj, worst, bound, worst <= tol, steps)
 
 
 SEARCH_STOPPED = (
@@ -495,9 +542,9 @@ def _planned_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -
     if start.get("visible") is not None and loop.camera.has_image:
         lo, hi = run_regions(loop, t, level)
         pixels = traj["f"].reshape(len(t), -1, 2) + loop.camera.centre
-        out = float(np.maximum(lo - pixels, pixels - hi).max())
+        out, px_tol = float(np.maximum(lo - pixels, pixels - hi).max()), roundoff(pixels, lo, hi)
         claims.append(on_run("every feature inside its region about g_d(t) at every step", "fact 16b, 16.0", traj,
-                             out, "<= 0 px (distance outside the region)", out <= 0,
+                             out, f"<= {px_tol:.1e} px (outside the region; round-off)", out <= px_tol,
                              f"regions of the balls B(g_d(t) p_oi, rho_i(c)), c = {level:.4g}"))  # fmt: skip
     claims.extend(_ultimate_errors(loop, traj, env, bound, 0))
     return claims
@@ -517,8 +564,10 @@ def _ramp_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -> l
         boxes = np.asarray(start["visible_boxes_px"])
         pixels = (traj["f"].reshape(len(t), -1, 2) + loop.camera.centre)[t >= since - 1e-9]
         out = float(np.maximum(boxes[None, :, :2] - pixels, pixels - boxes[None, :, 2:]).max())
+        px_tol = roundoff(pixels, boxes)
         claims.append(on_run(f"every feature inside its region at the visible level from t = {since:.3g} s",
-                             "fact 16a, 16.0", traj, out, "<= 0 px (distance outside the region)", out <= 0,
+                             "fact 16a, 16.0", traj, out, f"<= {px_tol:.1e} px (outside the region; round-off)",
+                             out <= px_tol,
                              f"c_vis = {start['visible_level']:.4g}"))  # fmt: skip
     return claims
 
@@ -612,6 +661,28 @@ def implemented_storage(traj: Trajectory) -> float:
     return float(np.abs(gap).max() / scale)
 
 
+def integration_hint(traj: Trajectory, residual: float, tol: float) -> str:
+    """Which setting brings fact 11's residual on the sampled run ``traj`` within ``tol``: the
+    identity is exact, so its residual is the integration's. RK4's falls 16-fold each time its
+    steps a period double (order 4, ``tests/test_sampled.py``): the fewest doubled substeps whose
+    predicted residual is at most ``tol / 2``, and a ``step_error`` that makes ``"auto"`` choose
+    them (the estimate scales alike: 4 times its prediction there, a factor 4 from the estimates of
+    the next and previous counts); CVODES's follows its tolerances."""
+    choice = SubstepChoice.of_run(traj.stats)
+    if choice.substeps is None:
+        return "integration error: lower [simulation] rtol and atol (CVODES restarted at every sample)"
+    k = choice.substeps
+    doublings = max(1, math.ceil(math.log2(residual / (tol / 2)) / 4))
+    finer = k * 2**doublings
+    setting = f"set [implementation] substeps = {finer}"
+    if choice.estimate is not None:
+        setting += f" or step_error <= {4 * choice.estimate / 16**doublings:.1g}"  # between the estimates of k', k'/2
+    return (
+        f"integration error (the identity is exact; RK4's truncation falls 16-fold each time its steps double): "
+        f"{setting} (predicted residual {residual / 16**doublings:.1g})"
+    )
+
+
 def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Trajectory | None = None) -> list[Claim]:
     """The run as implemented (:func:`dvfc.analysis.sampled.as_implemented`: the scenario's
     controller, plant and image; ``run`` when already made) against what the robot can do:
@@ -632,17 +703,22 @@ def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Traje
         + ("; clipped at the limit (saturate)" if clipped else "")
     )
     storage = implemented_storage(traj)
+    storage_detail = ("the storage of the loop as implemented: hold, camera and plant errors enter through the "
+                      "channels of u_xi (delta) and u_e (eps, inside u^T nu); exact, measured to the integrator's "
+                      "truncation")  # fmt: skip
+    if settings.implementation is not None:
+        storage_detail += f" ({SubstepChoice.of_run(traj.stats).text})"
+        if storage > IMPLEMENTED_TOL:
+            storage_detail = f"{integration_hint(traj, storage, IMPLEMENTED_TOL)}; {storage_detail}"
     return [
         Claim(f"the {how} run completes", "as implemented", traj.t[-1], f"t = {settings.duration:g} s",
               None if traj.status == "ok" else False, traj.message),
         on_run(f"V(t) - V(0) = int (u^T nu + x^T G w + xi^T delta) on the {how} run", "docs/math.md, fact 11",
-               traj, storage, f"<= {IMPLEMENTED_TOL:g}", storage <= IMPLEMENTED_TOL,
-               "the storage of the loop as implemented: hold, camera and plant errors enter through the channels "
-               "of u_xi (delta) and u_e (eps, inside u^T nu); exact, measured to the integrator's truncation"),
+               traj, storage, f"<= {IMPLEMENTED_TOL:g}", storage <= IMPLEMENTED_TOL, storage_detail),
         Claim("torques within effort limits", "URDF <limit effort>", torque.max(), "max peak |tau| / effort <= 1",
-              None if torque.max() <= 1 or clipped else False, torque_detail),
+              None if torque.max() <= 1 + ROUNDOFF or clipped else False, torque_detail),
         Claim("joint speeds within velocity limits", "URDF <limit velocity>", speed.max(),
-              "max peak |qd| / velocity <= 1", None if speed.max() <= 1 else False,
+              "max peak |qd| / velocity <= 1", None if speed.max() <= 1 + ROUNDOFF else False,
               f"joint {i + 1}: peak |qd| {record['peak_speed'][i]:.4g} rad/s, limit {limits.velocity[i]:.4g} rad/s"),
         Claim("joint position limits", "URDF <limit lower upper>", position.max(),
               "max range / position limits <= 1", record["within_position"],

@@ -33,6 +33,7 @@ from dvfc.analysis.campaign import (
 from dvfc.analysis.campaign import summarize as summarize_campaign
 from dvfc.analysis.case import Case
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
+from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, tracking_bound
 from dvfc.analysis.output import atomic_write, raise_if_interrupted
 from dvfc.analysis.pose import xyz_rpy
@@ -228,6 +229,7 @@ def assemble(
     } | _dispersion_figures(dispersion, loop)  # fmt: skip
     as_built = {
         "implementation": implementation_record(settings),
+        "integration": None if settings.implementation is None else SubstepChoice.of_run(implemented.stats).as_dict(),
         "summary": summary(implemented),
         "limits": limit_record(implemented, robot_limits(loop, settings)),
     }

@@ -15,6 +15,7 @@ from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.sampled import SampledSimulator, as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
 from dvfc.analysis.simulate import Simulator, identity_residuals
+from dvfc.analysis.verify import IMPLEMENTED_TOL, implemented, implemented_storage
 from dvfc.models.robot import Payload, Robot
 
 from conftest import build_loop
@@ -280,3 +281,100 @@ def test_a_run_stopped_at_its_first_sample_keeps_the_start(as_built):
     assert traj.status == "velocity_limit", traj.message
     assert traj.t.tolist() == [0.0] and np.allclose(traj.peaks["qd"], 0.01, rtol=0, atol=1e-15)
     assert np.all(traj.peaks["tau"] == 0) and traj.stats["steps"] == 0
+
+
+@pytest.fixture(scope="module")
+def coarse(as_built):
+    """The default UR5 from the paper's start at 250 Hz (latency 5 periods) over 0.2 s: one RK4 step a
+    period leaves fact 11's identity at 2.5e-5 (measured), above its tolerance 1e-5."""
+    loop, s0, settings = as_built
+    return loop, s0, replace(settings, implementation=replace(settings.implementation, control_rate=250.0))
+
+
+def test_auto_substeps_bring_fact_11_within_its_tolerance_where_one_step_does_not(coarse):
+    """Fact 11's storage identity is exact on the sampled loop, so its residual on a run is the
+    integration's: with one RK4 step a period it fails the tolerance; with ``substeps = "auto"`` (the
+    default target 1e-8 on the local error) the simulator chooses more steps, says so in the run's
+    stats, and the identity holds, with room (below a tenth of the tolerance)."""
+    loop, s0, settings = coarse
+    one = as_built_run(coarse, substeps=1)
+    assert implemented_storage(one) > IMPLEMENTED_TOL
+    sim = as_implemented(loop, replace(settings, implementation=replace(settings.implementation, substeps="auto")))
+    traj = sim.run(s0)
+    choice = sim.substeps
+    assert choice.auto and choice.met and choice.substeps > 1 and choice.estimate <= choice.step_error
+    assert traj.stats["substeps"] == choice.substeps and traj.stats["step_error_estimate"] == choice.estimate
+    assert implemented_storage(traj) <= IMPLEMENTED_TOL / 10
+
+
+@pytest.mark.slow
+def test_auto_chooses_the_fewest_steps_meeting_the_target(coarse):
+    """The chosen ``k`` against the relative local error of one period measured against CVODES at
+    1e-10 (an independent integrator) from six states along the run: at most the target with ``k``
+    steps, above it with ``k / 2`` (so the choice is the fewest that meets it). Measured: 3e-9 with 4
+    steps, 5e-8 with 2, against 1e-8; step doubling's estimate agrees with them within 1%."""
+    loop, s0, settings = coarse
+    sim = as_implemented(loop, replace(settings, implementation=replace(settings.implementation, substeps="auto")))
+    choice = sim.settle(s0).substeps
+    k, target = choice.substeps, choice.step_error
+    held = (sim._effort, sim._friction, *sim.design)
+    reference = sim._period_function(None)
+    e = np.zeros(loop.task_dim)
+    run = as_built_run(coarse, substeps=8)
+
+    def true_error(steps):
+        rk4, gaps = sim._period_function(steps), []
+        for i in (0, 1, 2, 5, 10, 19):
+            s = run["state"][i]
+            exact, coarse = (np.asarray(f(s, run.t[i], e, *held)[0]).ravel() for f in (reference, rk4))
+            gaps.append(np.abs(coarse - exact).max() / np.abs(exact - s).max())
+        return max(gaps)
+
+    assert k > 1
+    assert true_error(k) <= target < true_error(k // 2)
+
+
+@pytest.mark.slow
+def test_explicit_substeps_are_run_as_given(as_built):
+    """An integer ``substeps`` is used as given, with no pilot run: the run is the one ``"auto"``
+    gives when it chooses that number, bit for bit, and is recorded as the scenario's choice."""
+    loop, s0, settings = as_built
+    auto = as_implemented(loop, replace(settings, implementation=replace(settings.implementation, substeps="auto")))
+    traj = auto.run(s0)
+    k = auto.substeps.substeps
+    fixed = as_implemented(loop, replace(settings, implementation=replace(settings.implementation, substeps=k)))
+    assert fixed.substeps is not None and not fixed.substeps.auto and fixed.substeps.estimate is None
+    same = fixed.run(s0)
+    assert np.array_equal(same["state"], traj["state"]) and same.stats == {"steps": 101, "samples": 100, "substeps": k}
+
+
+def test_a_campaign_simulator_chooses_once_for_all_its_runs(coarse):
+    """The choice is made once, from the start it is settled on, and shared by the copies a
+    campaign runs (:meth:`SampledSimulator.for_run`): a copy run from another start does not choose
+    again."""
+    loop, s0, settings = coarse
+    auto = replace(settings, implementation=replace(settings.implementation, substeps="auto"))
+    sim = as_implemented(loop, auto).settle(s0)
+    other = sim.for_run(replace(auto, implementation=replace(auto.implementation, seed=3)))
+    moved = np.array(s0, dtype=float)
+    moved[: loop.robot.n] += 0.05
+    other.run(moved)
+    assert other.substeps is sim.substeps
+
+
+@pytest.mark.slow
+def test_a_fact_11_failure_from_truncation_names_the_setting_that_fixes_it(coarse):
+    """With a loose target (1e-6) ``"auto"`` keeps one step a period and fact 11's identity fails:
+    the claim says it is integration error and names the ``substeps`` and the ``step_error`` that
+    fix it, and each, set, makes the claim pass."""
+    loop, s0, settings = coarse
+    loose = as_built_run(coarse, substeps="auto", step_error=1e-6)
+    assert loose.stats["substeps"] == 1
+    claim = next(c for c in implemented(loop, s0, settings, loose) if c.reference == "docs/math.md, fact 11")
+    assert claim.status == "FAIL" and "; integration error" in claim.detail, claim.as_dict()
+    setting = claim.detail.split("set [implementation] ")[1]
+    substeps, step_error = int(setting.split("substeps = ")[1].split()[0]), float(setting.split("<= ")[1].split()[0])
+    finer = as_built_run(coarse, substeps=substeps), as_built_run(coarse, substeps="auto", step_error=step_error)
+    for fixed in finer:
+        again = next(c for c in implemented(loop, s0, settings, fixed) if c.reference == "docs/math.md, fact 11")
+        assert again.status == "PASS", again.as_dict()
