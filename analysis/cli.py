@@ -250,6 +250,13 @@ def simulate(
     if trajectory.status != "ok":
         err.print(f"run stopped: {trajectory.message}", markup=False, soft_wrap=True)
         raise typer.Exit(1)
+    if replayed is not None:
+        row, which = result["campaign_row"], "worst-case values" if campaign_values else f"run {campaign_run}"
+        verdict = "holds" if row["holds"] else "FAILS"
+        err.print(f"campaign {which}: {verdict} by the margins criterion ({row['reason']})", markup=False,
+                  soft_wrap=True)  # fmt: skip
+        if not row["holds"]:
+            raise typer.Exit(1)
 
 
 @app.command()
@@ -375,6 +382,9 @@ def show(result: dict) -> None:
         ("(43) identity residual", f"{r['dissipation']:.2e}"),
         ("max |e_e(image) - e_e|", f"{s['image_estimate_gap_max']:.3e}"),
     ]
+    if (row := result.get("campaign_row")) is not None:
+        verdict = f"{'holds' if row['holds'] else 'FAILS'} ({row['reason']})"
+        rows.insert(1, ("campaign run, by the margins criterion", verdict))
     for name, value in rows:
         table.add_row(name, str(value))
     out.print(table)
@@ -734,18 +744,38 @@ def margins_command(
 
 
 def show_margins(result: dict) -> None:
-    """Human output of ``margins``: each parameter's breaking point, measured."""
+    """Human output of ``margins``: each parameter's breaking point, measured, the horizon its last
+    holding run was judged on, and the margin against fact 14's linear one."""
     table = Table(title=f"Margins of the loop as implemented: {result['scenario']} (measured)")
-    for col in ("parameter", "margin", "holds at", "breaks at", "note"):
+    for col in ("parameter", "margin", "holds at", "breaks at", "range", "horizon, growth", "note"):
         table.add_column(col)
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result["margins"].items():
-        value = "none in range" if m["value"] is None and m["holds_at"] is not None else fmt(m["value"])
-        note = m.get("breaks_because") or m.get("reason") or ""
-        table.add_row(name, f"{value} {m['unit']}", fmt(m["holds_at"]), fmt(m["breaks_at"]), note)
+        value = f"{fmt(m['value'])} {m['unit']}"
+        if m.get("linear", {}).get("clipped"):
+            value += " (clipped to fact 14's)"
+        elif m["value"] is None and m["holds_at"] is not None:
+            value = f"holds throughout (to {fmt(m['holds_at'])} {m['unit']})"
+        span = "-" if m.get("range") is None else f"{fmt(m['range'][0])} .. {fmt(m['range'][1])}"
+        linear = m.get("linear", {}).get("statement")
+        note = "; ".join(filter(None, [m.get("breaks_because") or m.get("reason"), linear]))
+        horizon = horizon_text(m.get("holds_run"))
+        table.add_row(name, value, fmt(m["holds_at"]), fmt(m["breaks_at"]), span, horizon, note)
     out.print(table)
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
+    own = result["scenario_run"]
+    out.print(f"the scenario's own run ({horizon_text(own)}): {own['detail']}", markup=False, soft_wrap=True)
     out.print(linear_margin_text(result), markup=False, soft_wrap=True)
+
+
+def horizon_text(run: dict | None) -> str:
+    """A run's horizon and growth check in words (``-`` for none)."""
+    if run is None:
+        return "-"
+    growth = run["growth"]
+    if growth is None:
+        return f"{run['horizon']:.4g} s"
+    return f"{run['horizon']:.4g} s, envelope x{growth['ratio']:.3g} ({'growing' if growth['growing'] else 'steady'})"
 
 
 @app.command("verify")
@@ -953,12 +983,21 @@ def campaign_command(
         raise typer.Exit(1)
 
 
+def tolerance_text(tolerance: dict) -> str:
+    """The tolerance bound's statement with its values (the order statistic of its rank)."""
+    if tolerance["rank"] is None:
+        return tolerance["statement"]
+    return (f"{tolerance['statement']}: position <= {tolerance['tracking_position']:.4g} m, angle <= "
+            f"{tolerance['tracking_angle_deg']:.4g} deg, tracking ratio <= {tolerance['tracking_ratio']:.4g} "
+            f"({tolerance['note']})")  # fmt: skip
+
+
 def show_campaign(result: dict) -> None:
     """Human output of ``campaign``: the statement, the tolerance bound, the strongest drivers, the worst runs."""
     out.print(result["statement"], markup=False, soft_wrap=True)
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
     out.print(result["zero_failure"]["statement"], markup=False, soft_wrap=True)
-    out.print(f"tolerance: {result['tolerance']['statement']}", markup=False, soft_wrap=True)
+    out.print(f"tolerance: {tolerance_text(result['tolerance'])}", markup=False, soft_wrap=True)
     table = Table(title="Sensitivity of the tracking ratio (Spearman, measured)")
     for name in ("quantity", "spearman", "failure rate per quartile"):
         table.add_column(name)
