@@ -65,7 +65,7 @@ factor ``(hi/lo)^(1/64)`` for the parameters searched geometrically)."""
 
 GROWTH = 1.05
 """A run has reached a steady state when the peak of its tracking ratio over the last quarter of
-the run is at most this times the peak over the quarter before (:func:`envelope_growth`)."""
+the run is at most this times the peak over the half before it (:func:`envelope_growth`)."""
 
 HORIZONS = (1, 2, 4)
 """The horizons a run is judged on, as multiples of the scenario's duration: the first whose
@@ -81,7 +81,7 @@ payload is known for an arm): 10.5 kg on the UR5 (20.99 kg of links; rated 5 kg)
 
 STEADY = (
     "; a run that holds has reached a steady state: the peak tracking ratio (the larger of position and angle "
-    "over their bounds) over the last quarter of the run at most {growth:g}x that over the quarter before, the "
+    "over their bounds) over the last quarter of the run at most {growth:g}x that over the half before it, the "
     "horizon doubled up to {most:g}x the scenario's until it is (else: does not hold, error still growing); {linear}"
 )
 LINEAR_CLAUSE = (
@@ -246,7 +246,7 @@ def tracking_error(traj: Trajectory) -> tuple[float, float]:
 @dataclass(frozen=True)
 class Growth:
     """The envelope of a run's tracking error: the peak tracking ratio (the larger of position
-    and angle over the bound's, sample by sample) over the third quarter of the run
+    and angle over the bound's, sample by sample) over the second and third quarters of the run
     (``previous``) and over the last (``last``); ``growing`` when ``last > GROWTH * previous``."""
 
     previous: float
@@ -267,13 +267,16 @@ class Growth:
 
 
 def envelope_growth(traj: Trajectory, bound: TrackingBound) -> Growth:
-    """:class:`Growth` of a completed run: the tracking error's envelope over the last half of
-    the run, in two windows (``[T/2, 3T/4]`` and ``[3T/4, T]``: the sample at ``3T/4`` in both)."""
+    """:class:`Growth` of a completed run: the peak tracking ratio over ``[3T/4, T]`` against
+    that over ``[T/4, 3T/4]`` (the sample at ``3T/4`` in both). The earlier window is half the run
+    so that a periodic steady error (a target circling with a period up to ``T/2``) has its
+    peak in it and is not taken for growth; an error growing like ``exp(a t)`` gives
+    ``exp(a T/4)``."""
     position, angle = tracking_samples(traj)
     ratio = np.maximum(position / bound.position, angle / bound.angle_deg)
     t, end = np.asarray(traj.t), traj.t[-1]
-    third, last = ratio[(t >= end / 2) & (t <= 3 * end / 4)], ratio[t >= 3 * end / 4]
-    return Growth(float(third.max()), float(last.max()))
+    before, last = ratio[(t >= end / 4) & (t <= 3 * end / 4)], ratio[t >= 3 * end / 4]
+    return Growth(float(before.max()), float(last.max()))
 
 
 def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: TrackingBound) -> tuple[bool, str]:
@@ -402,7 +405,7 @@ def trial(
         holds, detail = False, f"{unstable_text(rho)}; its run over {horizons[-1]:g} s: {detail}"
     elif growth is not None and growth.growing:
         holds, detail = False, (f"error still growing at {horizons[-1]:g} s (the peak over the last quarter "
-                                f"{growth.ratio:.4g}x that over the quarter before, > {GROWTH:g}); "
+                                f"{growth.ratio:.4g}x that over the half before it, > {GROWTH:g}); "
                                 f"{detail}")  # fmt: skip
     linear_rho = {"rho": rho, "stable": None if rho is None else not unstable}
     return {"value": value, "holds": holds, "detail": detail, "seconds": time.perf_counter() - clock,
