@@ -188,14 +188,15 @@ def test_the_error_envelope_grows_only_when_the_error_grows():
     """The steady-state check on runs built by hand (10 s at 100 Hz, bound 1 m): an error growing
     1.3x every 5 s grows by ``sqrt(1.3)`` from the peak over the second and third quarters to the
     last quarter's (closed form): growing; a decaying transient onto the error of a target
-    circling every 4 s (peaks 0.5 s apart in the two windows' phases), and a constant error, are
+    circling every 4 s (its peaks at 4.5 s and 8.5 s: the third quarter alone would miss the
+    first), and a constant error, are
     steady; growth of exactly ``GROWTH`` per quarter is at the limit (steady), 1% more is not."""
     t = np.linspace(0.0, 10.0, 1001)
     bound = TrackingBound(1.0, 180.0, "envelope", "")
     growing = envelope_growth(synthetic(t, 1e-3 * 1.3 ** (t / 5)), bound)
     assert growing.growing and growing.ratio == pytest.approx(math.sqrt(1.3), rel=1e-12)
-    settling = 0.3 * np.exp(-2 * t) + 0.02 * (1.5 + np.sin(2 * np.pi * (t - 0.5) / 4))
-    assert 0.9998 < envelope_growth(synthetic(t, settling), bound).ratio <= 1.0  # the transient's 5e-6 m at 5.5 s
+    settling = 0.3 * np.exp(-2 * t) + 0.02 * (1.5 + np.sin(2 * np.pi * (t + 0.5) / 4))  # peaks at 4.5 s, 8.5 s
+    assert 0.999 < envelope_growth(synthetic(t, settling), bound).ratio <= 1.0  # the transient's 4e-5 m at 4.5 s
     assert envelope_growth(synthetic(t, np.full_like(t, 0.01)), bound).ratio == 1.0
     at_limit = envelope_growth(synthetic(t, GROWTH ** (t / 2.5)), bound)
     assert at_limit.ratio == pytest.approx(GROWTH, rel=1e-12) and not at_limit.growing
