@@ -747,25 +747,37 @@ def show_margins(result: dict) -> None:
     """Human output of ``margins``: each parameter's breaking point, measured, the horizon its last
     holding run was judged on, and the margin against fact 14's linear one."""
     table = Table(title=f"Margins of the loop as implemented: {result['scenario']} (measured)")
-    for col in ("parameter", "margin", "holds at", "breaks at", "range", "horizon, growth", "note"):
+    for col in ("parameter", "margin", "holds at", "breaks at", "range", "horizon, growth", "fact 14", "note"):
         table.add_column(col)
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result["margins"].items():
         value = f"{fmt(m['value'])} {m['unit']}"
-        if m.get("linear", {}).get("clipped"):
-            value += " (clipped to fact 14's)"
-        elif m["value"] is None and m["holds_at"] is not None:
+        if m["value"] is None and m["holds_at"] is not None:
             value = f"holds throughout (to {fmt(m['holds_at'])} {m['unit']})"
         span = "-" if m.get("range") is None else f"{fmt(m['range'][0])} .. {fmt(m['range'][1])}"
-        linear = m.get("linear", {}).get("statement")
-        note = "; ".join(filter(None, [m.get("breaks_because") or m.get("reason"), linear]))
         horizon = horizon_text(m.get("holds_run"))
-        table.add_row(name, value, fmt(m["holds_at"]), fmt(m["breaks_at"]), span, horizon, note)
+        note = m.get("breaks_because") or m.get("reason") or ""
+        table.add_row(name, value, fmt(m["holds_at"]), fmt(m["breaks_at"]), span, horizon, linear_text(m), note)
     out.print(table)
+    for name, m in result["margins"].items():
+        if m.get("linear", {}).get("clipped"):
+            out.print(f"{name}: {m['linear']['statement']}", markup=False, soft_wrap=True)
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
     own = result["scenario_run"]
     out.print(f"the scenario's own run ({horizon_text(own)}): {own['detail']}", markup=False, soft_wrap=True)
     out.print(linear_margin_text(result), markup=False, soft_wrap=True)
+
+
+def linear_text(margin: dict) -> str:
+    """A measured margin against fact 14's linear one, in a few words (``linear.statement`` in full)."""
+    linear = margin.get("linear")
+    if linear is None:
+        return "-"
+    if not linear["checked"]:
+        return "not checked"
+    if linear["linear_margin"] is None:
+        return "stable over its range"
+    return f"{'clipped to' if linear['clipped'] else 'within'} {linear['linear_margin']:.4g} {margin['unit']}"
 
 
 def horizon_text(run: dict | None) -> str:

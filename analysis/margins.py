@@ -414,28 +414,29 @@ def trial(
 
 
 def linear_statement(name: str, value: float | None, linear: LinearCheck | None) -> dict:
-    """A measured margin against fact 14's linear one: ``{"checked", "value", "clipped",
-    "statement"}``, ``value`` the margin to report (``value`` itself unless it lies beyond the
-    linear margin: then the linear margin, ``clipped``). ``value`` None: the loop holds over
+    """A measured margin against fact 14's linear one: ``{"checked", "linear_margin", "value",
+    "clipped", "statement"}``, ``value`` the margin to report (``value`` itself unless it lies
+    beyond the linear margin: then the linear margin, ``clipped``), ``linear_margin`` fact 14's
+    (None where not checked or stable over its whole range). ``value`` None: the loop holds over
     the whole searched range."""
     p = PARAMETERS[name]
     if name not in LINEAR or linear is None or linear.margins is None:
         why = ("fact 14 has no linear margin for this parameter" if name not in LINEAR
                else "fact 14 not consulted" if linear is None else f"fact 14: {linear.reason}")  # fmt: skip
-        return {"checked": False, "value": value, "clipped": False,
+        return {"checked": False, "linear_margin": None, "value": value, "clipped": False,
                 "statement": f"not checked against a linear margin: {why}"}  # fmt: skip
     m = linear.margins[name]
     beyond = lambda v: v is None or (v > m["stable_at"] if p.worse == "up" else v < m["stable_at"])  # noqa: E731
     if m["value"] is None:
-        return {"checked": True, "value": value, "clipped": False,
+        return {"checked": True, "linear_margin": None, "value": value, "clipped": False,
                 "statement": f"fact 14: the linearised loop is stable throughout its searched range (to "
                              f"{m['range'][1]:g} {p.unit}): no linear margin to clip to"}  # fmt: skip
     if beyond(value):
         measured = "holds over the whole searched range" if value is None else f"the measured {value:.4g} {p.unit}"
-        return {"checked": True, "value": m["value"], "clipped": True,
+        return {"checked": True, "linear_margin": m["value"], "value": m["value"], "clipped": True,
                 "statement": f"{measured} lies beyond fact 14's linear margin {m['value']:.4g} {p.unit} (unstable at "
                              f"{m['unstable_at']:.4g} {p.unit}): clipped to it"}  # fmt: skip
-    return {"checked": True, "value": value, "clipped": False,
+    return {"checked": True, "linear_margin": m["value"], "value": value, "clipped": False,
             "statement": f"within fact 14's linear margin {m['value']:.4g} {p.unit}"}  # fmt: skip
 
 

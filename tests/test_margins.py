@@ -266,7 +266,7 @@ def test_a_measured_margin_beyond_the_linear_one_is_clipped_to_it():
     clipped = linear_statement("latency", 0.152, linear)
     assert clipped["clipped"] and clipped["value"] == 0.13 and "clipped to it" in clipped["statement"]
     assert linear_statement("latency", 0.12, linear) | {"statement": ""} == {
-        "checked": True, "value": 0.12, "clipped": False, "statement": ""}  # fmt: skip
+        "checked": True, "linear_margin": 0.13, "value": 0.12, "clipped": False, "statement": ""}  # fmt: skip
     assert linear_statement("camera_rate", 8.0, linear)["value"] == 10.0
     assert linear_statement("camera_rate", 12.0, linear)["value"] == 12.0
     assert linear_statement("latency", None, linear)["value"] == 0.13
