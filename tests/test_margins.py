@@ -243,14 +243,15 @@ def test_a_slowly_growing_error_is_run_longer_until_it_is_judged(default_case):
 @pytest.mark.slow
 def test_the_measured_latency_and_camera_margins_never_pass_the_linear_ones(default_case):
     """On the default, the measured latency margin is at most fact 14's linear margin (140 ms)
-    and the measured camera-rate margin at least its (8.065 Hz), each search point beyond them
-    judged not holding; the margin record says it was checked (the search on the scenario's
-    10 s horizon alone found 144 ms)."""
+    and the measured camera-rate margin at least its (8.065 Hz), and so is the last point judged
+    to hold (not merely clipped): each point beyond them judged not holding; the margin record
+    says it was checked (the search on the scenario's 10 s horizon alone found 144 ms)."""
     case, bound, linear = default_case
     for name, worse in (("latency", 1), ("camera_rate", -1)):
         margin = search(case, name, bound, linear=linear)
         lin = linear.margins[name]
         assert worse * margin["value"] <= worse * lin["stable_at"], (name, margin)
+        assert worse * margin["holds_at"] <= worse * lin["stable_at"], (name, margin)  # not merely clipped
         assert margin["linear"]["checked"] and margin["holds_run"]["linear"]["stable"], margin
         assert margin["breaks_run"]["linear"]["rho"] is not None
 
