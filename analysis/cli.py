@@ -254,6 +254,13 @@ def simulate(
     if trajectory.status != "ok":
         err.print(f"run stopped: {trajectory.message}", markup=False, soft_wrap=True)
         raise typer.Exit(1)
+    if replayed is not None:
+        row, which = result["campaign_row"], "worst-case values" if campaign_values else f"run {campaign_run}"
+        verdict = "holds" if row["holds"] else "FAILS"
+        err.print(f"campaign {which}: {verdict} by the margins criterion ({row['reason']})", markup=False,
+                  soft_wrap=True)  # fmt: skip
+        if not row["holds"]:
+            raise typer.Exit(1)
 
 
 @app.command()
@@ -380,6 +387,9 @@ def show(result: dict) -> None:
         ("max |e_e(image) - e_e|", f"{s['image_estimate_gap_max']:.3e}"),
         *([] if (how := result.get("integration")) is None else [("integration", SubstepChoice.from_dict(how).text)]),
     ]
+    if (row := result.get("campaign_row")) is not None:
+        verdict = f"{'holds' if row['holds'] else 'FAILS'} ({row['reason']})"
+        rows.insert(1, ("campaign run, by the margins criterion", verdict))
     for name, value in rows:
         table.add_row(name, str(value))
     out.print(table)
@@ -744,18 +754,50 @@ def margins_command(
 
 
 def show_margins(result: dict) -> None:
-    """Human output of ``margins``: each parameter's breaking point, measured."""
+    """Human output of ``margins``: each parameter's breaking point, measured, the horizon its last
+    holding run was judged on, and the margin against fact 14's linear one."""
     table = Table(title=f"Margins of the loop as implemented: {result['scenario']} (measured)")
-    for col in ("parameter", "margin", "holds at", "breaks at", "note"):
+    for col in ("parameter", "margin", "holds at", "breaks at", "range", "horizon, growth", "fact 14", "note"):
         table.add_column(col)
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result["margins"].items():
-        value = "none in range" if m["value"] is None and m["holds_at"] is not None else fmt(m["value"])
+        value = f"{fmt(m['value'])} {m['unit']}"
+        if m["value"] is None and m["holds_at"] is not None:
+            value = f"holds throughout (to {fmt(m['holds_at'])} {m['unit']})"
+        span = "-" if m.get("range") is None else f"{fmt(m['range'][0])} .. {fmt(m['range'][1])}"
+        horizon = horizon_text(m.get("holds_run"))
         note = m.get("breaks_because") or m.get("reason") or ""
-        table.add_row(name, f"{value} {m['unit']}", fmt(m["holds_at"]), fmt(m["breaks_at"]), note)
+        table.add_row(name, value, fmt(m["holds_at"]), fmt(m["breaks_at"]), span, horizon, linear_text(m), note)
     out.print(table)
+    for name, m in result["margins"].items():
+        if m.get("linear", {}).get("clipped"):
+            out.print(f"{name}: {m['linear']['statement']}", markup=False, soft_wrap=True)
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
+    own = result["scenario_run"]
+    out.print(f"the scenario's own run ({horizon_text(own)}): {own['detail']}", markup=False, soft_wrap=True)
     out.print(linear_margin_text(result), markup=False, soft_wrap=True)
+
+
+def linear_text(margin: dict) -> str:
+    """A measured margin against fact 14's linear one, in a few words (``linear.statement`` in full)."""
+    linear = margin.get("linear")
+    if linear is None:
+        return "-"
+    if not linear["checked"]:
+        return "not checked"
+    if linear["linear_margin"] is None:
+        return "stable over its range"
+    return f"{'clipped to' if linear['clipped'] else 'within'} {linear['linear_margin']:.4g} {margin['unit']}"
+
+
+def horizon_text(run: dict | None) -> str:
+    """A run's horizon and growth check in words (``-`` for none)."""
+    if run is None:
+        return "-"
+    growth = run["growth"]
+    if growth is None:
+        return f"{run['horizon']:.4g} s"
+    return f"{run['horizon']:.4g} s, envelope x{growth['ratio']:.3g} ({'growing' if growth['growing'] else 'steady'})"
 
 
 @app.command("verify")
@@ -963,12 +1005,21 @@ def campaign_command(
         raise typer.Exit(1)
 
 
+def tolerance_text(tolerance: dict) -> str:
+    """The tolerance bound's statement with its values (the order statistic of its rank)."""
+    if tolerance["rank"] is None:
+        return tolerance["statement"]
+    return (f"{tolerance['statement']}: position <= {tolerance['tracking_position']:.4g} m, angle <= "
+            f"{tolerance['tracking_angle_deg']:.4g} deg, tracking ratio <= {tolerance['tracking_ratio']:.4g} "
+            f"({tolerance['note']})")  # fmt: skip
+
+
 def show_campaign(result: dict) -> None:
     """Human output of ``campaign``: the statement, the tolerance bound, the strongest drivers, the worst runs."""
     out.print(result["statement"], markup=False, soft_wrap=True)
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
     out.print(result["zero_failure"]["statement"], markup=False, soft_wrap=True)
-    out.print(f"tolerance: {result['tolerance']['statement']}", markup=False, soft_wrap=True)
+    out.print(f"tolerance: {tolerance_text(result['tolerance'])}", markup=False, soft_wrap=True)
     table = Table(title="Drivers of the closeness to failing (PAWN, delta, Spearman; measured)")
     for name in ("quantity", "entry", "PAWN", "above floor", "delta", "spearman", "failure rate per quartile"):
         table.add_column(name)

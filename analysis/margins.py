@@ -8,8 +8,12 @@ image), the joints stay within their position and velocity limits and, when ``sa
 is off, the torques within the effort limits, and the
 tracking error over the last half of the run stays within the operating envelope's
 certified ultimate bound (docs/math.md, fact 7; twice the continuous loop's error where the design
-has no certified envelope) (:data:`CRITERION`). These are measurements on simulated runs,
-not certificates.
+has no certified envelope) (:data:`CRITERION`). A run judged to hold must also have reached a
+steady state (:func:`envelope_growth`: the horizon is doubled, up to :data:`HORIZONS`, until the
+error's envelope stops growing), and where fact 14 applies a latency or camera rate at which the
+sampled loop linearised at rest is unstable does not hold; a measured margin is never reported
+beyond fact 14's linear one (:data:`STEADY`). These are measurements on simulated runs, not
+certificates.
 
 Each parameter's search is one task (local processes or a Dask cluster); every run is
 appended to ``DIR/<parameter>.jsonl`` as it finishes, so an interrupted search resumes
@@ -20,6 +24,7 @@ from __future__ import annotations
 
 import math
 import time
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -27,7 +32,14 @@ from pathlib import Path
 import numpy as np
 
 from dvfc.analysis.case import Case
-from dvfc.analysis.multirate import implemented_record, implemented_text
+from dvfc.analysis.multirate import (
+    RHO_MARGIN,
+    MultirateLoop,
+    NotApplicableError,
+    implemented_record,
+    implemented_text,
+    multirate_loop,
+)
 from dvfc.analysis.output import append_log, raise_if_interrupted, read_log
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
@@ -51,6 +63,33 @@ STEPS = 6
 """Bisection steps after the range end: the bracket shrinks to 1/64 of the range (a
 factor ``(hi/lo)^(1/64)`` for the parameters searched geometrically)."""
 
+GROWTH = 1.05
+"""A run has reached a steady state when the peak of its tracking ratio over the last quarter of
+the run is at most this times the peak over the half before it (:func:`envelope_growth`)."""
+
+HORIZONS = (1, 2, 4)
+"""The horizons a run is judged on, as multiples of the scenario's duration: the first whose
+error envelope has stopped growing; still growing at the last, the run does not hold."""
+
+LINEAR = ("latency", "camera_rate")
+"""The searched parameters fact 14 has a linear margin for (its control-rate margin has no
+measured twin: the control rate is not searched)."""
+
+PAYLOAD_FACTOR = 0.5
+"""The payload's searched range ends at this times the URDF's total link mass (no rated
+payload is known for an arm): 10.5 kg on the UR5 (20.99 kg of links; rated 5 kg)."""
+
+STEADY = (
+    "; a run that holds has reached a steady state: the peak tracking ratio (the larger of position and angle "
+    "over their bounds) over the last quarter of the run at most {growth:g}x that over the half before it, the "
+    "horizon doubled up to {most:g}x the scenario's until it is (else: does not hold, error still growing); {linear}"
+)
+LINEAR_CLAUSE = (
+    "where fact 14 applies, a latency or camera rate at which the sampled loop linearised at rest is unstable "
+    "(rho >= 1) does not hold, and a measured margin is never reported beyond fact 14's linear one"
+)
+"""Added to :data:`CRITERION` for the margins' runs (a campaign's runs are judged on their own horizon)."""
+
 
 class MarginError(RuntimeError):
     """The scenario's own run does not hold: there is no margin to measure."""
@@ -59,18 +98,20 @@ class MarginError(RuntimeError):
 @dataclass(frozen=True)
 class Parameter:
     """A searched parameter: its unit, whether larger values are worse (``"up"``) or smaller
-    (``"down"``, searched geometrically), and the end of the searched range."""
+    (``"down"``, searched geometrically), and the end of the searched range (with
+    ``per_arm_mass``, as a multiple of the URDF's total link mass)."""
 
     name: str
     unit: str
     worse: str
     end: float
+    per_arm_mass: bool = False
 
 
 PARAMETERS = {
     "latency": Parameter("latency", "s", "up", 0.25),
     "camera_rate": Parameter("camera_rate", "Hz", "down", 1.0),
-    "payload_mass": Parameter("payload_mass", "kg", "up", 20.0),
+    "payload_mass": Parameter("payload_mass", "kg", "up", PAYLOAD_FACTOR, per_arm_mass=True),
     "pixel_noise": Parameter("pixel_noise", "px", "up", 50.0),
     "torque_scale": Parameter("torque_scale", "x URDF effort", "down", 0.05),
     "mount_rotation": Parameter("mount_rotation", "deg", "up", 45.0),
@@ -78,7 +119,8 @@ PARAMETERS = {
     "friction_scale": Parameter("friction_scale", "x reference friction", "up", 20.0),
     "frame_drop": Parameter("frame_drop", "probability", "up", 0.95),
 }
-"""The searched parameters. ``mount_rotation``: the true camera mount turned about the nominal
+"""The searched parameters (the payload's end is :data:`PAYLOAD_FACTOR` of the URDF's total
+link mass, :func:`range_end`). ``mount_rotation``: the true camera mount turned about the nominal
 camera's x axis (a tilt of the optical axis) by this angle; ``focal_length_error``: the true
 ``fx`` and ``fy`` this fraction above the controller's; ``friction_scale``: joint friction this
 multiple of the reference friction (:func:`reference_friction`); ``frame_drop``: the probability
@@ -115,8 +157,35 @@ def base_value(name: str, settings: Settings) -> float:
     return float(getattr(imp, name))
 
 
+def urdf_mass(robot: Robot) -> float:
+    """The total mass of the links of the robot's URDF (kg): the sum of every ``<inertial>``'s mass."""
+    masses = ET.parse(robot.urdf).getroot().iterfind("link/inertial/mass")
+    return float(sum(float(m.get("value", 0.0)) for m in masses))
+
+
+def range_end(name: str, loop: ClosedLoop, settings: Settings) -> float:
+    """The end of a parameter's searched range as simulated: :attr:`Parameter.end`, times the
+    URDF's total link mass for the payload (:func:`urdf_mass`), on the grid of :func:`grid_value`."""
+    p = PARAMETERS[name]
+    end = p.end * urdf_mass(loop.robot) if p.per_arm_mass else p.end
+    return grid_value(name, end, settings)
+
+
+def grid_value(name: str, value: float, settings: Settings) -> float:
+    """The value a run is made at: the latency in whole control periods, the camera rate an
+    image every whole number ``N`` of control periods (``control_rate / N``: fact 14's exact
+    schedules), any other parameter as given."""
+    rate = settings.implementation.control_rate
+    if name == "latency":
+        return round(value * rate) / rate
+    if name == "camera_rate":
+        return rate / max(1, round(rate / value))
+    return value
+
+
 def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) -> Settings:
-    """The settings with one parameter changed (latency rounded to whole control periods).
+    """The settings with one parameter changed (latency and camera rate on the grid of
+    :func:`grid_value`).
 
     A payload changes the plant's equations, so each mass is a new right-hand side: its runs
     are made in CasADi's virtual machine (``jit = False``) rather than compiling C code for
@@ -142,9 +211,7 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
             viscous, coulomb = reference_friction(loop, settings)
             errors = replace(errors, viscous=value * viscous, coulomb=value * coulomb)
         return replace(settings, errors=errors)
-    if name == "latency":
-        value = round(value * imp.control_rate) / imp.control_rate
-    return replace(settings, implementation=replace(imp, **{name: value}))
+    return replace(settings, implementation=replace(imp, **{name: grid_value(name, value, settings)}))
 
 
 @dataclass(frozen=True)
@@ -162,12 +229,54 @@ class TrackingBound:
         return {"position": self.position, "angle_deg": self.angle_deg, "source": self.source}
 
 
+def tracking_samples(traj: Trajectory, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The position ``|p|`` (m) and rotation angle (deg, by :func:`rotation_angle`) of the true
+    tracking error ``g_d^-1 g`` at each output sample from ``start`` on."""
+    err = traj["g_tracking"][start:].reshape(-1, 4, 4).transpose(0, 2, 1)  # CasADi vec: columns
+    return np.linalg.norm(err[:, :3, 3], axis=1), np.degrees(rotation_angle(err[:, :3, :3]))
+
+
 def tracking_error(traj: Trajectory) -> tuple[float, float]:
     """The largest position ``|p|`` (m) and rotation angle (deg) of the true tracking error
-    ``g_d^-1 g`` over the last half of the run (angle by :func:`rotation_angle`)."""
-    err = traj["g_tracking"][len(traj.t) // 2 :].reshape(-1, 4, 4).transpose(0, 2, 1)  # CasADi vec: columns
-    angle = rotation_angle(err[:, :3, :3])
-    return float(np.linalg.norm(err[:, :3, 3], axis=1).max()), float(np.degrees(angle.max()))
+    ``g_d^-1 g`` over the last half of the run."""
+    position, angle = tracking_samples(traj, len(traj.t) // 2)
+    return float(position.max()), float(angle.max())
+
+
+@dataclass(frozen=True)
+class Growth:
+    """The envelope of a run's tracking error: the peak tracking ratio (the larger of position
+    and angle over the bound's, sample by sample) over the second and third quarters of the run
+    (``previous``) and over the last (``last``); ``growing`` when ``last > GROWTH * previous``."""
+
+    previous: float
+    last: float
+
+    @property
+    def ratio(self) -> float:
+        """``last / previous``."""
+        return self.last / self.previous if self.previous > 0 else (math.inf if self.last > 0 else 1.0)
+
+    @property
+    def growing(self) -> bool:
+        return self.ratio > GROWTH
+
+    def as_dict(self) -> dict:
+        return {"previous_peak": self.previous, "last_peak": self.last, "ratio": self.ratio, "limit": GROWTH,
+                "growing": self.growing}  # fmt: skip
+
+
+def envelope_growth(traj: Trajectory, bound: TrackingBound) -> Growth:
+    """:class:`Growth` of a completed run: the peak tracking ratio over ``[3T/4, T]`` against
+    that over ``[T/4, 3T/4]`` (the sample at ``3T/4`` in both). The earlier window is half the run
+    so that a periodic steady error (a target circling with a period up to ``T/2``) has its
+    peak in it and is not taken for growth; an error growing like ``exp(a t)`` gives
+    ``exp(a T/4)``."""
+    position, angle = tracking_samples(traj)
+    ratio = np.maximum(position / bound.position, angle / bound.angle_deg)
+    t, end = np.asarray(traj.t), traj.t[-1]
+    before, last = ratio[(t >= end / 4) & (t <= 3 * end / 4)], ratio[t >= 3 * end / 4]
+    return Growth(float(before.max()), float(last.max()))
 
 
 def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: TrackingBound) -> tuple[bool, str]:
@@ -233,53 +342,155 @@ def tracking_bound(case: Case, envelope: dict | None = None) -> TrackingBound:
     return envelope_bound(case, envelope) or continuous_bound(case)
 
 
-def trial(case: Case, name: str, value: float, bound: TrackingBound) -> dict:
-    """One run at ``name = value`` judged against ``bound``, with its wall time (s, setting
-    up the simulator included)."""
+@dataclass(frozen=True)
+class LinearCheck:
+    """Fact 14 beside the measured searches: the sampled loop linearised at rest (``system``)
+    and its linear margins (``margins``, :func:`dvfc.analysis.multirate.linear_margins`), or,
+    where the statement does not apply, ``reason``."""
+
+    system: MultirateLoop | None
+    margins: dict | None
+    reason: str | None
+
+    @staticmethod
+    def of(case: Case, record: dict) -> LinearCheck:
+        """The check of a case from its fact-14 record (:func:`implemented_record`)."""
+        if record["margins"] is None:
+            return LinearCheck(None, None, record["reason"])
+        imp = case.settings.implementation
+        return LinearCheck(multirate_loop(case.loop, case.s0[: case.loop.robot.n], imp), record["margins"], None)
+
+    def rho(self, name: str, value: float) -> float | None:
+        """``rho(Pi)`` with ``name = value`` (a value of :func:`grid_value`); None where not
+        checked (not a parameter of :data:`LINEAR`, the statement does not apply, no exact
+        schedule)."""
+        if self.system is None or name not in LINEAR:
+            return None
+        try:
+            return self.system.rho(**{name: value})
+        except NotApplicableError:
+            return None
+
+
+def unstable_text(rho: float) -> str:
+    """Why a run at a value where the linearised sampled loop is unstable does not hold."""
+    return f"the sampled loop linearised at rest is unstable at this value (fact 14: rho = {rho:.6g} >= 1)"
+
+
+def trial(
+    case: Case, name: str, value: float, bound: TrackingBound, linear: LinearCheck | None = None,
+    first: Trajectory | None = None,
+) -> dict:  # fmt: skip
+    """One search point ``name = value`` judged against ``bound`` (JSON-ready), with its wall
+    time (s, setting up the simulators included).
+
+    Where ``linear`` checks the parameter and the sampled loop linearised at rest is unstable
+    at the value (``rho >= 1 - RHO_MARGIN``), the point does not hold, whatever its run. Else a
+    run that holds by :func:`judge` must have reached a steady state (:func:`envelope_growth`):
+    the horizon is doubled (:data:`HORIZONS`) until the envelope stops growing; growing at the
+    last, the point does not hold. ``first``: the run on the scenario's horizon, when made."""
     loop = case.loop
-    start = time.perf_counter()
+    clock = time.perf_counter()
     changed = with_value(loop, case.settings, name, value)
-    traj = as_implemented(loop, changed).run(case.s0)
-    holds, detail = judge(traj, loop, changed, bound)
-    return {"value": value, "holds": holds, "detail": detail, "seconds": time.perf_counter() - start}
+    used = getattr(changed.implementation, name) if name in LINEAR else value
+    rho = None if linear is None else linear.rho(name, used)
+    unstable = rho is not None and rho >= 1 - RHO_MARGIN
+    horizons, growth = [], None
+    for factor in HORIZONS:
+        settings = replace(changed, duration=factor * case.settings.duration)
+        traj = first if factor == 1 and first is not None else as_implemented(loop, settings).run(case.s0)
+        horizons.append(settings.duration)
+        holds, detail = judge(traj, loop, settings, bound)
+        growth = envelope_growth(traj, bound) if holds else None
+        if unstable or growth is None or not growth.growing:
+            break
+    if unstable:
+        holds, detail = False, f"{unstable_text(rho)}; its run over {horizons[-1]:g} s: {detail}"
+    elif growth is not None and growth.growing:
+        holds, detail = False, (f"error still growing at {horizons[-1]:g} s (the peak over the last quarter "
+                                f"{growth.ratio:.4g}x that over the half before it, > {GROWTH:g}); "
+                                f"{detail}")  # fmt: skip
+    linear_rho = {"rho": rho, "stable": None if rho is None else not unstable}
+    return {"value": value, "holds": holds, "detail": detail, "seconds": time.perf_counter() - clock,
+            "horizon": horizons[-1], "horizons": horizons, "growth": None if growth is None else growth.as_dict(),
+            "linear": linear_rho}  # fmt: skip
 
 
-def search(case: Case, name: str, bound: TrackingBound, log: str | None = None) -> dict:
+def linear_statement(name: str, value: float | None, linear: LinearCheck | None) -> dict:
+    """A measured margin against fact 14's linear one: ``{"checked", "linear_margin", "value",
+    "clipped", "statement"}``, ``value`` the margin to report (``value`` itself unless it lies
+    beyond the linear margin: then the linear margin, ``clipped``), ``linear_margin`` fact 14's
+    (None where not checked or stable over its whole range). ``value`` None: the loop holds over
+    the whole searched range."""
+    p = PARAMETERS[name]
+    if name not in LINEAR or linear is None or linear.margins is None:
+        why = ("fact 14 has no linear margin for this parameter" if name not in LINEAR
+               else "fact 14 not consulted" if linear is None else f"fact 14: {linear.reason}")  # fmt: skip
+        return {"checked": False, "linear_margin": None, "value": value, "clipped": False,
+                "statement": f"not checked against a linear margin: {why}"}  # fmt: skip
+    m = linear.margins[name]
+    beyond = lambda v: v is None or (v > m["stable_at"] if p.worse == "up" else v < m["stable_at"])  # noqa: E731
+    if m["value"] is None:
+        return {"checked": True, "linear_margin": None, "value": value, "clipped": False,
+                "statement": f"fact 14: the linearised loop is stable throughout its searched range (to "
+                             f"{m['range'][1]:g} {p.unit}): no linear margin to clip to"}  # fmt: skip
+    if beyond(value):
+        measured = "holds over the whole searched range" if value is None else f"the measured {value:.4g} {p.unit}"
+        return {"checked": True, "linear_margin": m["value"], "value": m["value"], "clipped": True,
+                "statement": f"{measured} lies beyond fact 14's linear margin {m['value']:.4g} {p.unit} (unstable at "
+                             f"{m['unstable_at']:.4g} {p.unit}): clipped to it"}  # fmt: skip
+    return {"checked": True, "linear_margin": m["value"], "value": value, "clipped": False,
+            "statement": f"within fact 14's linear margin {m['value']:.4g} {p.unit}"}  # fmt: skip
+
+
+def search(case: Case, name: str, bound: TrackingBound, log: str | None = None,
+           linear: LinearCheck | None = None) -> dict:  # fmt: skip
     """The bisection of one parameter (a task): the runs in ``log`` (JSON lines) are reused,
-    new ones appended. Returns the margin record."""
+    new ones appended; each point by :func:`trial` (with ``linear``, fact 14's check). Returns
+    the margin record, its value never beyond fact 14's linear margin (:func:`linear_statement`)."""
     settings = case.settings
     p = PARAMETERS[name]
-    done = {} if log is None else {record["value"]: record for record in read_log(Path(log))}
+    logged = [] if log is None else read_log(Path(log))
+    done = {record["value"]: record for record in logged if "horizon" in record}  # older logs: runs made again
 
     def run(value: float) -> bool:
         if value not in done:
-            done[value] = trial(case, name, value, bound)
+            done[value] = trial(case, name, value, bound, linear)
             raise_if_interrupted()  # the run may be cut short: not logged
             if log is not None:
                 append_log(Path(log), done[value])
         return done[value]["holds"]
 
     start = base_value(name, settings)
-    period = 1.0 / settings.implementation.control_rate
-    end = round(p.end / period) * period if name == "latency" else p.end  # the latency actually simulated
-    margin = {"value": None, "unit": p.unit, "holds_at": None, "breaks_at": None, "range": [start, end]}
+    end = range_end(name, case.loop, settings)  # the value actually simulated
+    resolution = (end / start) ** (0.5**STEPS) if p.worse == "down" else abs(end - start) * 0.5**STEPS
+    margin = {"value": None, "unit": p.unit, "holds_at": None, "breaks_at": None, "range": [start, end],
+              "resolution": resolution}  # fmt: skip
     if (p.worse == "down" and start <= end) or (p.worse == "up" and start >= end):
         return {**margin, "reason": "the scenario's value is already beyond the searched range"}
     if run(end):
-        return {**margin, "holds_at": end, "reason": "holds over the whole searched range", "runs": len(done)}
+        checked = linear_statement(name, None, linear)
+        return {**margin, "value": checked["value"], "holds_at": end, "reason": "holds over the whole searched range",
+                "runs": len(done), "linear": checked, "holds_run": run_summary(done[end])}  # fmt: skip
     good, bad = start, end
     for _ in range(STEPS):
-        mid = math.sqrt(good * bad) if p.worse == "down" else (good + bad) / 2
-        if name == "latency":
-            mid = round(mid / period) * period
-            if mid in (good, bad):
-                break
+        mid = grid_value(name, math.sqrt(good * bad) if p.worse == "down" else (good + bad) / 2, settings)
+        if mid in (good, bad):
+            break
         if run(mid):
             good = mid
         else:
             bad = mid
-    return {**margin, "value": good, "holds_at": good, "breaks_at": bad, "reason": None,
-            "breaks_because": done[bad]["detail"], "runs": len(done)}  # fmt: skip
+    checked = linear_statement(name, good, linear)
+    return {**margin, "value": checked["value"], "holds_at": good, "breaks_at": bad, "reason": None,
+            "breaks_because": done[bad]["detail"], "runs": len(done), "linear": checked,
+            "holds_run": run_summary(done[good]) if good in done else None,
+            "breaks_run": run_summary(done[bad])}  # fmt: skip
+
+
+def run_summary(record: dict) -> dict:
+    """A search point's horizon and growth check (for the margin record)."""
+    return {key: record[key] for key in ("value", "holds", "horizon", "horizons", "growth", "linear")}
 
 
 def runs_done(directory: Path) -> int:
@@ -328,12 +539,10 @@ def margins(
     if settings.implementation is None:
         raise ScenarioError("implementation: margins are of the loop as implemented; add an [implementation] section")
     bound = tracking_bound(case, envelope)
-    if own_run is None:
-        own = trial(case, "latency", settings.implementation.latency, bound)
-    else:
-        holds, detail = judge(own_run, loop, settings, bound)
-        own = {"value": settings.implementation.latency, "holds": holds, "detail": detail,
-               "seconds": own_run.wall_time}  # fmt: skip
+    record = implemented_record(loop, s0, settings)
+    linear = LinearCheck.of(case, record)
+    imp = settings.implementation
+    own = trial(case, "latency", imp.latency, bound, linear, own_run)
     if not own["holds"]:
         raise MarginError(f"the scenario's own run does not hold ({own['detail']}): no margin to measure")
     names = [n for n in PARAMETERS if applicable(n, settings, loop) is None]
@@ -341,18 +550,21 @@ def margins(
     if not resume:
         for log in logs.values():
             log.unlink(missing_ok=True)
-    results = map_tasks(search, [(case, n, bound, str(logs[n])) for n in names])
+    results = map_tasks(search, [(case, n, bound, str(logs[n]), linear) for n in names])
     found = dict(zip(names, results, strict=True))
     out = {}
     for name, p in PARAMETERS.items():
         reason = applicable(name, settings, loop)
         out[name] = found.get(name) or {"value": None, "unit": p.unit, "holds_at": None, "breaks_at": None,
                                         "reason": reason}  # fmt: skip
+    unchecked = f"fact 14: {linear.reason}: the measured margins are not checked against linear ones"
+    clause = LINEAR_CLAUSE if linear.margins is not None else unchecked
+    steady = STEADY.format(growth=GROWTH, most=HORIZONS[-1], linear=clause)
     return {
         "scenario": spec.name,
         "margins": out,
-        "criterion": CRITERION.format(bound=bound.text),
+        "criterion": CRITERION.format(bound=bound.text) + steady,
         "tracking_bound": bound.as_dict(),
-        "linear_margins": implemented_record(loop, s0, settings),
+        "linear_margins": record,
         "scenario_run": own,
     }

@@ -469,14 +469,23 @@ def _integral_and_friction(loop: ClosedLoop, settings: Settings, system: Multira
     return out
 
 
+def margin_text(label: str, margin: dict, sign: str, scale: float, unit: str) -> str:
+    """One linear margin in words: ``label sign value unit``, or, when stable over the whole
+    searched range, that and the range's end."""
+    if margin["value"] is None:
+        way = "up" if sign == "<=" else "down"
+        return f"{label} stable throughout the searched range {way} to {margin['range'][1] * scale:.4g} {unit}"
+    return f"{label} {sign} {margin['value'] * scale:.4g} {unit}"
+
+
 def implemented_text(record: dict) -> str:
     """Fact 14's record in one line of words."""
     if record["rho"] is None:  # does not apply, or the period map overflows
         return f"local certificate of the loop as implemented (fact 14): {record['reason']}"
     m = record["margins"]
-    fmt = lambda r, scale=1.0: "none in range" if r["value"] is None else f"{r['value'] * scale:.4g}"  # noqa: E731
-    margins = (f"latency <= {fmt(m['latency'], 1e3)} ms, camera >= {fmt(m['camera_rate'])} Hz, "
-               f"control >= {fmt(m['control_rate'])} Hz")  # fmt: skip
+    margins = ", ".join(margin_text(label, m[name], sign, scale, unit) for name, label, sign, scale, unit in (
+        ("latency", "latency", "<=", 1e3, "ms"), ("camera_rate", "camera", ">=", 1.0, "Hz"),
+        ("control_rate", "control", ">=", 1.0, "Hz")))  # fmt: skip
     verdict = "CERTIFIED" if record["certified"] else f"NOT CERTIFIED ({record['reason']})"
     rate = "-" if record["rate"] is None else f"{record['rate']:.4g}"
     return (f"loop as implemented, linearised at rest (fact 14, local): {verdict}: rho = {record['rho']:.6g} over "

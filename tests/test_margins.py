@@ -5,6 +5,7 @@ tested in tests/test_multirate.py)."""
 from __future__ import annotations
 
 import json
+import math
 import tomllib
 from dataclasses import fields, replace
 
@@ -13,21 +14,33 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
+from dvfc.analysis.campaign import CampaignSpec, read_runs, run_campaign
 from dvfc.analysis.case import Case
-from dvfc.analysis.cli import app
+from dvfc.analysis.cli import app, tolerance_text
 from dvfc.analysis.margins import (
     DEFAULT_FRICTION,
+    GROWTH,
+    HORIZONS,
     PARAMETERS,
+    PAYLOAD_FACTOR,
+    LinearCheck,
+    TrackingBound,
     base_value,
+    envelope_growth,
+    judge,
     linear_margin_text,
+    linear_statement,
+    range_end,
     search,
     tracking_bound,
     tracking_error,
     trial,
     with_value,
 )
+from dvfc.analysis.multirate import implemented_record, implemented_text
 from dvfc.analysis.sampled import as_implemented
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
+from dvfc.analysis.simulate import Trajectory
 from dvfc.models.errors import PlantErrors
 
 
@@ -154,3 +167,169 @@ def test_a_large_mount_rotation_breaks_the_loop_and_a_small_one_does_not(short_d
     broken = trial(case, "mount_rotation", 45.0, bound)
     assert not broken["holds"] and broken["detail"].startswith("out_of_view"), broken
     assert trial(case, "mount_rotation", 2.0, bound)["holds"]
+
+
+@pytest.fixture(scope="module")
+def default_case():
+    """The default example as it is (10 s, planned start), its tracking bound and fact 14's check."""
+    case = Case.load(DEFAULT_SCENARIO)
+    return case, tracking_bound(case), LinearCheck.of(case, implemented_record(case.loop, case.s0, case.settings))
+
+
+def synthetic(t: np.ndarray, position: np.ndarray) -> Trajectory:
+    """A completed run whose true tracking error ``g_d^-1 g`` is a translation of ``position`` m
+    along x and no rotation (poses stored column-major, as CasADi's ``vec``)."""
+    g = np.tile(np.eye(4), (len(t), 1, 1))
+    g[:, 0, 3] = position
+    return Trajectory(t, {"g_tracking": g.transpose(0, 2, 1).reshape(len(t), 16)}, {})
+
+
+def test_the_error_envelope_grows_only_when_the_error_grows():
+    """The steady-state check on runs built by hand (10 s at 100 Hz, bound 1 m): an error growing
+    1.3x every 5 s grows by ``sqrt(1.3)`` from the peak over the second and third quarters to the
+    last quarter's (closed form): growing; a decaying transient onto the error of a target
+    circling every 4 s (its peaks at 4.5 s and 8.5 s: the third quarter alone would miss the
+    first), and a constant error, are
+    steady; growth of exactly ``GROWTH`` per quarter is at the limit (steady), 1% more is not."""
+    t = np.linspace(0.0, 10.0, 1001)
+    bound = TrackingBound(1.0, 180.0, "envelope", "")
+    growing = envelope_growth(synthetic(t, 1e-3 * 1.3 ** (t / 5)), bound)
+    assert growing.growing and growing.ratio == pytest.approx(math.sqrt(1.3), rel=1e-12)
+    settling = 0.3 * np.exp(-2 * t) + 0.02 * (1.5 + np.sin(2 * np.pi * (t + 0.5) / 4))  # peaks at 4.5 s, 8.5 s
+    assert 0.999 < envelope_growth(synthetic(t, settling), bound).ratio <= 1.0  # the transient's 4e-5 m at 4.5 s
+    assert envelope_growth(synthetic(t, np.full_like(t, 0.01)), bound).ratio == 1.0
+    at_limit = envelope_growth(synthetic(t, GROWTH ** (t / 2.5)), bound)
+    assert at_limit.ratio == pytest.approx(GROWTH, rel=1e-12) and not at_limit.growing
+    assert envelope_growth(synthetic(t, (1.01 * GROWTH) ** (t / 2.5)), bound).growing
+
+
+def test_a_latency_where_the_linearised_loop_is_unstable_does_not_hold_though_its_run_does(default_case):
+    """At 146 ms on the default over 4 s (73 control periods; fact 14's linear margin is 140 ms)
+    the sampled loop linearised at rest is unstable (rho > 1): the point does not hold, for that
+    reason, although its run alone is within the tracking bound (the slow instability a short
+    horizon hides: the search on the 10 s horizon alone found 144 ms)."""
+    case, bound, linear = default_case
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["simulation"]["duration"] = 4.0
+    short = case.with_scenario(Scenario.model_validate(data))
+    point = trial(short, "latency", 0.146, bound, linear)
+    assert linear.rho("latency", 0.146) > 1
+    assert not point["holds"] and "unstable at this value (fact 14: rho = 1.00" in point["detail"], point
+    assert point["linear"] == {"rho": linear.rho("latency", 0.146), "stable": False}
+    # the run alone holds by judge (a growth check is made only on such a run), on its own horizon
+    assert point["growth"] is not None and point["horizons"] == [4.0]
+    assert "its run over 4 s: tracking error" in point["detail"] and ">" not in point["detail"].split("; ")[1]
+
+
+@pytest.mark.slow
+def test_a_slowly_growing_error_is_run_longer_until_it_is_judged(default_case):
+    """Without fact 14's check (as where it does not apply) the steady-state check alone: at
+    146 ms the 10 s run is within the bound but its envelope grows (the last quarter's peak
+    more than ``GROWTH`` times that over the half before), so the horizon doubles, and over 20 s the error
+    leaves the bound: does not hold, on the 20 s run; the record keeps both horizons. The
+    scenario's own run (20 ms) is steady on its 10 s horizon: not run longer."""
+    case, bound, _ = default_case
+    point = trial(case, "latency", 0.146, bound)
+    assert not point["holds"] and point["horizons"] == [10.0, 20.0] and point["horizon"] == 20.0, point
+    assert point["detail"].startswith("tracking error") and point["linear"] == {"rho": None, "stable": None}
+    first = with_value(case.loop, case.settings, "latency", 0.146)
+    run = as_implemented(case.loop, first).run(case.s0)
+    assert judge(run, case.loop, first, bound)[0] and envelope_growth(run, bound).growing
+    assert HORIZONS[-1] * case.settings.duration >= 20.0
+    own = trial(case, "latency", case.settings.implementation.latency, bound)
+    assert own["holds"] and own["horizons"] == [10.0] and not own["growth"]["growing"], own
+
+
+@pytest.mark.slow
+def test_the_measured_latency_and_camera_margins_never_pass_the_linear_ones(default_case):
+    """On the default, the measured latency margin is at most fact 14's linear margin (140 ms)
+    and the measured camera-rate margin at least its (8.065 Hz), and so is the last point judged
+    to hold (not merely clipped): each point beyond them judged not holding; the margin record
+    says it was checked (the search on the scenario's 10 s horizon alone found 144 ms)."""
+    case, bound, linear = default_case
+    for name, worse in (("latency", 1), ("camera_rate", -1)):
+        margin = search(case, name, bound, linear=linear)
+        lin = linear.margins[name]
+        assert worse * margin["value"] <= worse * lin["stable_at"], (name, margin)
+        assert worse * margin["holds_at"] <= worse * lin["stable_at"], (name, margin)  # not merely clipped
+        assert margin["linear"]["checked"] and margin["holds_run"]["linear"]["stable"], margin
+        assert margin["breaks_run"]["linear"]["rho"] is not None
+
+
+def test_a_measured_margin_beyond_the_linear_one_is_clipped_to_it():
+    """The clipping rule on a UR3-like record: a measured 152 ms latency margin against a linear
+    130 ms is reported as 130 ms, clipped, saying so; 120 ms stays; a camera rate is clipped from
+    below; a search that holds over its whole range is clipped to a linear margin inside it;
+    parameters fact 14 has no margin for, and loops it does not apply to, are not checked."""
+    margins = {"latency": {"value": 0.13, "stable_at": 0.13, "unstable_at": 0.132, "range": [0.02, 0.25]},
+               "camera_rate": {"value": 10.0, "stable_at": 10.0, "unstable_at": 9.8, "range": [60.0, 1.0]}}  # fmt: skip
+    linear = LinearCheck(None, margins, None)
+    clipped = linear_statement("latency", 0.152, linear)
+    assert clipped["clipped"] and clipped["value"] == 0.13 and "clipped to it" in clipped["statement"]
+    assert linear_statement("latency", 0.12, linear) | {"statement": ""} == {
+        "checked": True, "linear_margin": 0.13, "value": 0.12, "clipped": False, "statement": ""}  # fmt: skip
+    assert linear_statement("camera_rate", 8.0, linear)["value"] == 10.0
+    assert linear_statement("camera_rate", 12.0, linear)["value"] == 12.0
+    assert linear_statement("latency", None, linear)["value"] == 0.13
+    for name, check in (("pixel_noise", linear), ("latency", LinearCheck(None, None, "does not apply: n = 7"))):
+        record = linear_statement(name, 3.0, check)
+        assert not record["checked"] and record["value"] == 3.0
+        assert record["statement"].startswith("not checked against a linear margin")
+
+
+def test_a_linear_margin_stable_over_the_whole_range_reads_as_such():
+    """Fact 14's line when a margin is stable throughout its searched range: the range's end in
+    words, not "<= none in range"."""
+    margin = lambda value, end: {"value": value, "stable_at": end, "unstable_at": None, "range": [0, end]}  # noqa: E731
+    record = {"rho": 0.9, "certified": True, "reason": None, "rate": 1.0, "period": 0.05, "lyapunov_margin": 1.0,
+              "margins": {"latency": margin(None, 0.25), "camera_rate": margin(None, 1.0),
+                          "control_rate": margin(47.0, 10.0)}}  # fmt: skip
+    text = implemented_text(record)
+    assert "none in range" not in text
+    assert "latency stable throughout the searched range up to 250 ms" in text
+    assert "camera stable throughout the searched range down to 1 Hz" in text and "control >= 47 Hz" in text
+
+
+def test_the_payload_range_scales_with_the_arms_mass(default_case):
+    """The payload's searched range ends at ``PAYLOAD_FACTOR`` times the URDF's total link mass
+    (against adam's total mass of the same URDF: 20.99 kg on the UR5)."""
+    case = default_case[0]
+    total = float(case.loop.robot._kindyn.get_total_mass())
+    end = range_end("payload_mass", case.loop, case.settings)
+    assert end == pytest.approx(PAYLOAD_FACTOR * total, rel=1e-12) and 20 < total < 22
+
+
+def test_the_campaign_tolerance_line_prints_its_bounds():
+    """The campaign's tolerance line states the order statistic's values (position, angle,
+    tracking ratio), not only the sentence; too few runs: the sentence alone."""
+    tolerance = {"quantile": 0.9, "confidence": 0.95, "rank": 279, "tracking_position": 0.0399,
+                 "tracking_angle_deg": 6.53, "tracking_ratio": 1.098, "statement": "with 95% confidence ...",
+                 "note": "runs that did not complete count as an infinite tracking error"}  # fmt: skip
+    text = tolerance_text(tolerance)
+    assert text.startswith("with 95% confidence ...: ")
+    assert "position <= 0.0399 m" in text and "angle <= 6.53 deg" in text and "tracking ratio <= 1.098" in text
+    few = {**tolerance, "rank": None, "statement": "2 runs are too few to bound the 90% quantile at 95%"}
+    assert tolerance_text(few) == few["statement"]
+
+
+@pytest.mark.slow
+def test_replaying_a_failed_campaign_run_reports_the_failure_and_exits_1(tmp_path):
+    """A campaign run that completes but fails the criterion (the mount tilted 0.15-0.2 rad: the
+    torque exceeds the effort limits, 2 s runs) replayed by ``dvfc simulate --campaign-run 0``:
+    exit 1 (a failing check, docs/cli.md), the campaign dataset's reason on standard error, and
+    ``campaign_row.holds`` false, as the campaign recorded it."""
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["simulation"]["duration"] = 2.0
+    data["dispersion"] = {"plant.mount.rpy": {"dist": "uniform", "low": [0.15, 0.0, 0.0], "high": [0.2, 0.0, 0.0]}}
+    path = tmp_path / "tilted.toml"
+    path.write_text(tomli_w.dumps(data))
+    case = Case.load(path)
+    run_campaign(CampaignSpec.of(case, tracking_bound(case)), tmp_path / "campaign", 1)
+    recorded = read_runs(tmp_path / "campaign").to_pylist()[0]
+    assert not recorded["holds"] and recorded["status"] == "ok", recorded
+    result = CliRunner().invoke(app, ["simulate", str(path), "--campaign-run", "0", "--out", str(tmp_path / "r"),
+                                      "--json", "-"])  # fmt: skip
+    assert result.exit_code == 1, result.output
+    assert f"campaign run 0: FAILS by the margins criterion ({recorded['reason']})" in result.stderr
+    row = json.loads(result.stdout)["campaign_row"]
+    assert row["holds"] is False and row["reason"] == recorded["reason"]
