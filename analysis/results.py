@@ -29,7 +29,15 @@ from dvfc.analysis.certify import (
 )
 from dvfc.analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
-from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
+from dvfc.analysis.envelope import (
+    GridEnvelope,
+    design_of,
+    disturbance_bounds,
+    envelope,
+    grid_envelope,
+    start_storage,
+    stated,
+)
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.linearize import MARGINAL_POLES, linearize, sharpest_from_rest
 from dvfc.analysis.multirate import implemented_record
@@ -281,15 +289,11 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
     disturbance = disturbance_bounds(section, loop)
     env = envelope(design, loop.camera, disturbance, start_storage(loop, case.s0), theta, search=search)
     mass = loop.robot.mass_bounds
+    if loop.plan is not None:  # docs/math.md, fact 16b: the planned reference's start decides
+        env = stated(env, planned_start(design, loop.camera, disturbance, env, loop.plan))
+    elif loop.ramp is not None:  # fact 16a: the ramp's bound from t = 0 decides
+        env = stated(env, ramp_start(design, loop.camera, disturbance, env, loop.ramp))
     record = env.as_dict()
-    if loop.plan is not None:  # docs/math.md, fact 16b: the start statement of the planned reference
-        record["start"] = planned_start(design, loop.camera, disturbance, env, loop.plan)
-    elif loop.ramp is not None:  # fact 16a: the ramp's bound from t = 0
-        record["start"] = ramp_start(design, loop.camera, disturbance, env, loop.ramp)
-    if record["start"]["method"] != "constant" and record["start"]["inside"]:
-        record["statement"] = record["start"]["statement"]
-        if record["start"].get("boxes_px") is not None:  # the figure's regions: those of the whole run
-            record["boxes_px"] = record["start"]["boxes_px"]
     return {
         **record,
         "m_hi_method": mass.method_hi,
