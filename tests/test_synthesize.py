@@ -20,7 +20,7 @@ from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify, exact_gamma
 from dvfc.analysis.cli import app
 from dvfc.analysis.envelope import DisturbanceBounds, design_of, envelope
-from dvfc.analysis.results import logged_runs, speed_theta_bar
+from dvfc.analysis.results import speed_theta_bar
 from dvfc.analysis.scenario import build, load
 from dvfc.analysis.synthesize import (
     FEASIBLE_STEPS,
@@ -28,6 +28,7 @@ from dvfc.analysis.synthesize import (
     TARGET_MARGIN,
     Bounds,
     Synthesis,
+    logged_runs,
     rounded,
     scaled,
     scenario_text,
