@@ -7,6 +7,8 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import shutil
+import tomllib
 from dataclasses import astuple
 from pathlib import Path
 
@@ -14,13 +16,15 @@ import casadi as cs
 import numpy as np
 import pytest
 import tomli_w
+import yaml
 from typer.testing import CliRunner
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify, exact_gamma
 from dvfc.analysis.cli import app
 from dvfc.analysis.envelope import DisturbanceBounds, design_of, envelope
-from dvfc.analysis.results import speed_theta_bar
+from dvfc.analysis.multirate import implemented_record
+from dvfc.analysis.results import envelope_record, speed_theta_bar
 from dvfc.analysis.scenario import build, load
 from dvfc.analysis.synthesize import (
     FEASIBLE_STEPS,
@@ -36,6 +40,7 @@ from dvfc.analysis.synthesize import (
     synthesize,
     synthesize_speed,
 )
+from dvfc.analysis.windows import HOLD_MARGIN, case_windows
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
@@ -337,3 +342,92 @@ def test_target_speed_design_respecting_limits_runs_within_them(tmp_path):
     record = json.loads(result.stdout)
     assert not record["limit_search"]["trials"][0]["within"] and _worst(record["limits"]) <= 1
     assert record["max_target_speed"] is not None
+
+
+CALIBRATION = {"image_width": 1280, "image_height": 1024, "camera_name": "cell", "distortion_model": "plumb_bob",
+               "camera_matrix": {"rows": 3, "cols": 3, "data": [800.0, 0, 640.0, 0, 800.0, 512.0, 0, 0, 1]},
+               "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0.0] * 5}}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def windowed(tmp_path_factory):
+    """``synthesize`` on the light wrist (``tests/data/light_wrist6.urdf``, 500 Hz hold) with wrist 3's
+    ``[performance]`` weights 0.5, its URDF and camera calibration named relative to the scenario
+    (``src/arm``, ``src/cam``), written to another folder (``out/deep``). The synthesis before the
+    windows' constraint put wrist 3 at ``k_xi = 0.4867``, above its hold limit 0.4852 (``pose`` warned).
+    Returns the folder, the JSON record, the human output and the written file."""
+    tmp = tmp_path_factory.mktemp("windowed")
+    (tmp / "src" / "arm").mkdir(parents=True)
+    (tmp / "src" / "cam").mkdir()
+    shutil.copy(Path(__file__).parent / "data" / "light_wrist6.urdf", tmp / "src" / "arm" / "light.urdf")
+    (tmp / "src" / "cam" / "cam.yaml").write_text(yaml.safe_dump(CALIBRATION))
+    data = tomllib.loads((EXAMPLES / "ur5_circle.toml").read_text())
+    data["simulation"].update(duration=0.05, jit=False)
+    data["robot"].pop("model")
+    data["robot"]["urdf"] = "arm/light.urdf"
+    data["camera"] = {"calibration": "cam/cam.yaml"}
+    light = [1.0] * 5 + [0.5]
+    data["performance"] = {"output": {"xi": light}, "disturbance": {"tau_d": light}}
+    (tmp / "src" / "s.toml").write_text(tomli_w.dumps(data))
+    target = tmp / "out" / "deep" / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(tmp / "src" / "s.toml"), "--out", str(target), "--json",
+                                 str(tmp / "syn.json")], env={"COLUMNS": "400"})  # fmt: skip
+    assert result.exit_code == 0 and target.exists(), result.output
+    return tmp, json.loads((tmp / "syn.json").read_text()), result.stdout, target
+
+
+@pytest.mark.slow
+def test_every_synthesized_gain_lies_inside_its_window_with_margin_and_pose_warns_of_nothing(windowed):
+    """docs/math.md, "Gain windows": each ``k_xi,i`` of the written design, its windows computed
+    afresh from the written file (``M(q0)`` of its URDF, 500 Hz), lies in ``[1.1 lower, 0.8 upper]``,
+    and ``dvfc pose`` on that file prints no warning."""
+    _, _, _, target = windowed
+    windows = case_windows(Case.load(target))
+    assert np.all(windows.k_xi >= 1.1 * windows.lower)
+    assert np.all(windows.k_xi <= 0.8 * windows.upper)
+    assert windows.held <= 0.8 * (2 - HOLD_MARGIN)
+    result = runner.invoke(app, ["pose", str(target)])
+    assert result.exit_code == 0 and "warning" not in result.stderr, result.stderr
+
+
+@pytest.mark.slow
+def test_the_written_design_passes_the_sampled_loops_certificate_with_margin(windowed):
+    """Fact 14 on the written design, recomputed from its file (the multirate monodromy, not the
+    synthesis' record): ``rho <= 0.99`` and the linear control-rate margin at most 0.8 of 500 Hz."""
+    _, _, _, target = windowed
+    case = Case.load(target)
+    record = implemented_record(case.loop, case.s0, case.settings)
+    assert record["certified"] and record["rho"] <= 0.99
+    control = record["margins"]["control_rate"]
+    assert control["value"] is None or control["value"] <= 0.8 * 500.0
+
+
+@pytest.mark.slow
+def test_synthesize_says_when_the_written_design_loses_the_start_certificate(windowed):
+    """Fact 16b: the scenario's own (isotropic) ``K_c`` certifies its planned start; the synthesised
+    ``K_c`` is unequal across axes, so the written design's start is not certified, which the JSON
+    and the human output of ``synthesize`` state (and ``certify`` of the written file agrees)."""
+    _, record, text, target = windowed
+    assert np.ptp(record["point"]["gains"]["k_c"]) > 0
+    start = record["start"]
+    assert start["original_certified"] and not start["written_certified"] and start["lost"]
+    assert "START NOT CERTIFIED" in text and "K_c is not isotropic" in text
+    assert envelope_record(Case.load(target), search=False)["start"]["inside"] is False
+
+
+@pytest.mark.slow
+def test_the_written_scenario_names_its_files_relative_to_itself_and_loads_after_moving(windowed, tmp_path):
+    """The URDF and the calibration are written the same way, relative to the written file's folder;
+    moved with its data (the whole folder elsewhere), the file loads with the same URDF and camera."""
+    tmp, _, _, target = windowed
+    written = tomllib.loads(target.read_text())
+    assert written["robot"]["urdf"] == "../../src/arm/light.urdf"
+    assert written["camera"]["calibration"] == "../../src/cam/cam.yaml"
+    moved = tmp_path / "moved"
+    shutil.copytree(tmp, moved)
+    calibration = {**CALIBRATION, "camera_matrix": {"rows": 3, "cols": 3,
+                                                    "data": [810.0, 0, 640.0, 0, 810.0, 512.0, 0, 0, 1]}}
+    (moved / "src" / "cam" / "cam.yaml").write_text(yaml.safe_dump(calibration))  # which copy is read
+    case = Case.load(moved / "out" / "deep" / "syn.toml")
+    assert case.loop.robot.urdf == (moved / "src" / "arm" / "light.urdf").resolve()
+    assert case.loop.camera.focal_length == 810.0
