@@ -32,15 +32,15 @@ from dvfc.analysis.synthesize import (
     TARGET_MARGIN,
     Bounds,
     Synthesis,
+    designer,
     logged_runs,
-    rounded,
     scaled,
     scenario_text,
     search_within_limits,
     synthesize,
     synthesize_speed,
 )
-from dvfc.analysis.windows import HOLD_MARGIN, case_windows
+from dvfc.analysis.windows import HOLD_MARGIN, case_window_spec, case_windows
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
@@ -307,9 +307,11 @@ def test_the_next_bracket_point_above_the_chosen_design_exceeds_a_limit(limited,
     assert search["exceeds_at"] == pytest.approx(search["alpha"] + step)
     spec, _ = load(written)
     box = scaled(LIMITS_BOUNDS, search["exceeds_at"])
-    above = rounded(synthesize(WEIGHTS, spec.reference.se3(), 6, box), spec.reference.se3(), box)
+    windows = case_window_spec(Case.load(written))  # the search's synthesis: the same SDP, the same windows
+    above = designer(WEIGHTS, spec.reference.se3(), 6, theta_max=math.pi, windows=windows)(box)
     scenario = tmp_path / "above.toml"
-    scenario.write_text(scenario_text(written.read_text(), above.point, name="above", weights=False, urdf=None))
+    scenario.write_text(scenario_text(written.read_text(), above.point, name="above", weights=False,
+                                      source=written.parent, target=scenario))
     result = runner.invoke(app, ["simulate", str(scenario), "--out", str(tmp_path / "run"), "--json", "-"])
     summary = json.loads(result.stdout)
     assert result.exit_code == 1 or _worst(summary["limits"]) > 1
