@@ -771,7 +771,7 @@ def _show_limit_search(record: dict) -> None:
         f"[{search['bracket'][0]:.4g}, 1]; criterion: {search['criterion']}.\n{search['statement']}.\n"
         f"unconstrained optimum (alpha = 1): certified gamma {fmt(top['gamma'])}, peak |tau| / effort limit "
         f"{fmt(top['torque_commanded_ratio'])}, peak |qd| / velocity limit {fmt(top['speed_ratio'])} "
-        f"({top['status']})",
+        f"({top['status']}{'; ' + top['sampled'] if top.get('sampled') else ''})",
         markup=False,
         soft_wrap=True,
     )

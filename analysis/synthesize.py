@@ -582,7 +582,7 @@ def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
         gamma = None if t.synthesis.certificate is None else t.synthesis.certificate.gamma
         return {"alpha": t.alpha, "gamma": gamma, "status": run.get("status", t.synthesis.status),
                 "torque_commanded_ratio": worst("torque_commanded_ratio"), "speed_ratio": worst("speed_ratio"),
-                "within": t.within}  # fmt: skip
+                "sampled": run.get("sampled"), "within": t.within}  # fmt: skip
 
     chosen, exceeds = search.chosen, search.exceeds
     if chosen is None:
@@ -595,7 +595,7 @@ def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
                  "[synthesize] bounds")  # fmt: skip
     return {
         "family": FAMILY,
-        "criterion": LIMITS_CRITERION,
+        "criterion": f"{LIMITS_CRITERION}; and {SAMPLED_CRITERION}",
         "bracket": [search.lowest, 1.0],
         "resolution": None if chosen is None or exceeds is None else exceeds.alpha - chosen.alpha,
         "alpha": None if chosen is None else chosen.alpha,

@@ -40,7 +40,7 @@ from dvfc.analysis.synthesize import (
     synthesize,
     synthesize_speed,
 )
-from dvfc.analysis.windows import HOLD_MARGIN, case_window_spec, case_windows
+from dvfc.analysis.windows import HOLD_MARGIN, WindowSpec, case_window_spec, case_windows
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
@@ -92,6 +92,24 @@ def test_gamma_target_gives_smallest_gains(result):
     assert reached.certificate.certified and reached.certificate.gamma <= target
     norm = lambda p: np.linalg.norm(np.r_[p.k_xi, p.k_c, p.k_e])  # noqa: E731
     assert norm(reached.point) < norm(result.point)
+
+
+def test_the_sdp_keeps_every_gain_inside_its_window_with_margin():
+    """docs/math.md, "Gain windows": on a light arm (``M`` with eigenvalues 0.005-0.013 kg m^2) held at
+    500 Hz, the fact-6 SDP alone puts ``k_xi = 17`` on every joint, a held map with ``h lambda_max(M^-1
+    K_xi) = 7.0``, far past 2 (diverges); with the windows, ``h lambda_max`` (numpy's eigenvalues of
+    ``M^-1 K_xi``, not the LMI) is at most ``0.8 x 1.95``, every gain at most 0.8 of its hold limit (by
+    bisection, :func:`dvfc.analysis.windows.hold_limits`) and at least 1.1 x 1/2, at the same gamma."""
+    a = np.random.default_rng(0).normal(size=(6, 6))
+    mass = 0.0008 * (a @ a.T + 6 * np.eye(6))
+    spec = WindowSpec(mass, 500.0, None)
+    held = lambda k: np.linalg.eigvals(np.linalg.solve(mass, np.diag(k))).real.max() / 500.0  # noqa: E731
+    free, kept = (synthesize(WEIGHTS, REFERENCE, 6, BOUNDS, windows=w) for w in (None, spec))
+    assert held(free.point.k_xi) > 2.0
+    assert held(kept.point.k_xi) <= 0.8 * (2 - HOLD_MARGIN) * (1 + 1e-7)
+    windows = spec.of(kept.point.k_xi)
+    assert np.all(kept.point.k_xi <= 0.8 * windows.upper * (1 + 1e-7)) and np.all(kept.point.k_xi >= 1.1 * 0.5)
+    assert kept.certificate.gamma == pytest.approx(free.certificate.gamma, rel=1e-6)
 
 
 def test_unreachable_target_is_reported():
@@ -433,3 +451,25 @@ def test_the_written_scenario_names_its_files_relative_to_itself_and_loads_after
     case = Case.load(moved / "out" / "deep" / "syn.toml")
     assert case.loop.robot.urdf == (moved / "src" / "arm" / "light.urdf").resolve()
     assert case.loop.camera.focal_length == 810.0
+
+
+@pytest.mark.slow
+def test_no_design_of_the_family_passing_fact_14_with_margin_is_refused_in_one_line(tmp_path):
+    """The default example with a 120 ms latency and ``[synthesize]`` lower bounds ``k_c >= 8``,
+    ``k_e >= 30``: the SDP's design is certified for the ideal loop, but its sampled loop is not
+    (fact 14, ``rho > 1``), so the family of smaller boxes is searched a posteriori; its smallest
+    design is not certified either. Exit 1, nothing written, one status line saying what limits it."""
+    data = tomllib.loads((EXAMPLES / "ur5_circle.toml").read_text())
+    data["simulation"].update(duration=0.05, jit=False)
+    data["implementation"]["latency"] = 0.12
+    data["synthesize"] = {"k_c": [8.0, 20.0], "k_e": [30.0, 50.0]}
+    path = tmp_path / "late.toml"
+    path.write_text(tomli_w.dumps(data))
+    target = tmp_path / "out" / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(path), "--out", str(target), "--json", "-"])
+    record = json.loads(result.stdout)
+    assert result.exit_code == 1 and not target.exists() and record["point"] is None
+    assert record["limit_search"]["trials"][0]["sampled"].startswith("the loop as implemented is not certified")
+    status = record["status"]
+    assert "\n" not in status and status.startswith("no design within the limits: the family's smallest certified "
+                                                    "design (alpha = 0) falls short of the sampled loop's margins")
