@@ -583,7 +583,7 @@ def synthesize_command(
     ] = None,
     json_target: JsonOpt = None,
     resume: Annotated[
-        bool, typer.Option(help="Reuse the runs of an interrupted limits search ([synthesize] respect_limits).")
+        bool, typer.Option(help="Reuse the runs of an interrupted limits search.")
     ] = False,
 ) -> None:
     """Choose diagonal gains within the [synthesize] bounds that minimise the certified gamma
@@ -592,7 +592,6 @@ def synthesize_command(
     start = time.perf_counter()
     case = load_case(scenario)
     spec, n = case.scenario, case.loop.robot.n
-    cfg = spec.synthesize
     if spec.loop != "paper" or n < 6:
         raise fail(f"loop: gain synthesis is for the paper's loop with n >= 6 joints (this is {spec.loop}, n = {n})")
     check_json_target(json_target)
@@ -603,8 +602,8 @@ def synthesize_command(
     except ScenarioError as exc:
         raise fail(str(exc)) from exc
     log = target.with_name(target.name + ".runs.jsonl")  # the limits search's runs, for --resume
-    if resume and not (cfg.respect_limits and log.exists()):
-        raise fail(f"--resume: no limits search to resume ({log} not found; needs [synthesize] respect_limits)")
+    if resume and not log.exists():
+        raise fail(f"--resume: no limits search to resume ({log} not found)")
     with (
         resumable(f"dvfc synthesize {scenario} --out {target} --resume"),
         err.status("synthesising the gains") as status,
