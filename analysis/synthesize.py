@@ -305,20 +305,29 @@ def _round(values: np.ndarray, digits: int) -> np.ndarray:
     return np.array([float(f"{v:.{digits}g}") for v in values])
 
 
+def _round_down(values: np.ndarray, digits: int) -> np.ndarray:
+    """``values`` (positive) to ``digits`` significant figures, toward zero: no entry grows, so upper
+    bounds hold, and a diagonal ``K_xi`` below the hold LMI stays below it (:meth:`WindowSpec.synthesis_hold`)."""
+    nearest = _round(values, digits)
+    step = 10.0 ** (np.floor(np.log10(values)) - digits + 1)
+    return np.where(nearest <= values, nearest, _round(nearest - step, digits))
+
+
 def rounded(
     result: Synthesis, reference: SE3, bounds: Bounds, *, gamma_target: float | None = None, theta_max: float = math.pi,
     windows: WindowSpec | None = None,
 ) -> Synthesis:
     """The synthesised gains rounded to the fewest significant figures (3 to 8) that stay within
-    the bounds and the ``windows`` with their margins (:meth:`GainWindows.outside_margins`) and
-    certify again, by the ordinary certifier, at a gamma meeting the target (or within 0.1% of the
-    unrounded one): a file shows ``20`` where the solver gave ``19.99999997``, and its certificate
-    is that of the values written."""
+    the bounds and the ``windows`` with their margins (:meth:`GainWindows.outside_margins`; where the
+    nearest values break them, the values rounded toward zero) and certify again, by the
+    ordinary certifier, at a gamma meeting the target (or within 0.1% of the unrounded one): a file
+    shows ``20`` where the solver gave ``19.99999997``, and its certificate is that of the values
+    written."""
     if result.point is None:
         return result
     p, limit = result.point, gamma_target or result.certificate.gamma * 1.001
-    for digits in range(3, 9):
-        gains = [_round(v, digits) for v in (p.k_xi, p.k_c, p.k_e)]
+    for digits, rounder in itertools.product(range(3, 9), (_round, _round_down)):
+        gains = [rounder(v, digits) for v in (p.k_xi, p.k_c, p.k_e)]
         inside = all(np.all((g >= lo) & (g <= hi)) for g, (lo, hi) in zip(gains, (bounds.k_xi, bounds.k_c, bounds.k_e),
                                                                           strict=True))  # fmt: skip
         inside = inside and (windows is None or not windows.of(gains[0]).outside_margins())

@@ -34,6 +34,7 @@ from dvfc.analysis.synthesize import (
     Synthesis,
     designer,
     logged_runs,
+    rounded,
     scaled,
     scenario_text,
     search_within_limits,
@@ -83,6 +84,19 @@ def test_no_grid_point_in_bounds_certifies_smaller_gamma(result):
     ):
         point = GainPoint(np.full(6, k_xi), np.full(6, k_c), np.repeat([k_ep, k_er], 3), WEIGHTS)
         assert exact_gamma(point, REFERENCE, np.eye(3))[0] >= best
+
+
+def test_gains_on_an_upper_bound_round_toward_zero_to_three_figures():
+    """The rounding (docs/cli.md): on the box ``scaled(BOUNDS, 0.95)`` the optimum puts ``k_c`` on its
+    upper end 4.45625, whose nearest 3 figures (4.46) leave the box (the nearest rounding needs 4:
+    4.456); rounded toward zero the file gets 3 figures (4.45) within the box, certified within 0.1%
+    of the unrounded gamma."""
+    box = scaled(BOUNDS, 0.95)
+    solved = synthesize(WEIGHTS, REFERENCE, 6, box)
+    kept = rounded(solved, REFERENCE, box)
+    for values, (_, hi) in ((kept.point.k_c, box.k_c), (kept.point.k_e, box.k_e)):
+        assert np.all(values <= hi) and all(float(f"{v:.3g}") == v for v in values)
+    assert kept.certificate.gamma <= solved.certificate.gamma * 1.001
 
 
 def test_gamma_target_gives_smallest_gains(result):
