@@ -181,7 +181,8 @@ def synthesize(
         scales = (0.25, 0.5, 1.0, 2.0, 4.0)
         base = weights.as_array()
         candidates = [Weights(*(base * np.array(c))) for c in itertools.product(scales, repeat=4)]
-    best: Synthesis = Synthesis(None, None, "infeasible: no gains within the bounds certify", len(candidates))
+    where = "the bounds" if windows is None else "the bounds and the gain windows (with the synthesis' margins)"
+    best: Synthesis = Synthesis(None, None, f"infeasible: no gains within {where} certify", len(candidates))
     for w in candidates:
         gains = _sdp(w, reference, n, bounds, gamma_target, plant, windows)
         if gains is None:
@@ -230,6 +231,18 @@ def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, mas
     return cp.Problem(cp.Maximize(kappa), constraints), s, kappa, (k_xi, k_c, k_ep, k_er)
 
 
+def largest_positive(value: Callable[[float], float], top: float) -> float:
+    """The largest ``s`` in ``[0, top]`` with ``value(s) > 0``, to ``top / 2^FEASIBLE_STEPS``, by
+    bisection: ``kappa*(s)`` is concave with ``kappa*(0) > 0`` where any rate is, so the ``s`` with a
+    positive rate form an interval from 0. The hold LMI of the windows bounds ``K_xi`` jointly, so
+    the upper gains' ``s_limit`` is only an upper bound on that interval's end."""
+    lo, hi = 0.0, top
+    for _ in range(FEASIBLE_STEPS):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if value(mid) > 0 else (lo, mid)
+    return lo
+
+
 def synthesize_speed(
     weights: Weights,
     reference: SE3,
@@ -242,20 +255,22 @@ def synthesize_speed(
     plant: PlantWeights | None = None,
     windows: WindowSpec | None = None,
 ) -> Synthesis:
-    """Gains within ``bounds`` and the gain ``windows`` maximising the certified target speed of the envelope at
-    ``theta_bar`` (radians; MATH facts 7-8): ``max over s of s kappa*(s)``, ``kappa*(s)`` the
-    SDP of :func:`_speed_problem`.
+    """Gains within ``bounds`` and the gain ``windows`` maximising the certified target speed of
+    the envelope at ``theta_bar`` (radians; MATH facts 7-8): ``max over s of s kappa*(s)``,
+    ``kappa*(s)`` the SDP of :func:`_speed_problem`.
 
     ``kappa*`` is concave in ``s`` (the value of a convex program whose constraints are jointly
     linear in ``(s, gains, kappa)``), so ``log(s kappa*)`` is concave and its maximum lies in
     ``[s_top/2, s_top]`` (the tangent argument of :func:`dvfc.analysis.envelope.best_s`), ``s_top``
     the largest ``s`` with a positive rate: that of the upper gains, since ``N^T K N`` grows
-    with every gain. The result carries the ordinary Theorem 2 certificate over
-    ``|theta_ec| <= theta_max`` for ``plant`` (the envelope itself does not depend on the
-    generalized plant's weights); its envelope is computed by the ordinary route by the caller."""
+    with every gain (with the windows' hold LMI, found by :func:`largest_positive` below it). The
+    result carries the ordinary Theorem 2 certificate over ``|theta_ec| <= theta_max`` for
+    ``plant`` (the envelope itself does not depend on the generalized plant's weights); its
+    envelope is computed by the ordinary route by the caller."""
     upper = GainPoint(np.broadcast_to(bounds.k_xi[1], n), np.full(6, bounds.k_c[1]), np.full(6, bounds.k_e[1]), weights)
     top = s_limit(design_of(upper, reference, mass))
-    failed = Synthesis(None, None, "infeasible: no gains within the bounds give a positive decay rate")
+    where = "the bounds" if windows is None else "the bounds and the gain windows (with the synthesis' margins)"
+    failed = Synthesis(None, None, f"infeasible: no gains within {where} give a positive decay rate")
     if top <= 0:
         return failed
     problem, s, kappa, (k_xi, k_c, k_ep, k_er) = _speed_problem(weights, reference, n, bounds, mass, theta_bar, windows)
@@ -265,6 +280,8 @@ def synthesize_speed(
         solved = solve(problem)[0] is not None and kappa.value is not None
         return x * float(kappa.value) if solved else -math.inf
 
+    if windows is not None and windows.synthesis_hold() is not None:
+        top = largest_positive(value, top)
     best = float(golden_max(lambda x: np.array([value(float(v)) for v in x]), np.array([top]), GOLDEN_STEPS)[0])
     if value(best) <= 0:  # also leaves the solver's variables at the chosen s
         return failed

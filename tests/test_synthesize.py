@@ -86,6 +86,22 @@ def test_no_grid_point_in_bounds_certifies_smaller_gamma(result):
         assert exact_gamma(point, REFERENCE, np.eye(3))[0] >= best
 
 
+@pytest.mark.slow
+def test_the_target_speed_sdp_keeps_every_gain_inside_its_window_with_margin():
+    """The same windows in fact 7's SDP (:func:`synthesize_speed`, the UR5's mass bounds, the light
+    ``M(q0)`` above held at 500 Hz): alone it puts ``k_xi,1 = 16.6``, ``h lambda_max(M^-1 K_xi)``
+    past 2; with the windows at most ``0.8 x 1.95`` (numpy's eigenvalues), and a rate is certified."""
+    a = np.random.default_rng(0).normal(size=(6, 6))
+    mass = 0.0008 * (a @ a.T + 6 * np.eye(6))
+    held = lambda k: np.linalg.eigvals(np.linalg.solve(mass, np.diag(k))).real.max() / 500.0  # noqa: E731
+    case = Case.load(EXAMPLES / "ur5_circle.toml")
+    box = Bounds((1.0, 30.0), (0.5, 5.0), (0.5, 15.0))
+    free, kept = (synthesize_speed(WEIGHTS, case.reference, 6, box, case.loop.robot.mass_bounds, math.radians(10),
+                                   windows=w) for w in (None, WindowSpec(mass, 500.0, None)))  # fmt: skip
+    assert held(free.point.k_xi) > 2.0 and kept.status == "ok" and kept.certificate.certified
+    assert held(kept.point.k_xi) <= 0.8 * (2 - HOLD_MARGIN) * (1 + 1e-7)
+
+
 def test_gains_on_an_upper_bound_round_toward_zero_to_three_figures():
     """The rounding (docs/cli.md): on the box ``scaled(BOUNDS, 0.95)`` the optimum puts ``k_c`` on its
     upper end 4.45625, whose nearest 3 figures (4.46) leave the box (the nearest rounding needs 4:
