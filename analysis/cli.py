@@ -7,7 +7,6 @@ features lost), 2 bad input (one line on standard error naming the field).
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 import time
@@ -59,26 +58,17 @@ from dvfc.analysis.pose import initial_view, solution_record
 from dvfc.analysis.results import (
     certificate_result,
     channels_text,
-    design_recheck,
-    design_runner,
-    envelope_record,
     grid_envelope_for,
     grid_result,
-    limit_search_record,
-    logged_runs,
-    point_record,
     simulation_result,
-    speed_theta_bar,
-    synthesis_bounds,
     trajectory_arrays,
     verification_result,
 )
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, ScenarioError, auto_q0
-from dvfc.analysis.synthesize import designer, scenario_text, search_within_limits
+from dvfc.analysis.synthesize import logged_runs, synthesis_bounds, synthesis_record, synthesize_case
 from dvfc.analysis.tasks import run_tasks
 from dvfc.analysis.windows import case_windows
-from dvfc.models.loop import Weights
 
 app = typer.Typer(
     add_completion=False,
@@ -613,7 +603,7 @@ def synthesize_command(
     ] = None,
     json_target: JsonOpt = None,
     resume: Annotated[
-        bool, typer.Option(help="Reuse the runs of an interrupted limits search ([synthesize] respect_limits).")
+        bool, typer.Option(help="Reuse the runs of an interrupted limits search.")
     ] = False,
 ) -> None:
     """Choose diagonal gains within the [synthesize] bounds that minimise the certified gamma
@@ -621,91 +611,36 @@ def synthesize_command(
     maximise the envelope's certified target speed (facts 7-8); write them as a scenario."""
     start = time.perf_counter()
     case = load_case(scenario)
-    spec, loop = case.scenario, case.loop
-    n = loop.robot.n
-    cfg = spec.synthesize
+    spec, n = case.scenario, case.loop.robot.n
     if spec.loop != "paper" or n < 6:
         raise fail(f"loop: gain synthesis is for the paper's loop with n >= 6 joints (this is {spec.loop}, n = {n})")
     check_json_target(json_target)
     target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
     prepare_out_dir(target.parent)
     try:
-        bounds = synthesis_bounds(case)
+        synthesis_bounds(case)
     except ScenarioError as exc:
         raise fail(str(exc)) from exc
-    weights = Weights(**spec.weights.model_dump())
-    speed = cfg.objective == "target_speed"
-    theta = speed_theta_bar(case) if speed else None
-    design = designer(weights, spec.reference.se3(), n, theta_max=math.radians(spec.certify.theta_max_deg),
-                      gamma_target=cfg.gamma, search_weights=cfg.search_weights,
-                      speed=(loop.robot.mass_bounds, theta) if speed else None, plant=case.point.plant)  # fmt: skip
     log = target.with_name(target.name + ".runs.jsonl")  # the limits search's runs, for --resume
-    if resume and not (cfg.respect_limits and log.exists()):
-        raise fail(f"--resume: no limits search to resume ({log} not found; needs [synthesize] respect_limits)")
-    search = None
-    if cfg.respect_limits:
-        with (
-            resumable(f"dvfc synthesize {scenario} --out {target} --resume"),
-            err.status("searching for the best design within the arm's limits") as status,
-        ):
-            def show(text: str) -> None:
-                status.update(f"limits search: {text}")
-                if not err.is_terminal:
-                    err.print(f"limits search: {text}", markup=False, soft_wrap=True)
+    if resume and not log.exists():
+        raise fail(f"--resume: no limits search to resume ({log} not found)")
+    with (
+        resumable(f"dvfc synthesize {scenario} --out {target} --resume"),
+        err.status("synthesising the gains") as status,
+    ):
+        def show(text: str) -> None:
+            status.update(text)
+            if not err.is_terminal:
+                err.print(text, markup=False, soft_wrap=True)
 
-            run = logged_runs(design_runner(case), log, resume=resume)
-            search = search_within_limits(design, bounds, run, show)
-        log.unlink(missing_ok=True)  # the search is done: its runs are in the result
-        result = search.result
-    else:
-        with err.status("solving the gain-synthesis SDP" + ("s (golden section over s)" if speed else "")):
-            result = design(bounds)
-    objective = "minimise gamma" if cfg.gamma is None else f"smallest gains with gamma <= {cfg.gamma:g}"
-    record = {
-        "scenario": spec.name,
-        "status": result.status,
-        "objective": "maximise the certified target speed (facts 7-8)" if speed else objective,
-        "bounds": bounds.as_dict(),
-        "weights_tried": result.weights_tried,
-        "point": None if result.point is None else point_record(result.point, result.certificate),
-        "region": None if result.certificate is None else result.certificate.region,
-        "scenario_file": None,
-        "seconds": time.perf_counter() - start,
-        "provenance": command_provenance(scenario),
-    }
-    if speed:
-        record["synthesis_theta_bar_deg"] = math.degrees(theta)
-        record["max_target_speed"] = None
-    if search is not None:
-        record["limit_search"] = limit_search_record(search, bounds)
-    if result.point is not None:
-        if search is not None:  # the chosen design's run in the search
-            record["limits"] = search.chosen.run
-        else:
-            with err.status("simulating the design against the arm's limits"):
-                record["limits"] = design_runner(case)(result.point)
-        with err.status("re-checking the design on the loop as implemented (fact 14)"):
-            record["implemented"], refused = design_recheck(case, result.point, record["limits"])
-        if refused is not None:
-            record["status"] = f"refused, nothing written: {refused}"
-            emit(record, None, json_target, show_synthesis)
-            raise typer.Exit(1)
-        urdf = str(loop.robot.urdf) if spec.robot.urdf is not None else None
-        text = scenario_text(Path(scenario).read_text(), result.point, name=f"{spec.name}-synthesized",
-                             weights=cfg.search_weights, urdf=urdf)  # fmt: skip
-        atomic_write(target, lambda h: h.write(text.encode()))
-        record["scenario_file"] = str(target)
-        if speed:  # re-certified by the ordinary route: the written file's own envelope
-            with err.status("certifying the written design's operating envelope"):
-                written = load_case(target)
-                env = envelope_record(written)
-            record["point"]["envelope"] = env
-            record["max_target_speed"] = env["max_target_speed"]
-            if env["max_target_speed"] is None:
-                record["status"] = f"uncertified: no target speed certified for the written design ({env['reason']})"
-        record["seconds"] = time.perf_counter() - start
+        done = synthesize_case(case, target, runs=lambda run: logged_runs(run, log, resume=resume), progress=show)
+    log.unlink(missing_ok=True)  # the search is done: its runs are in the result
+    if done.accepted:
+        atomic_write(target, lambda h: h.write(done.text.encode()))
+    record = synthesis_record(done, target if done.accepted else None, command_provenance(scenario),
+                              time.perf_counter() - start)  # fmt: skip
     emit(record, None, json_target, show_synthesis)
-    if result.point is None or (speed and record["max_target_speed"] is None):
+    if not done.accepted or (done.theta_bar is not None and record["max_target_speed"] is None):
         raise typer.Exit(1)
 
 
@@ -863,10 +798,15 @@ def show_synthesis(record: dict) -> None:
         line = (f"NOT CERTIFIED: {record['status']}" if speed is None
                 else f"certified max target speed = {speed:.6g} m/s ({p['envelope']['statement']})")  # fmt: skip
         out.print(line, markup=False, soft_wrap=True)
-    limits = record["limits"]
-    out.print(f"run of the design ({limits['status']}): peak |tau| / effort limit "
-              f"{_worst(limits['torque_commanded_ratio'])}, peak |qd| / velocity limit "
-              f"{_worst(limits['speed_ratio'])}", markup=False, soft_wrap=True)  # fmt: skip
+    limits = record.get("limits")
+    if limits is not None:
+        out.print(f"run of the design ({limits['status']}): peak |tau| / effort limit "
+                  f"{_worst(limits['torque_commanded_ratio'])}, peak |qd| / velocity limit "
+                  f"{_worst(limits['speed_ratio'])}", markup=False, soft_wrap=True)  # fmt: skip
+    if record.get("implemented") is not None:
+        out.print(implemented_text(record["implemented"]), markup=False, soft_wrap=True)
+    if (start := record.get("start")) is not None and start["lost"]:
+        out.print(f"START NOT CERTIFIED: {start['statement']}", markup=False, soft_wrap=True)
     _show_limit_search(record)
 
 
@@ -882,7 +822,7 @@ def _show_limit_search(record: dict) -> None:
         f"[{search['bracket'][0]:.4g}, 1]; criterion: {search['criterion']}.\n{search['statement']}.\n"
         f"unconstrained optimum (alpha = 1): certified gamma {fmt(top['gamma'])}, peak |tau| / effort limit "
         f"{fmt(top['torque_commanded_ratio'])}, peak |qd| / velocity limit {fmt(top['speed_ratio'])} "
-        f"({top['status']})",
+        f"({top['status']}{'; ' + top['sampled'] if top.get('sampled') else ''})",
         markup=False,
         soft_wrap=True,
     )

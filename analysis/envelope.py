@@ -579,7 +579,26 @@ def envelope(
     if search and env.visible is not None:
         _largest_bounds(env, design, camera, desired_features(camera, design.reference), decays(design, grid),
                         theta_bar)  # fmt: skip
-    env.statement = _statement(env)
+    env.statement = statement(env)
+    return env
+
+
+def stated(env: Envelope, start: dict) -> Envelope:
+    """The envelope with ``start`` as its start record, the one that decides whether the start is
+    inside the certified set, and its statement re-derived from that decision.
+
+    With a planned reference (docs/math.md, fact 16b) or a ramp of ``u_d`` (fact 16a) the loop from
+    ``t = 0`` is not the fixed-reference loop whose set ``V <= c_max`` the envelope's own test
+    ``V(0) <= c_max`` is about: the start's record (:mod:`dvfc.analysis.start`) decides, and the
+    envelope's statement, table and figure read it. When it certifies the start, its statement
+    (from ``t = 0``, along the whole run) and its regions are the envelope's."""
+    env = replace(env, start=start)
+    if start.get("method", "constant") != "constant" and start["inside"]:
+        env.statement = start["statement"]
+        if start.get("boxes_px") is not None:  # the figure's regions: those of the whole run
+            env.boxes = start["boxes_px"]
+        return env
+    env.statement = statement(env)
     return env
 
 
@@ -662,14 +681,17 @@ def _fields(d: DisturbanceBounds) -> dict:
             "derivation": d.derivation}  # fmt: skip
 
 
-def _statement(env: Envelope) -> str:
-    """One sentence saying what is certified and from when."""
+def statement(env: Envelope) -> str:
+    """One sentence saying what is certified and from when, from the decision of ``env.start``
+    (``inside``): a start not certified says why when its record does (``reason``)."""
     if env.rate is None:
         return "no envelope certified"
-    when = f"for all t >= 0 (the start V(0) = {env.start['V0']:.3g} is inside the certified set V <= {env.level:.3g})"
-    if not env.start["inside"]:
+    start = env.start
+    when = f"for all t >= 0 (the start V(0) = {start['V0']:.3g} is inside the certified set V <= {env.level:.3g})"
+    if not start["inside"]:
+        why = f"not certified: {start['reason']}" if start.get("reason") else "outside it"
         when = (f"ultimately, for runs that enter the certified set V <= {env.invariant_v:.3g} "
-                f"(the start V(0) = {env.start['V0']:.3g} is outside it)")  # fmt: skip
+                f"(the start V(0) = {start['V0']:.3g} is {why})")  # fmt: skip
     if env.visible is True:
         return f"every feature stays in the image {when}"
     if env.visible is False:

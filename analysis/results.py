@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import json
 import math
 import time
-from collections.abc import Callable
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -39,137 +37,19 @@ from dvfc.analysis.envelope import (
     friction_record,
     grid_envelope,
     start_storage,
+    stated,
 )
 from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import MARGINAL_POLES, linearize, sharpest_from_rest
 from dvfc.analysis.multirate import implemented_record
-from dvfc.analysis.output import append_log, read_log
-from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import Scenario, ScenarioError
+from dvfc.analysis.sampled import limit_record, robot_limits
+from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Settings, Trajectory, summary
 from dvfc.analysis.start import planned_start, ramp_start
-from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, excess, scaled, within_limits
 from dvfc.analysis.verify import Claim, verify
-from dvfc.analysis.windows import case_windows
-from dvfc.models.loop import ClosedLoop, Gains, Weights
-
-
-def design_runner(case: Case) -> Callable[[GainPoint], dict]:
-    """Runs of designs (gains and weights) of one case as implemented (its controller,
-    plant and image; each design runs once, so without compiling): for a design, the run's
-    status and, per joint, the peak torques and speed against the URDF's limits."""
-    loop, settings = case.loop, replace(case.settings, jit=False)
-    limits = robot_limits(loop, settings)
-
-    def run(point: GainPoint) -> dict:
-        designed = replace(loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
-        traj = as_implemented(designed, settings).run(case.s0)
-        return {"status": traj.status, "message": traj.message, **limit_record(traj, limits)}
-
-    return run
-
-
-def logged_runs(run: Callable[[GainPoint], dict], log: Path, *, resume: bool) -> Callable[[GainPoint], dict]:
-    """``run`` with every run appended to ``log`` (JSON lines: the design's gains and weights,
-    and the run's record) as it finishes; with ``resume`` the runs already in ``log`` are reused
-    for the same design (a line cut short by an interruption is ignored), otherwise ``log``
-    starts empty."""
-    if not resume:
-        log.unlink(missing_ok=True)
-    done = {entry["design"]: entry["run"] for entry in read_log(log)}
-
-    def logged(point: GainPoint) -> dict:
-        design = json.dumps([point.k_xi.tolist(), point.k_c.tolist(), point.k_e.tolist(), asdict(point.weights)])
-        if design not in done:
-            done[design] = run(point)
-            append_log(log, {"design": design, "run": done[design]})
-        return done[design]
-
-    return logged
-
-
-DEFAULT_K_XI = (1.0, 100.0)
-"""``[synthesize] k_xi`` where the gain windows have no upper limit (the continuous loop), and
-the cap on a hold limit: the former one interval for every joint."""
-
-
-def synthesis_bounds(case: Case) -> Bounds:
-    """The ``[synthesize]`` gain box of the case: ``k_xi`` per joint as given (one interval for
-    every joint, or one per joint: their number must be ``n``, else :class:`ScenarioError`
-    naming the field), or by default each joint's gain window
-    (:func:`dvfc.analysis.windows.case_windows`): ``[1, min(100, upper)]``, the lower end the
-    window's own when the hold limit is below 1."""
-    cfg, n = case.scenario.synthesize, case.loop.robot.n
-    if cfg.k_xi is not None and isinstance(cfg.k_xi[0], list):
-        if len(cfg.k_xi) != n:
-            raise ScenarioError(f"synthesize.k_xi: {len(cfg.k_xi)} intervals for {n} joints (give one, or one a joint)")
-        k_xi = tuple(np.array(b, dtype=float) for b in zip(*cfg.k_xi, strict=True))
-    elif cfg.k_xi is not None:
-        k_xi = tuple(np.full(n, b, dtype=float) for b in cfg.k_xi)
-    else:
-        windows = case_windows(case)
-        hi = np.full(n, DEFAULT_K_XI[1]) if windows.upper is None else np.minimum(windows.upper, DEFAULT_K_XI[1])
-        k_xi = (np.where(hi >= DEFAULT_K_XI[0], DEFAULT_K_XI[0], np.minimum(windows.lower, hi)), hi)
-    return Bounds(k_xi, tuple(cfg.k_c), tuple(cfg.k_e))
-
-
-def design_recheck(case: Case, point: GainPoint, run: dict) -> tuple[dict | None, str | None]:
-    """The a posteriori checks of a synthesised design before it is written: its fact-14 record
-    on the loop as implemented (None without an ``[implementation]``) and why it is refused
-    (None: accepted): fact 14 applies and does not certify it (``rho`` not below ``1 - margin``
-    or the Lyapunov check fails), or its run (``run``, a limit record) not within
-    :data:`dvfc.analysis.synthesize.LIMITS_CRITERION`."""
-    record = None
-    if case.settings.implementation is not None:
-        designed = replace(case.loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
-        record = implemented_record(designed, case.s0, case.settings)
-        if record["applies"] and not record["certified"]:
-            return record, f"the loop as implemented is not certified (fact 14): {record['reason']}"
-    if not within_limits(run):
-        return record, f"its run as implemented {excess(run)}"
-    return record, None
-
-
-def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
-    """The limits search of ``synthesize`` (JSON-ready): what was searched (family, bracket,
-    criterion, runs), the ``alpha`` chosen and its gain box, the run bounding it from above, the
-    unconstrained optimum's certified gamma, and every run with its certified gamma and worst
-    torque and speed ratios."""
-    top = search.trials[0]
-
-    def trial(t: Trial) -> dict:
-        run = t.run or {}
-        worst = lambda key: None if key not in run else max(run[key])  # noqa: E731
-        gamma = None if t.synthesis.certificate is None else t.synthesis.certificate.gamma
-        return {"alpha": t.alpha, "gamma": gamma, "status": run.get("status", t.synthesis.status),
-                "torque_commanded_ratio": worst("torque_commanded_ratio"), "speed_ratio": worst("speed_ratio"),
-                "within": t.within}  # fmt: skip
-
-    chosen, exceeds = search.chosen, search.exceeds
-    if chosen is None:
-        found = "no design of the family runs within the limits"
-    elif exceeds is None:
-        found = "the unconstrained optimum runs within the limits: nothing to search"
-    else:
-        found = (f"alpha = {chosen.alpha:.4g} is the largest found within the limits (alpha = {exceeds.alpha:.4g} "
-                 "exceeds them): the best design found by bisection in this family, not a global optimum over the "
-                 "[synthesize] bounds")  # fmt: skip
-    return {
-        "family": FAMILY,
-        "criterion": LIMITS_CRITERION,
-        "bracket": [search.lowest, 1.0],
-        "resolution": None if chosen is None or exceeds is None else exceeds.alpha - chosen.alpha,
-        "alpha": None if chosen is None else chosen.alpha,
-        "exceeds_at": None if exceeds is None else exceeds.alpha,
-        "bounds": None if chosen is None else scaled(bounds, chosen.alpha).as_dict(),
-        "gamma_unconstrained": None if top.synthesis.certificate is None else top.synthesis.certificate.gamma,
-        "runs": search.runs,
-        "syntheses": search.syntheses,
-        "statement": found,
-        "trials": [trial(t) for t in search.trials],
-    }
+from dvfc.models.loop import ClosedLoop, Weights
 
 
 def simulation_result(case: Case, trajectory: Trajectory, outputs: dict[str, Path], provenance: dict,
@@ -294,15 +174,11 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
     disturbance = disturbance_bounds(section, loop)
     env = envelope(design, loop.camera, disturbance, start_storage(loop, case.s0), theta, search=search)
     mass = loop.robot.mass_bounds
+    if loop.plan is not None:  # docs/math.md, fact 16b: the planned reference's start decides
+        env = stated(env, planned_start(design, loop.camera, disturbance, env, loop.plan))
+    elif loop.ramp is not None:  # fact 16a: the ramp's bound from t = 0 decides
+        env = stated(env, ramp_start(design, loop.camera, disturbance, env, loop.ramp))
     record = env.as_dict()
-    if loop.plan is not None:  # docs/math.md, fact 16b: the start statement of the planned reference
-        record["start"] = planned_start(design, loop.camera, disturbance, env, loop.plan)
-    elif loop.ramp is not None:  # fact 16a: the ramp's bound from t = 0
-        record["start"] = ramp_start(design, loop.camera, disturbance, env, loop.ramp)
-    if record["start"]["method"] != "constant" and record["start"]["inside"]:
-        record["statement"] = record["start"]["statement"]
-        if record["start"].get("boxes_px") is not None:  # the figure's regions: those of the whole run
-            record["boxes_px"] = record["start"]["boxes_px"]
     if (friction := plant_friction(case)) is not None and not planar:  # docs/math.md, facts 18-19
         record["friction"] = friction_record(design, loop.camera, disturbance, start_storage(loop, case.s0), env,
                                              FrictionBound.of(friction, loop.compensation))  # fmt: skip

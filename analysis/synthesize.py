@@ -29,19 +29,30 @@ best design whose run as implemented stays within the URDF's effort and velocity
 from __future__ import annotations
 
 import itertools
+import json
 import math
+import os
+import tomllib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 
 import cvxpy as cp
 import numpy as np
 import tomlkit
 
+from dvfc.analysis.case import Case
 from dvfc.analysis.certify import Certificate, GainPoint, certify, estimation_scale, output_blocks, solve
 from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, pose_diagonal, s_limit
+from dvfc.analysis.multirate import implemented_record
+from dvfc.analysis.output import append_log, read_log
+from dvfc.analysis.results import envelope_record, point_record, speed_theta_bar
+from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.scenario import Scenario, ScenarioError
+from dvfc.analysis.windows import GainWindows, WindowSpec, case_window_spec, case_windows
 from dvfc.models.inertia import MassBounds
 from dvfc.models.lie import SE3
-from dvfc.models.loop import PlantWeights, Weights
+from dvfc.models.loop import Gains, PlantWeights, Weights
 
 TARGET_MARGIN = 1e-4
 """Relative margin below a gamma target that the synthesis aims at."""
@@ -61,6 +72,17 @@ LIMITS_CRITERION = (
     "limits (times torque_scale; commanded also with saturate on: a design whose law saturates does "
     "not run the loop its certificate is about) and |qd| within the velocity limits on every joint, "
     "along the run"
+)
+RHO_MAX = 0.99
+"""Fact 14 with margin: the monodromy's spectral radius at most this (1 - 0.01)."""
+CONTROL_RATE_FRACTION = 0.8
+"""Fact 14 with margin: the linear control-rate margin (the smallest control rate found stable)
+at most this fraction of the control rate."""
+SAMPLED_CRITERION = (
+    f"every k_xi inside its gain window with the synthesis' margins (at least 1.1 x the lower end, at most "
+    f"0.8 x the hold limit: docs/math.md, \"Gain windows\"), and where fact 14 applies the loop as implemented "
+    f"certified with margin: rho <= {RHO_MAX:g} and the linear control-rate margin at most "
+    f"{CONTROL_RATE_FRACTION:g} x the control rate"
 )
 
 
@@ -87,10 +109,22 @@ class Synthesis:
     weights_tried: int = 1
 
 
+def window_constraints(windows: WindowSpec | None, k_xi: cp.Variable) -> list:
+    """The gain windows with the synthesis' margins (docs/math.md, "Gain windows"): ``k_xi >=``
+    :meth:`WindowSpec.synthesis_lower` and ``K_xi <=`` :meth:`WindowSpec.synthesis_hold` (an LMI);
+    none without ``windows``."""
+    if windows is None:
+        return []
+    constraints = [k_xi >= windows.synthesis_lower()]
+    if (hold := windows.synthesis_hold()) is not None:
+        constraints.append(hold - cp.diag(k_xi) >> 0)
+    return constraints
+
+
 def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target: float | None,
-         plant: PlantWeights | None):
-    """Solve the fact-6 SDP for fixed weights (and the generalized plant's, fact 17); returns
-    ``(k_xi, k_c, k_e)`` or None."""  # fmt: skip
+         plant: PlantWeights | None, windows: WindowSpec | None):
+    """Solve the fact-6 SDP for fixed weights (and the generalized plant's, fact 17) within the gain
+    windows (:func:`window_constraints`); returns ``(k_xi, k_c, k_e)`` or None."""  # fmt: skip
     w = weights.as_array()[None]
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
@@ -110,6 +144,7 @@ def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target:
         k_c >= bounds.k_c[0], k_c <= bounds.k_c[1],
         cp.hstack([k_ep, k_er]) >= bounds.k_e[0], cp.hstack([k_ep, k_er]) <= bounds.k_e[1],
     ]  # fmt: skip
+    constraints += window_constraints(windows, k_xi)
     objective = cp.Maximize(s) if gamma_target is None else cp.Minimize(cp.norm(cp.hstack([k_xi, k_ce])))
     problem = cp.Problem(objective, constraints)
     if solve(problem)[0] is None:
@@ -135,19 +170,21 @@ def synthesize(
     search_weights: bool = False,
     theta_max: float = math.pi,
     plant: PlantWeights | None = None,
+    windows: WindowSpec | None = None,
 ) -> Synthesis:
-    """Gains within ``bounds`` minimising the certified gamma (or, with ``gamma_target``,
-    the smallest gain norm reaching it), certified a posteriori over the rotations
-    ``|theta_ec| <= theta_max`` (the ``[certify]`` region), for the generalized plant ``plant``
-    (docs/math.md, fact 17; None: the paper's)."""
+    """Gains within ``bounds`` and the gain ``windows`` (:func:`window_constraints`; None: no
+    window) minimising the certified gamma (or, with ``gamma_target``, the smallest gain norm
+    reaching it), certified a posteriori over the rotations ``|theta_ec| <= theta_max`` (the
+    ``[certify]`` region), for the generalized plant ``plant`` (docs/math.md, fact 17; None: the paper's)."""
     candidates = [weights]
     if search_weights:
         scales = (0.25, 0.5, 1.0, 2.0, 4.0)
         base = weights.as_array()
         candidates = [Weights(*(base * np.array(c))) for c in itertools.product(scales, repeat=4)]
-    best: Synthesis = Synthesis(None, None, "infeasible: no gains within the bounds certify", len(candidates))
+    where = "the bounds" if windows is None else "the bounds and the gain windows (with the synthesis' margins)"
+    best: Synthesis = Synthesis(None, None, f"infeasible: no gains within {where} certify", len(candidates))
     for w in candidates:
-        gains = _sdp(w, reference, n, bounds, gamma_target, plant)
+        gains = _sdp(w, reference, n, bounds, gamma_target, plant, windows)
         if gains is None:
             continue
         point = GainPoint(*gains, w, plant)
@@ -165,12 +202,14 @@ def synthesize(
     return best
 
 
-def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, mass: MassBounds, theta_bar: float):
+def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, mass: MassBounds, theta_bar: float,
+                   windows: WindowSpec | None = None):  # fmt: skip
     """The fact-7 SDP at a parameter ``s``: ``maximize kappa`` subject to
     ``N^T K N - s W - kappa D_ce >= 0`` on ``(e_c, e_e)``, ``diag(k_xi - s) - (kappa/2) B >= 0`` (the
     decoupled ``xi`` block: equivalent, for ``k_xi > s``, to ``kappa <= 2 / rho(diag(k_xi - s)^-1 B)``,
     the rate of (10.4), docs/math.md, fact 10, since ``rho`` is ``lambda_max`` of the symmetric
-    ``(K_xi - s)^-1/2 B (K_xi - s)^-1/2``) and the gain bounds. Returns ``(problem, s, kappa, gains)``."""
+    ``(K_xi - s)^-1/2 B (K_xi - s)^-1/2``), the gain bounds and windows (:func:`window_constraints`).
+    Returns ``(problem, s, kappa, gains)``."""
     w = weights.as_array()[None]
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
@@ -188,7 +227,20 @@ def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, mas
         k_c >= bounds.k_c[0], k_c <= bounds.k_c[1],
         cp.hstack([k_ep, k_er]) >= bounds.k_e[0], cp.hstack([k_ep, k_er]) <= bounds.k_e[1],
     ]  # fmt: skip
+    constraints += window_constraints(windows, k_xi)
     return cp.Problem(cp.Maximize(kappa), constraints), s, kappa, (k_xi, k_c, k_ep, k_er)
+
+
+def largest_positive(value: Callable[[float], float], top: float) -> float:
+    """The largest ``s`` in ``[0, top]`` with ``value(s) > 0``, to ``top / 2^FEASIBLE_STEPS``, by
+    bisection: ``kappa*(s)`` is concave with ``kappa*(0) > 0`` where any rate is, so the ``s`` with a
+    positive rate form an interval from 0. The hold LMI of the windows bounds ``K_xi`` jointly, so
+    the upper gains' ``s_limit`` is only an upper bound on that interval's end."""
+    lo, hi = 0.0, top
+    for _ in range(FEASIBLE_STEPS):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if value(mid) > 0 else (lo, mid)
+    return lo
 
 
 def synthesize_speed(
@@ -201,30 +253,35 @@ def synthesize_speed(
     *,
     theta_max: float = math.pi,
     plant: PlantWeights | None = None,
+    windows: WindowSpec | None = None,
 ) -> Synthesis:
-    """Gains within ``bounds`` maximising the certified target speed of the envelope at
-    ``theta_bar`` (radians; MATH facts 7-8): ``max over s of s kappa*(s)``, ``kappa*(s)`` the
-    SDP of :func:`_speed_problem`.
+    """Gains within ``bounds`` and the gain ``windows`` maximising the certified target speed of
+    the envelope at ``theta_bar`` (radians; MATH facts 7-8): ``max over s of s kappa*(s)``,
+    ``kappa*(s)`` the SDP of :func:`_speed_problem`.
 
     ``kappa*`` is concave in ``s`` (the value of a convex program whose constraints are jointly
     linear in ``(s, gains, kappa)``), so ``log(s kappa*)`` is concave and its maximum lies in
     ``[s_top/2, s_top]`` (the tangent argument of :func:`dvfc.analysis.envelope.best_s`), ``s_top``
     the largest ``s`` with a positive rate: that of the upper gains, since ``N^T K N`` grows
-    with every gain. The result carries the ordinary Theorem 2 certificate over
-    ``|theta_ec| <= theta_max`` for ``plant`` (the envelope itself does not depend on the
-    generalized plant's weights); its envelope is computed by the ordinary route by the caller."""
+    with every gain (with the windows' hold LMI, found by :func:`largest_positive` below it). The
+    result carries the ordinary Theorem 2 certificate over ``|theta_ec| <= theta_max`` for
+    ``plant`` (the envelope itself does not depend on the generalized plant's weights); its
+    envelope is computed by the ordinary route by the caller."""
     upper = GainPoint(np.broadcast_to(bounds.k_xi[1], n), np.full(6, bounds.k_c[1]), np.full(6, bounds.k_e[1]), weights)
     top = s_limit(design_of(upper, reference, mass))
-    failed = Synthesis(None, None, "infeasible: no gains within the bounds give a positive decay rate")
+    where = "the bounds" if windows is None else "the bounds and the gain windows (with the synthesis' margins)"
+    failed = Synthesis(None, None, f"infeasible: no gains within {where} give a positive decay rate")
     if top <= 0:
         return failed
-    problem, s, kappa, (k_xi, k_c, k_ep, k_er) = _speed_problem(weights, reference, n, bounds, mass, theta_bar)
+    problem, s, kappa, (k_xi, k_c, k_ep, k_er) = _speed_problem(weights, reference, n, bounds, mass, theta_bar, windows)
 
     def value(x: float) -> float:
         s.value = x
         solved = solve(problem)[0] is not None and kappa.value is not None
         return x * float(kappa.value) if solved else -math.inf
 
+    if windows is not None and windows.synthesis_hold() is not None:
+        top = largest_positive(value, top)
     best = float(golden_max(lambda x: np.array([value(float(v)) for v in x]), np.array([top]), GOLDEN_STEPS)[0])
     if value(best) <= 0:  # also leaves the solver's variables at the chosen s
         return failed
@@ -243,17 +300,19 @@ def designer(
     search_weights: bool = False,
     speed: tuple[MassBounds, float] | None = None,
     plant: PlantWeights | None = None,
+    windows: WindowSpec | None = None,
 ) -> Callable[[Bounds], Synthesis]:
     """The synthesis as a function of the gain box: :func:`synthesize` then :func:`rounded`, or
     with ``speed = (mass, theta_bar)`` :func:`synthesize_speed`; certified over
-    ``|theta_ec| <= theta_max`` for the generalized plant ``plant``."""
+    ``|theta_ec| <= theta_max`` for the generalized plant ``plant``, within the gain ``windows``."""
 
     def design(bounds: Bounds) -> Synthesis:
         if speed is not None:
-            return synthesize_speed(weights, reference, n, bounds, *speed, theta_max=theta_max, plant=plant)
+            return synthesize_speed(weights, reference, n, bounds, *speed, theta_max=theta_max, plant=plant,
+                                    windows=windows)  # fmt: skip
         result = synthesize(weights, reference, n, bounds, gamma_target=gamma_target, search_weights=search_weights,
-                            theta_max=theta_max, plant=plant)  # fmt: skip
-        return rounded(result, reference, bounds, gamma_target=gamma_target, theta_max=theta_max)
+                            theta_max=theta_max, plant=plant, windows=windows)  # fmt: skip
+        return rounded(result, reference, bounds, gamma_target=gamma_target, theta_max=theta_max, windows=windows)
 
     return design
 
@@ -263,20 +322,32 @@ def _round(values: np.ndarray, digits: int) -> np.ndarray:
     return np.array([float(f"{v:.{digits}g}") for v in values])
 
 
+def _round_down(values: np.ndarray, digits: int) -> np.ndarray:
+    """``values`` (positive) to ``digits`` significant figures, toward zero: no entry grows, so upper
+    bounds hold, and a diagonal ``K_xi`` below the hold LMI stays below it (:meth:`WindowSpec.synthesis_hold`)."""
+    nearest = _round(values, digits)
+    step = 10.0 ** (np.floor(np.log10(values)) - digits + 1)
+    return np.where(nearest <= values, nearest, _round(nearest - step, digits))
+
+
 def rounded(
-    result: Synthesis, reference: SE3, bounds: Bounds, *, gamma_target: float | None = None, theta_max: float = math.pi
+    result: Synthesis, reference: SE3, bounds: Bounds, *, gamma_target: float | None = None, theta_max: float = math.pi,
+    windows: WindowSpec | None = None,
 ) -> Synthesis:
     """The synthesised gains rounded to the fewest significant figures (3 to 8) that stay within
-    the bounds and certify again, by the ordinary certifier, at a gamma meeting the target (or
-    within 0.1% of the unrounded one): a file shows ``20`` where the solver gave
-    ``19.99999997``, and its certificate is that of the values written."""
+    the bounds and the ``windows`` with their margins (:meth:`GainWindows.outside_margins`; where the
+    nearest values break them, the values rounded toward zero) and certify again, by the
+    ordinary certifier, at a gamma meeting the target (or within 0.1% of the unrounded one): a file
+    shows ``20`` where the solver gave ``19.99999997``, and its certificate is that of the values
+    written."""
     if result.point is None:
         return result
     p, limit = result.point, gamma_target or result.certificate.gamma * 1.001
-    for digits in range(3, 9):
-        gains = [_round(v, digits) for v in (p.k_xi, p.k_c, p.k_e)]
+    for digits, rounder in itertools.product(range(3, 9), (_round, _round_down)):
+        gains = [rounder(v, digits) for v in (p.k_xi, p.k_c, p.k_e)]
         inside = all(np.all((g >= lo) & (g <= hi)) for g, (lo, hi) in zip(gains, (bounds.k_xi, bounds.k_c, bounds.k_e),
                                                                           strict=True))  # fmt: skip
+        inside = inside and (windows is None or not windows.of(gains[0]).outside_margins())
         point = GainPoint(*gains, p.weights, p.plant)
         cert = certify(point, reference, theta_max=theta_max, gamma_bound=gamma_target)
         if inside and cert.certified and cert.gamma <= limit:
@@ -284,11 +355,27 @@ def rounded(
     return result
 
 
-def scenario_text(original: str, point: GainPoint, *, name: str, weights: bool, urdf: str | None) -> str:
+PATH_FIELDS = (("robot", "urdf"), ("camera", "calibration"))
+"""The scenario's fields that name a file, each read relative to the scenario file's folder."""
+
+
+def rebased(path: str, source: Path, folder: Path) -> str:
+    """``path`` as given in a scenario file in ``source`` (relative to it, or absolute), written for a
+    file in ``folder``: relative to ``folder`` when a relative path reaches it (POSIX: always; not
+    across Windows drives), else absolute."""
+    resolved = (source / path).resolve()
+    try:
+        return Path(os.path.relpath(resolved, folder.resolve())).as_posix()
+    except ValueError:
+        return str(resolved)
+
+
+def scenario_text(original: str, point: GainPoint, *, name: str, weights: bool, source: Path, target: Path) -> str:
     """The user's scenario file with only the synthesised values replaced (tomlkit keeps its
     comments and layout): ``name``, the ``[gains]`` (and the ``[weights]`` when they were
-    searched), the ``[grid]`` dropped so that ``certify`` certifies these gains, and a URDF
-    path made absolute (``urdf``) since the file is written elsewhere."""
+    searched), the ``[grid]`` dropped so that ``certify`` certifies these gains, and every file it
+    names (:data:`PATH_FIELDS`, given relative to ``source``, the original's folder) rewritten by
+    :func:`rebased` for ``target``, the file to be written: moved with its data, it still loads."""
     doc = tomlkit.parse(original)
     doc["name"] = name
     gains = doc.setdefault("gains", tomlkit.table())
@@ -299,8 +386,9 @@ def scenario_text(original: str, point: GainPoint, *, name: str, weights: bool, 
             doc["weights"][key] = float(value)
     if "grid" in doc:
         del doc["grid"]
-    if urdf is not None:
-        doc["robot"]["urdf"] = urdf
+    for section, key in PATH_FIELDS:
+        if section in doc and doc[section].get(key) is not None:
+            doc[section][key] = rebased(str(doc[section][key]), source, target.parent)
     return tomlkit.dumps(doc)
 
 
@@ -325,12 +413,17 @@ def scaled(bounds: Bounds, alpha: float) -> Bounds:
 
 def within_limits(run: dict) -> bool:
     """:data:`LIMITS_CRITERION` on a run's limit record (:func:`dvfc.analysis.sampled.limit_record`
-    with the run's ``status``)."""
-    return run["status"] == "ok" and max(run["torque_commanded_ratio"]) <= 1.0 and max(run["speed_ratio"]) <= 1.0
+    with the run's ``status``), and :data:`SAMPLED_CRITERION` when the record carries its check
+    (``sampled``: why it falls short, None when it passes; :func:`design_checker`)."""
+    within = run["status"] == "ok" and max(run["torque_commanded_ratio"]) <= 1.0 and max(run["speed_ratio"]) <= 1.0
+    return within and run.get("sampled") is None
 
 
 def excess(run: dict) -> str:
-    """How a run breaks :data:`LIMITS_CRITERION` (the first way found), in words."""
+    """How a run breaks :data:`LIMITS_CRITERION` or :data:`SAMPLED_CRITERION` (the first way
+    found), in words."""
+    if run.get("sampled") is not None:
+        return f"falls short of the sampled loop's margins: {run['sampled']}"
     if run["status"] != "ok":
         return f"does not complete ({run['status']}: {run['message']})"
     for key, what in (("torque_commanded_ratio", "torque"), ("speed_ratio", "speed")):
@@ -441,3 +534,291 @@ def search_within_limits(
         mid = tried((good.alpha + bad.alpha) / 2)
         good, bad = (mid, bad) if mid.within else (good, mid)
     return done(lo, good, bad)
+
+
+def design_runner(case: Case) -> Callable[[GainPoint], dict]:
+    """Runs of designs (gains and weights) of one case as implemented (its controller,
+    plant and image; each design runs once, so without compiling): for a design, the run's
+    status and, per joint, the peak torques and speed against the URDF's limits."""
+    loop, settings = case.loop, replace(case.settings, jit=False)
+    limits = robot_limits(loop, settings)
+
+    def run(point: GainPoint) -> dict:
+        designed = replace(loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
+        traj = as_implemented(designed, settings).run(case.s0)
+        return {"status": traj.status, "message": traj.message, **limit_record(traj, limits)}
+
+    return run
+
+
+def logged_runs(run: Callable[[GainPoint], dict], log: Path, *, resume: bool) -> Callable[[GainPoint], dict]:
+    """``run`` with every run appended to ``log`` (JSON lines: the design's gains and weights,
+    and the run's record) as it finishes; with ``resume`` the runs already in ``log`` are reused
+    for the same design (a line cut short by an interruption is ignored), otherwise ``log``
+    starts empty."""
+    if not resume:
+        log.unlink(missing_ok=True)
+    done = {entry["design"]: entry["run"] for entry in read_log(log)}
+
+    def logged(point: GainPoint) -> dict:
+        design = json.dumps([point.k_xi.tolist(), point.k_c.tolist(), point.k_e.tolist(), asdict(point.weights)])
+        if design not in done:
+            done[design] = run(point)
+            append_log(log, {"design": design, "run": done[design]})
+        return done[design]
+
+    return logged
+
+
+DEFAULT_K_XI = (1.0, 100.0)
+"""``[synthesize] k_xi`` where the gain windows have no upper limit (the continuous loop), and
+the cap on a hold limit: the former one interval for every joint."""
+
+
+def synthesis_bounds(case: Case) -> Bounds:
+    """The ``[synthesize]`` gain box of the case: ``k_xi`` per joint as given (one interval for
+    every joint, or one per joint: their number must be ``n``, else :class:`ScenarioError`
+    naming the field), or by default each joint's gain window
+    (:func:`dvfc.analysis.windows.case_windows`): ``[1, min(100, upper)]``, the lower end the
+    window's own when the hold limit is below 1."""
+    cfg, n = case.scenario.synthesize, case.loop.robot.n
+    if cfg.k_xi is not None and isinstance(cfg.k_xi[0], list):
+        if len(cfg.k_xi) != n:
+            raise ScenarioError(f"synthesize.k_xi: {len(cfg.k_xi)} intervals for {n} joints (give one, or one a joint)")
+        k_xi = tuple(np.array(b, dtype=float) for b in zip(*cfg.k_xi, strict=True))
+    elif cfg.k_xi is not None:
+        k_xi = tuple(np.full(n, b, dtype=float) for b in cfg.k_xi)
+    else:
+        windows = case_windows(case)
+        hi = np.full(n, DEFAULT_K_XI[1]) if windows.upper is None else np.minimum(windows.upper, DEFAULT_K_XI[1])
+        k_xi = (np.where(hi >= DEFAULT_K_XI[0], DEFAULT_K_XI[0], np.minimum(windows.lower, hi)), hi)
+    return Bounds(k_xi, tuple(cfg.k_c), tuple(cfg.k_e))
+
+
+def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
+    """The limits search of ``synthesize`` (JSON-ready): what was searched (family, bracket,
+    criterion, runs), the ``alpha`` chosen and its gain box, the run bounding it from above, the
+    unconstrained optimum's certified gamma, and every run with its certified gamma and worst
+    torque and speed ratios."""
+    top = search.trials[0]
+
+    def trial(t: Trial) -> dict:
+        run = t.run or {}
+        worst = lambda key: None if key not in run else max(run[key])  # noqa: E731
+        gamma = None if t.synthesis.certificate is None else t.synthesis.certificate.gamma
+        return {"alpha": t.alpha, "gamma": gamma, "status": run.get("status", t.synthesis.status),
+                "torque_commanded_ratio": worst("torque_commanded_ratio"), "speed_ratio": worst("speed_ratio"),
+                "sampled": run.get("sampled"), "within": t.within}  # fmt: skip
+
+    chosen, exceeds = search.chosen, search.exceeds
+    if chosen is None:
+        found = "no design of the family runs within the limits"
+    elif exceeds is None:
+        found = "the unconstrained optimum runs within the limits: nothing to search"
+    else:
+        found = (f"alpha = {chosen.alpha:.4g} is the largest found within the limits (alpha = {exceeds.alpha:.4g} "
+                 "exceeds them): the best design found by bisection in this family, not a global optimum over the "
+                 "[synthesize] bounds")  # fmt: skip
+    return {
+        "family": FAMILY,
+        "criterion": f"{LIMITS_CRITERION}; and {SAMPLED_CRITERION}",
+        "bracket": [search.lowest, 1.0],
+        "resolution": None if chosen is None or exceeds is None else exceeds.alpha - chosen.alpha,
+        "alpha": None if chosen is None else chosen.alpha,
+        "exceeds_at": None if exceeds is None else exceeds.alpha,
+        "bounds": None if chosen is None else scaled(bounds, chosen.alpha).as_dict(),
+        "gamma_unconstrained": None if top.synthesis.certificate is None else top.synthesis.certificate.gamma,
+        "runs": search.runs,
+        "syntheses": search.syntheses,
+        "statement": found,
+        "trials": [trial(t) for t in search.trials],
+    }
+
+
+def sampled_shortfall(windows: GainWindows | None, implemented: dict | None) -> str | None:
+    """Why a design falls short of :data:`SAMPLED_CRITERION`, in words, or None: its gains'
+    ``windows`` (None: the planar loop) outside the synthesis' margins, or fact 14's record
+    ``implemented`` (None: no ``[implementation]``; a record that does not apply: no check) not
+    certifying it, ``rho`` above :data:`RHO_MAX` or the control-rate margin above
+    :data:`CONTROL_RATE_FRACTION` of the control rate."""
+    if windows is not None and (outside := windows.outside_margins()):
+        return "gain window: " + "; ".join(outside)
+    if implemented is None or not implemented["applies"]:
+        return None
+    if not implemented["certified"]:
+        return f"the loop as implemented is not certified (fact 14): {implemented['reason']}"
+    if implemented["rho"] > RHO_MAX:
+        return f"fact 14: rho = {implemented['rho']:.6g} above {RHO_MAX:g}"
+    control = implemented["margins"]["control_rate"]
+    rate = control["range"][0]
+    if control["value"] is not None and control["value"] > CONTROL_RATE_FRACTION * rate:
+        return (f"fact 14: the linearised loop is stable only down to {control['value']:.4g} Hz (unstable at "
+                f"{control['unstable_at']:.4g} Hz), above {CONTROL_RATE_FRACTION:g} x {rate:g} Hz")  # fmt: skip
+    return None
+
+
+def design_checker(case: Case, run: Callable[[GainPoint], dict]) -> Callable[[GainPoint], dict]:
+    """``run`` (a design's limit record, :func:`design_runner`) with the design's sampled-loop
+    checks: ``implemented``, its fact-14 record (None without an ``[implementation]``), and
+    ``sampled``, :func:`sampled_shortfall` (None: it passes), both read by :func:`within_limits`."""
+    spec = case_window_spec(case)
+
+    def check(point: GainPoint) -> dict:
+        record = dict(run(point))
+        implemented = None
+        if case.settings.implementation is not None:
+            designed = replace(case.loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
+            implemented = implemented_record(designed, case.s0, case.settings)
+        windows = None if spec is None else spec.of(point.k_xi)
+        return {**record, "implemented": implemented, "sampled": sampled_shortfall(windows, implemented)}
+
+    return check
+
+
+@dataclass(frozen=True)
+class StartCheck:
+    """Whether the start is certified (the envelope record's ``start.inside``, docs/math.md, fact
+    16) for the scenario's own gains (``original``) and for the written design (``written``), and
+    the written design's start record's reason when it is not."""
+
+    original: bool
+    written: bool
+    reason: str | None
+
+    @property
+    def lost(self) -> bool:
+        """The scenario's gains certify the start and the written design's do not."""
+        return self.original and not self.written
+
+    def as_dict(self) -> dict:
+        text = (f"the start is NOT certified for the written design ({self.reason}), though it is for the "
+                "scenario's own gains" if self.lost else None)  # fmt: skip
+        return {"original_certified": self.original, "written_certified": self.written, "lost": self.lost,
+                "reason": self.reason, "statement": text}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class CaseSynthesis:
+    """A scenario's synthesis (:func:`synthesize_case`): the scenario's name, the objective in
+    words, the design (``result.point`` None: none, and why in ``result.status``), the gain box,
+    the limits search (None: none run), the checked run of the design (:func:`design_checker`;
+    None without a design), why it is refused (None: accepted), the scenario file's text (None:
+    nothing to write), the written design's envelope record and start check (None without an
+    accepted design), and the ``theta_bar`` of a target-speed synthesis (None: the gamma objective)."""
+
+    scenario: str
+    objective: str
+    result: Synthesis
+    bounds: Bounds
+    search: LimitSearch | None
+    run: dict | None
+    refused: str | None
+    text: str | None
+    envelope: dict | None
+    start: StartCheck | None
+    theta_bar: float | None
+
+    @property
+    def accepted(self) -> bool:
+        return self.text is not None
+
+
+def written_case(case: Case, text: str, target: Path) -> Case:
+    """The case of the scenario file ``text`` as written at ``target`` (its paths relative to it)."""
+    scenario = Scenario.model_validate(tomllib.loads(text))
+    return Case(scenario, target.parent.resolve(), None, case.mode, case.check_view)
+
+
+def synthesize_case(
+    case: Case,
+    target: Path,
+    *,
+    runs: Callable[[Callable[[GainPoint], dict]], Callable[[GainPoint], dict]] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> CaseSynthesis:
+    """The ``[synthesize]`` workflow on a case of the paper's loop (``n >= 6``) loaded from a scenario
+    file (:meth:`Case.load`: the file written is that file edited), for a file to be written at
+    ``target``: the box (:func:`synthesis_bounds`, :class:`ScenarioError` on a bad one), the
+    synthesis within it and the gain windows, each design checked by :func:`design_checker` (its
+    run, the limits, the windows' margins and fact 14 with margin). With ``respect_limits`` the
+    family search (:func:`search_within_limits`); otherwise the synthesis, and when its design falls
+    short of :data:`SAMPLED_CRITERION` the same search, a posteriori. ``runs`` wraps the checked run
+    (a log, say). The accepted design's scenario text (:func:`scenario_text`) and its envelope
+    (the written file's, re-certified by the ordinary route) and start check come with it."""
+    spec, loop = case.scenario, case.loop
+    cfg, n = spec.synthesize, loop.robot.n
+    bounds = synthesis_bounds(case)
+    windows = case_window_spec(case)
+    speed = cfg.objective == "target_speed"
+    theta = speed_theta_bar(case) if speed else None
+    design = designer(Weights(**spec.weights.model_dump()), spec.reference.se3(), n,
+                      theta_max=math.radians(spec.certify.theta_max_deg), gamma_target=cfg.gamma,
+                      search_weights=cfg.search_weights, speed=(loop.robot.mass_bounds, theta) if speed else None,
+                      plant=case.point.plant, windows=windows)  # fmt: skip
+    objective = ("maximise the certified target speed (facts 7-8)" if speed else
+                 "minimise gamma" if cfg.gamma is None else f"smallest gains with gamma <= {cfg.gamma:g}")  # fmt: skip
+    check = design_checker(case, design_runner(case))
+    check = check if runs is None else runs(check)
+    search, run, say = None, None, progress or (lambda _: None)
+    if cfg.respect_limits:
+        search = search_within_limits(design, bounds, check, say)
+        result = search.result
+    else:
+        say("solving the gain-synthesis SDP" + ("s (golden section over s)" if speed else ""))
+        result = design(bounds)
+        if result.point is not None and (run := check(result.point)).get("sampled") is not None:
+            say("the design falls short of the sampled loop's margins: searching the family of smaller boxes")
+            search = search_within_limits(design, bounds, check, say)
+            result = search.result
+    if search is not None:
+        run = None if search.chosen is None else search.chosen.run
+    if result.point is None:
+        if windows is not None and (empty := windows.empty(bounds.k_xi)):
+            result = replace(result, status=f"infeasible: {'; '.join(empty)}")
+        return CaseSynthesis(spec.name, objective, result, bounds, search, None, None, None, None, None, theta)
+    if not within_limits(run):
+        refused = f"its run as implemented {excess(run)}"
+        return CaseSynthesis(spec.name, objective, result, bounds, search, run, refused, None, None, None, theta)
+    text = scenario_text(case.path.read_text(), result.point, name=f"{spec.name}-synthesized",
+                         weights=cfg.search_weights, source=case.path.parent, target=target)  # fmt: skip
+    say("certifying the written design's operating envelope")
+    envelope = envelope_record(written_case(case, text, target), search=speed)
+    original = envelope_record(case, search=False)["start"]["inside"]
+    start = StartCheck(bool(original), bool(envelope["start"]["inside"]), envelope["start"].get("reason"))
+    return CaseSynthesis(spec.name, objective, result, bounds, search, run, None, text, envelope, start, theta)
+
+
+def synthesis_record(done: CaseSynthesis, written: Path | None, provenance: dict, seconds: float) -> dict:
+    """The JSON of ``synthesize`` (docs/cli.md) from its workflow's result and the file written
+    (None: nothing written)."""
+    result = done.result
+    record = {
+        "scenario": done.scenario,
+        "status": result.status if done.refused is None else f"refused, nothing written: {done.refused}",
+        "objective": done.objective,
+        "bounds": done.bounds.as_dict(),
+        "weights_tried": result.weights_tried,
+        "point": None if result.point is None else point_record(result.point, result.certificate),
+        "region": None if result.certificate is None else result.certificate.region,
+        "scenario_file": None if written is None else str(written),
+        "seconds": seconds,
+        "provenance": provenance,
+    }
+    if done.theta_bar is not None:
+        record["synthesis_theta_bar_deg"] = math.degrees(done.theta_bar)
+        record["max_target_speed"] = None
+    if done.search is not None:
+        record["limit_search"] = limit_search_record(done.search, done.bounds)
+    if done.run is not None:
+        record["limits"] = {k: v for k, v in done.run.items() if k not in ("implemented", "sampled")}
+        record["implemented"] = done.run["implemented"]
+        record["sampled"] = {"criterion": SAMPLED_CRITERION, "shortfall": done.run["sampled"]}
+    if done.start is not None:
+        record["start"] = done.start.as_dict()
+    if done.theta_bar is not None and done.envelope is not None:  # the written design's own envelope
+        record["point"]["envelope"] = done.envelope
+        record["max_target_speed"] = speed = done.envelope["max_target_speed"]
+        if speed is None:
+            why = done.envelope["reason"]
+            record["status"] = f"uncertified: no target speed certified for the written design ({why})"
+    return record

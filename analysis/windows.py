@@ -37,6 +37,14 @@ HOLD_MARGIN = 0.05
 """The held map's eigenvalues must lie in ``(-(1 - HOLD_MARGIN), 1)``: at the hold limit the
 joint's velocity error, sampled, still shrinks by 5% a period in its fastest mode."""
 
+UPPER_FRACTION = 0.8
+"""A synthesised design keeps ``K_xi <= UPPER_FRACTION (2 - HOLD_MARGIN)/h M(q0)``: every joint's gain
+at most this fraction of its window's upper end, the hold limit at ``UPPER_FRACTION`` of the control
+rate (the limit scales with ``1/h``), the control-rate margin the synthesis asks of fact 14."""
+
+LOWER_FACTOR = 1.1
+"""A synthesised design keeps every ``k_xi,i`` at least this factor times its window's lower end."""
+
 BISECTION_STEPS = 60
 """Bisection steps on each gain between 0 and its diagonal limit (to ``2^-60`` of it)."""
 
@@ -130,6 +138,20 @@ class GainWindows:
             found.append("the gains together break the hold limit (no single joint's gain is above its own)")
         return found
 
+    def outside_margins(self) -> list[str]:
+        """Each gain not inside its window with the synthesis' margins (at least :data:`LOWER_FACTOR`
+        times the lower end, at most :data:`UPPER_FRACTION` of the upper end), and the gains together
+        when ``h lambda_max(M^-1 K_xi)`` exceeds ``UPPER_FRACTION (2 - margin)``, in words."""
+        found = [f"joint {i + 1} k_xi = {k:.4g} below {LOWER_FACTOR:g} x its window's lower end {low:.4g}"
+                 for i, (k, low) in enumerate(zip(self.k_xi, self.lower, strict=True)) if k < LOWER_FACTOR * low]
+        if self.upper is not None:
+            found += [f"joint {i + 1} k_xi = {k:.4g} above {UPPER_FRACTION:g} x its hold limit {up:.4g}"
+                      for i, (k, up) in enumerate(zip(self.k_xi, self.upper, strict=True)) if k > UPPER_FRACTION * up]
+            if self.held > UPPER_FRACTION * (2 - self.margin) and not found:
+                found.append(f"the gains together: h lambda_max(M^-1 K_xi) = {self.held:.4g} above "
+                             f"{UPPER_FRACTION:g} x {2 - self.margin:g}")  # fmt: skip
+        return found
+
     def warning(self) -> str | None:
         """One line naming the gains outside their windows, or None when all lie inside."""
         found = self.breaks()
@@ -165,6 +187,53 @@ class GainWindows:
         }  # fmt: skip
 
 
+@dataclass(frozen=True)
+class WindowSpec:
+    """What the windows of ``k_xi`` depend on besides the gains: the inertia ``mass = M(q0)``, the
+    control rate (None: the ideal continuous loop), the required gamma (None: any finite gamma) and
+    the generalized plant's weights (None: the paper's)."""
+
+    mass: np.ndarray
+    control_rate: float | None
+    gamma: float | None
+    plant: PlantWeights | None = None
+
+    def of(self, k_xi: np.ndarray) -> GainWindows:
+        """The windows of the gains ``k_xi``."""
+        return gain_windows(self.mass, k_xi, self.control_rate, self.gamma, self.plant)
+
+    def synthesis_lower(self) -> np.ndarray:
+        """Per joint, the least gain a synthesis may choose: :data:`LOWER_FACTOR` times the lower end."""
+        plant = self.plant if self.plant is not None else PlantWeights.unit(len(self.mass))
+        return LOWER_FACTOR * certificate_lower(self.gamma, plant)
+
+    def synthesis_hold(self) -> np.ndarray | None:
+        """``H = UPPER_FRACTION (2 - HOLD_MARGIN) M(q0) / h`` (None without a hold): for diagonal
+        ``K_xi >= 0``, ``K_xi <= H`` (an LMI, linear in the gains) iff ``h lambda_max(M^-1 K_xi) <=
+        UPPER_FRACTION (2 - HOLD_MARGIN)``, and then every gain is at most ``UPPER_FRACTION`` of its
+        upper end: raising one gain of ``K_xi`` by ``1/UPPER_FRACTION`` stays below ``K_xi /
+        UPPER_FRACTION``, whose held eigenvalue is ``2 - HOLD_MARGIN``."""
+        if self.control_rate is None:
+            return None
+        mass = (self.mass + self.mass.T) / 2
+        return UPPER_FRACTION * (2.0 - HOLD_MARGIN) * self.control_rate * mass
+
+    def empty(self, box: tuple[np.ndarray, np.ndarray]) -> list[str]:
+        """Each joint whose gain box ``box`` (lower, upper per joint) leaves no gain inside its
+        window with the synthesis' margins, in words: at least :meth:`synthesis_lower` and at most
+        ``1 / (H^-1)_ii`` (``H`` :meth:`synthesis_hold`: the largest ``k_xi,i`` with ``k_xi,i e_i
+        e_i^T <= H``, the other gains at zero: :data:`UPPER_FRACTION` of the joint's hold limit alone)."""
+        lower, (box_lo, box_hi) = self.synthesis_lower(), np.broadcast_arrays(*box)
+        hold = self.synthesis_hold()
+        alone = np.full(len(lower), np.inf) if hold is None else 1.0 / np.diag(np.linalg.inv(hold))
+        found = []
+        for i in np.flatnonzero(np.maximum(box_lo, lower) > np.minimum(box_hi, alone)):
+            found.append(f"joint {i + 1}: no k_xi in [{box_lo[i]:.4g}, {box_hi[i]:.4g}] is at least {LOWER_FACTOR:g} x "
+                         f"the certificate's {lower[i] / LOWER_FACTOR:.4g} and at most {UPPER_FRACTION:g} x its hold "
+                         f"limit alone {alone[i] / UPPER_FRACTION:.4g}")  # fmt: skip
+        return found
+
+
 def gain_windows(mass: np.ndarray, k_xi: np.ndarray, control_rate: float | None, gamma: float | None,
                  plant: PlantWeights | None = None) -> GainWindows:
     """The windows of ``k_xi`` for the inertia ``mass = M(q0)``, the control rate (None: the
@@ -182,12 +251,18 @@ def gain_windows(mass: np.ndarray, k_xi: np.ndarray, control_rate: float | None,
                        float(eigenvalues[-1]), float(np.abs(1.0 - eigenvalues).max()))  # fmt: skip
 
 
-def case_windows(case: Case) -> GainWindows | None:
-    """The windows of the case's gains at its ``q0`` (the model's ``M(q0)``), control rate and
-    ``[certify] gamma``; None for the reduced planar loop (no joint-space inertia)."""
+def case_window_spec(case: Case) -> WindowSpec | None:
+    """What the case's windows depend on: its ``q0`` (the model's ``M(q0)``), control rate,
+    ``[certify] gamma`` and generalized plant; None for the reduced planar loop (no joint-space inertia)."""
     if case.planar:
         return None
     robot, imp = case.loop.robot, case.settings.implementation
     mass = np.asarray(robot.function("M", robot.mass_matrix)(case.s0[: robot.n], 0))
     rate = None if imp is None else imp.control_rate
-    return gain_windows(mass, case.point.k_xi, rate, case.scenario.certify.gamma, case.point.plant)
+    return WindowSpec(mass, rate, case.scenario.certify.gamma, case.point.plant)
+
+
+def case_windows(case: Case) -> GainWindows | None:
+    """The windows of the case's gains (:func:`case_window_spec`); None for the reduced planar loop."""
+    spec = case_window_spec(case)
+    return None if spec is None else spec.of(case.point.k_xi)

@@ -3,14 +3,19 @@ the observer from the first image, and the start statement checked on runs from 
 
 from __future__ import annotations
 
+import json
+import tomllib
 from dataclasses import replace
 
 import casadi as cs
 import numpy as np
 import pytest
+import tomli_w
+from typer.testing import CliRunner
 
 from dvfc.analysis.case import Case
-from dvfc.analysis.results import envelope_record
+from dvfc.analysis.cli import app
+from dvfc.analysis.results import envelope_record, statements
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, load
 from dvfc.analysis.start import run_regions
@@ -170,3 +175,29 @@ def test_the_arm_is_held_until_the_first_image_arrives():
     qd = np.abs(traj["qd"])
     held = traj.t < 0.02 - 1e-9
     assert qd[held].max() < 1e-9 and qd[traj.t > 0.05].max() > 1e-6
+
+
+def test_a_start_the_planned_reference_does_not_certify_is_inside_in_no_output(tmp_path):
+    """One decision about the start (docs/math.md, fact 16b): with gains unequal across the axes of
+    ``K_c`` (``(3, 3, 3, 3, 3, 2.9)``) on the default example, the planned reference's rate along the
+    path is not derived, so its start record is not certified, though ``V(0) = 5.5e-5`` lies inside
+    the fixed-reference set ``V <= c_max`` that the envelope's own test reads. The envelope's
+    statement, the statements table and the human output read the start record: none says inside."""
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["simulation"].update(duration=0.05, jit=False)
+    data["gains"]["k_c"] = [3.0, 3.0, 3.0, 3.0, 3.0, 2.9]
+    path = tmp_path / "aniso.toml"
+    path.write_text(tomli_w.dumps(data))
+    result = CliRunner().invoke(app, ["certify", str(path), "--no-lower-bounds", "--out", str(tmp_path / "c")],
+                           env={"COLUMNS": "400"})  # fmt: skip
+    assert result.exit_code in (0, 1), result.output
+    certificate = json.loads((tmp_path / "c" / "certificate.json").read_text())
+    env = certificate["points"][0]["envelope"]
+    assert env["start"]["method"] == "planned" and env["start"]["inside"] is False
+    assert env["start"]["V0"] < env["invariant_V"]  # the fixed-reference test alone would say inside
+    assert "is inside the certified set" not in env["statement"] and "not certified" in env["statement"]
+    text = result.stdout
+    assert "NOT inside the certified set" in text and "is inside the certified set" not in text
+    verification = {"summary": {"claims": 0, "failed": 0, "inconclusive": 0}}
+    row = next(r for r in statements(certificate, verification) if r["statement"] == "the start")
+    assert row["status"] == "NOT CERTIFIED" and "inside the certified set" not in row["detail"]

@@ -7,6 +7,8 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import shutil
+import tomllib
 from dataclasses import astuple
 from pathlib import Path
 
@@ -14,13 +16,15 @@ import casadi as cs
 import numpy as np
 import pytest
 import tomli_w
+import yaml
 from typer.testing import CliRunner
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify, exact_gamma
 from dvfc.analysis.cli import app
 from dvfc.analysis.envelope import DisturbanceBounds, design_of, envelope
-from dvfc.analysis.results import logged_runs, speed_theta_bar
+from dvfc.analysis.multirate import implemented_record
+from dvfc.analysis.results import envelope_record, speed_theta_bar
 from dvfc.analysis.scenario import build, load
 from dvfc.analysis.synthesize import (
     FEASIBLE_STEPS,
@@ -28,6 +32,8 @@ from dvfc.analysis.synthesize import (
     TARGET_MARGIN,
     Bounds,
     Synthesis,
+    designer,
+    logged_runs,
     rounded,
     scaled,
     scenario_text,
@@ -35,6 +41,7 @@ from dvfc.analysis.synthesize import (
     synthesize,
     synthesize_speed,
 )
+from dvfc.analysis.windows import HOLD_MARGIN, WindowSpec, case_window_spec, case_windows
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
@@ -79,6 +86,35 @@ def test_no_grid_point_in_bounds_certifies_smaller_gamma(result):
         assert exact_gamma(point, REFERENCE, np.eye(3))[0] >= best
 
 
+@pytest.mark.slow
+def test_the_target_speed_sdp_keeps_every_gain_inside_its_window_with_margin():
+    """The same windows in fact 7's SDP (:func:`synthesize_speed`, the UR5's mass bounds, the light
+    ``M(q0)`` above held at 500 Hz): alone it puts ``k_xi,1 = 16.6``, ``h lambda_max(M^-1 K_xi)``
+    past 2; with the windows at most ``0.8 x 1.95`` (numpy's eigenvalues), and a rate is certified."""
+    a = np.random.default_rng(0).normal(size=(6, 6))
+    mass = 0.0008 * (a @ a.T + 6 * np.eye(6))
+    held = lambda k: np.linalg.eigvals(np.linalg.solve(mass, np.diag(k))).real.max() / 500.0  # noqa: E731
+    case = Case.load(EXAMPLES / "ur5_circle.toml")
+    box = Bounds((1.0, 30.0), (0.5, 5.0), (0.5, 15.0))
+    free, kept = (synthesize_speed(WEIGHTS, case.reference, 6, box, case.loop.robot.mass_bounds, math.radians(10),
+                                   windows=w) for w in (None, WindowSpec(mass, 500.0, None)))  # fmt: skip
+    assert held(free.point.k_xi) > 2.0 and kept.status == "ok" and kept.certificate.certified
+    assert held(kept.point.k_xi) <= 0.8 * (2 - HOLD_MARGIN) * (1 + 1e-7)
+
+
+def test_gains_on_an_upper_bound_round_toward_zero_to_three_figures():
+    """The rounding (docs/cli.md): on the box ``scaled(BOUNDS, 0.95)`` the optimum puts ``k_c`` on its
+    upper end 4.45625, whose nearest 3 figures (4.46) leave the box (the nearest rounding needs 4:
+    4.456); rounded toward zero the file gets 3 figures (4.45) within the box, certified within 0.1%
+    of the unrounded gamma."""
+    box = scaled(BOUNDS, 0.95)
+    solved = synthesize(WEIGHTS, REFERENCE, 6, box)
+    kept = rounded(solved, REFERENCE, box)
+    for values, (_, hi) in ((kept.point.k_c, box.k_c), (kept.point.k_e, box.k_e)):
+        assert np.all(values <= hi) and all(float(f"{v:.3g}") == v for v in values)
+    assert kept.certificate.gamma <= solved.certificate.gamma * 1.001
+
+
 def test_gamma_target_gives_smallest_gains(result):
     """With a target gamma the gains reach it, and are no larger than the minimum-gamma gains."""
     target = 1.5 * result.certificate.gamma
@@ -86,6 +122,24 @@ def test_gamma_target_gives_smallest_gains(result):
     assert reached.certificate.certified and reached.certificate.gamma <= target
     norm = lambda p: np.linalg.norm(np.r_[p.k_xi, p.k_c, p.k_e])  # noqa: E731
     assert norm(reached.point) < norm(result.point)
+
+
+def test_the_sdp_keeps_every_gain_inside_its_window_with_margin():
+    """docs/math.md, "Gain windows": on a light arm (``M`` with eigenvalues 0.005-0.013 kg m^2) held at
+    500 Hz, the fact-6 SDP alone puts ``k_xi = 17`` on every joint, a held map with ``h lambda_max(M^-1
+    K_xi) = 7.0``, far past 2 (diverges); with the windows, ``h lambda_max`` (numpy's eigenvalues of
+    ``M^-1 K_xi``, not the LMI) is at most ``0.8 x 1.95``, every gain at most 0.8 of its hold limit (by
+    bisection, :func:`dvfc.analysis.windows.hold_limits`) and at least 1.1 x 1/2, at the same gamma."""
+    a = np.random.default_rng(0).normal(size=(6, 6))
+    mass = 0.0008 * (a @ a.T + 6 * np.eye(6))
+    spec = WindowSpec(mass, 500.0, None)
+    held = lambda k: np.linalg.eigvals(np.linalg.solve(mass, np.diag(k))).real.max() / 500.0  # noqa: E731
+    free, kept = (synthesize(WEIGHTS, REFERENCE, 6, BOUNDS, windows=w) for w in (None, spec))
+    assert held(free.point.k_xi) > 2.0
+    assert held(kept.point.k_xi) <= 0.8 * (2 - HOLD_MARGIN) * (1 + 1e-7)
+    windows = spec.of(kept.point.k_xi)
+    assert np.all(kept.point.k_xi <= 0.8 * windows.upper * (1 + 1e-7)) and np.all(kept.point.k_xi >= 1.1 * 0.5)
+    assert kept.certificate.gamma == pytest.approx(free.certificate.gamma, rel=1e-6)
 
 
 def test_unreachable_target_is_reported():
@@ -301,9 +355,11 @@ def test_the_next_bracket_point_above_the_chosen_design_exceeds_a_limit(limited,
     assert search["exceeds_at"] == pytest.approx(search["alpha"] + step)
     spec, _ = load(written)
     box = scaled(LIMITS_BOUNDS, search["exceeds_at"])
-    above = rounded(synthesize(WEIGHTS, spec.reference.se3(), 6, box), spec.reference.se3(), box)
+    windows = case_window_spec(Case.load(written))  # the search's synthesis: the same SDP, the same windows
+    above = designer(WEIGHTS, spec.reference.se3(), 6, theta_max=math.pi, windows=windows)(box)
     scenario = tmp_path / "above.toml"
-    scenario.write_text(scenario_text(written.read_text(), above.point, name="above", weights=False, urdf=None))
+    scenario.write_text(scenario_text(written.read_text(), above.point, name="above", weights=False,
+                                      source=written.parent, target=scenario))
     result = runner.invoke(app, ["simulate", str(scenario), "--out", str(tmp_path / "run"), "--json", "-"])
     summary = json.loads(result.stdout)
     assert result.exit_code == 1 or _worst(summary["limits"]) > 1
@@ -336,3 +392,114 @@ def test_target_speed_design_respecting_limits_runs_within_them(tmp_path):
     record = json.loads(result.stdout)
     assert not record["limit_search"]["trials"][0]["within"] and _worst(record["limits"]) <= 1
     assert record["max_target_speed"] is not None
+
+
+CALIBRATION = {"image_width": 1280, "image_height": 1024, "camera_name": "cell", "distortion_model": "plumb_bob",
+               "camera_matrix": {"rows": 3, "cols": 3, "data": [800.0, 0, 640.0, 0, 800.0, 512.0, 0, 0, 1]},
+               "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0.0] * 5}}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def windowed(tmp_path_factory):
+    """``synthesize`` on the light wrist (``tests/data/light_wrist6.urdf``, 500 Hz hold) with wrist 3's
+    ``[performance]`` weights 0.5, its URDF and camera calibration named relative to the scenario
+    (``src/arm``, ``src/cam``), written to another folder (``out/deep``). The synthesis before the
+    windows' constraint put wrist 3 at ``k_xi = 0.4867``, above its hold limit 0.4852 (``pose`` warned).
+    Returns the folder, the JSON record, the human output and the written file."""
+    tmp = tmp_path_factory.mktemp("windowed")
+    (tmp / "src" / "arm").mkdir(parents=True)
+    (tmp / "src" / "cam").mkdir()
+    shutil.copy(Path(__file__).parent / "data" / "light_wrist6.urdf", tmp / "src" / "arm" / "light.urdf")
+    (tmp / "src" / "cam" / "cam.yaml").write_text(yaml.safe_dump(CALIBRATION))
+    data = tomllib.loads((EXAMPLES / "ur5_circle.toml").read_text())
+    data["simulation"].update(duration=0.05, jit=False)
+    data["robot"].pop("model")
+    data["robot"]["urdf"] = "arm/light.urdf"
+    data["camera"] = {"calibration": "cam/cam.yaml"}
+    light = [1.0] * 5 + [0.5]
+    data["performance"] = {"output": {"xi": light}, "disturbance": {"tau_d": light}}
+    (tmp / "src" / "s.toml").write_text(tomli_w.dumps(data))
+    target = tmp / "out" / "deep" / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(tmp / "src" / "s.toml"), "--out", str(target), "--json",
+                                 str(tmp / "syn.json")], env={"COLUMNS": "400"})  # fmt: skip
+    assert result.exit_code == 0 and target.exists(), result.output
+    return tmp, json.loads((tmp / "syn.json").read_text()), result.stdout, target
+
+
+@pytest.mark.slow
+def test_every_synthesized_gain_lies_inside_its_window_with_margin_and_pose_warns_of_nothing(windowed):
+    """docs/math.md, "Gain windows": each ``k_xi,i`` of the written design, its windows computed
+    afresh from the written file (``M(q0)`` of its URDF, 500 Hz), lies in ``[1.1 lower, 0.8 upper]``,
+    and ``dvfc pose`` on that file prints no warning."""
+    _, _, _, target = windowed
+    windows = case_windows(Case.load(target))
+    assert np.all(windows.k_xi >= 1.1 * windows.lower)
+    assert np.all(windows.k_xi <= 0.8 * windows.upper)
+    assert windows.held <= 0.8 * (2 - HOLD_MARGIN)
+    result = runner.invoke(app, ["pose", str(target)])
+    assert result.exit_code == 0 and "warning" not in result.stderr, result.stderr
+
+
+@pytest.mark.slow
+def test_the_written_design_passes_the_sampled_loops_certificate_with_margin(windowed):
+    """Fact 14 on the written design, recomputed from its file (the multirate monodromy, not the
+    synthesis' record): ``rho <= 0.99`` and the linear control-rate margin at most 0.8 of 500 Hz."""
+    _, _, _, target = windowed
+    case = Case.load(target)
+    record = implemented_record(case.loop, case.s0, case.settings)
+    assert record["certified"] and record["rho"] <= 0.99
+    control = record["margins"]["control_rate"]
+    assert control["value"] is None or control["value"] <= 0.8 * 500.0
+
+
+@pytest.mark.slow
+def test_synthesize_says_when_the_written_design_loses_the_start_certificate(windowed):
+    """Fact 16b: the scenario's own (isotropic) ``K_c`` certifies its planned start; the synthesised
+    ``K_c`` is unequal across axes, so the written design's start is not certified, which the JSON
+    and the human output of ``synthesize`` state (and ``certify`` of the written file agrees)."""
+    _, record, text, target = windowed
+    assert np.ptp(record["point"]["gains"]["k_c"]) > 0
+    start = record["start"]
+    assert start["original_certified"] and not start["written_certified"] and start["lost"]
+    assert "START NOT CERTIFIED" in text and "K_c is not isotropic" in text
+    assert envelope_record(Case.load(target), search=False)["start"]["inside"] is False
+
+
+@pytest.mark.slow
+def test_the_written_scenario_names_its_files_relative_to_itself_and_loads_after_moving(windowed, tmp_path):
+    """The URDF and the calibration are written the same way, relative to the written file's folder;
+    moved with its data (the whole folder elsewhere), the file loads with the same URDF and camera."""
+    tmp, _, _, target = windowed
+    written = tomllib.loads(target.read_text())
+    assert written["robot"]["urdf"] == "../../src/arm/light.urdf"
+    assert written["camera"]["calibration"] == "../../src/cam/cam.yaml"
+    moved = tmp_path / "moved"
+    shutil.copytree(tmp, moved)
+    calibration = {**CALIBRATION, "camera_matrix": {"rows": 3, "cols": 3,
+                                                    "data": [810.0, 0, 640.0, 0, 810.0, 512.0, 0, 0, 1]}}
+    (moved / "src" / "cam" / "cam.yaml").write_text(yaml.safe_dump(calibration))  # which copy is read
+    case = Case.load(moved / "out" / "deep" / "syn.toml")
+    assert case.loop.robot.urdf == (moved / "src" / "arm" / "light.urdf").resolve()
+    assert case.loop.camera.focal_length == 810.0
+
+
+@pytest.mark.slow
+def test_no_design_of_the_family_passing_fact_14_with_margin_is_refused_in_one_line(tmp_path):
+    """The default example with a 120 ms latency and ``[synthesize]`` lower bounds ``k_c >= 8``,
+    ``k_e >= 30``: the SDP's design is certified for the ideal loop, but its sampled loop is not
+    (fact 14, ``rho > 1``), so the family of smaller boxes is searched a posteriori; its smallest
+    design is not certified either. Exit 1, nothing written, one status line saying what limits it."""
+    data = tomllib.loads((EXAMPLES / "ur5_circle.toml").read_text())
+    data["simulation"].update(duration=0.05, jit=False)
+    data["implementation"]["latency"] = 0.12
+    data["synthesize"] = {"k_c": [8.0, 20.0], "k_e": [30.0, 50.0]}
+    path = tmp_path / "late.toml"
+    path.write_text(tomli_w.dumps(data))
+    target = tmp_path / "out" / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(path), "--out", str(target), "--json", "-"])
+    record = json.loads(result.stdout)
+    assert result.exit_code == 1 and not target.exists() and record["point"] is None
+    assert record["limit_search"]["trials"][0]["sampled"].startswith("the loop as implemented is not certified")
+    status = record["status"]
+    assert "\n" not in status and status.startswith("no design within the limits: the family's smallest certified "
+                                                    "design (alpha = 0) falls short of the sampled loop's margins")

@@ -129,16 +129,18 @@ def test_the_implemented_storage_identity_holds_and_fails_when_the_torque_is_per
     assert claim.status == "FAIL"
 
 
-def test_a_synthesized_design_that_would_diverge_is_refused(tmp_path):
-    """On the light wrist at 500 Hz, ``[synthesize] k_xi = [1, 100]`` for every joint gives a
-    design certified for the ideal loop whose held torque diverges (its run's peak torque is
-    ~1e254 x the limit): it is refused, exit 1, nothing written."""
+def test_synthesis_refuses_in_one_line_when_a_joints_window_is_empty_within_its_box(tmp_path):
+    """On the light wrist at 500 Hz, ``[synthesize] k_xi = [1, 100]`` for every joint: the ideal loop
+    alone would take a wrist-3 gain whose held torque diverges (run peak ~1e254 x the limit); within
+    the windows' margins wrist 3 needs ``1.1 x 1/2 <= k_xi,6 <= 0.8 x 0.487`` (its hold limit alone,
+    ``1.95 / (h (M^-1)_66)``), empty: exit 1, nothing written, one status line naming the joint."""
     path = write(tmp_path, lambda d: (light_wrist(d), d.update(synthesize={"k_xi": [1.0, 100.0]})))
     target = tmp_path / "out" / "syn.toml"
     result = runner.invoke(app, ["synthesize", str(path), "--out", str(target), "--json", "-"])
     record = json.loads(result.stdout)
     assert result.exit_code == 1 and not target.exists() and record["scenario_file"] is None
-    assert record["status"].startswith("refused, nothing written: the loop as implemented is not certified (fact 14)")
+    assert record["status"].startswith("infeasible: joint 6: no k_xi in [1, 100]") and "\n" not in record["status"]
+    assert "0.8 x its hold limit alone 0.4867" in record["status"]
 
 
 def test_synthesis_defaults_to_the_windows_and_says_when_one_is_empty(tmp_path):
