@@ -1,5 +1,5 @@
 # make demo: create .venv, install, run the default scenario end to end.
-# make test: same install plus the browser and PDF tools of the report tests, then ruff and every test.
+# make test: same install plus the browser and PDF tools of the report tests, then ruff and every test (on both cores).
 # make check: ruff and the quick tier (every test not marked slow), for everyday work.
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -33,10 +33,10 @@ lint: install
 	$(BIN)/ruff check .
 
 test: lint system-deps
-	$(BIN)/pytest -q --nbmake tests notebooks
+	$(BIN)/pytest -q -n 2 --dist loadfile --nbmake tests notebooks
 
 check: lint
-	$(BIN)/pytest -q -m "not slow" tests
+	$(BIN)/pytest -q -n 2 --dist loadfile -m "not slow" tests
 
 # make mutate: break the code on purpose (tests/mutation/harness.py) and check every mutation is caught (~10 min).
 mutate: install
