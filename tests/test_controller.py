@@ -279,5 +279,5 @@ def test_friction_compensation_of_the_program_is_the_sampled_simulators_law():
     loop = program_loop(case)
     compensation = cs.Function("fhat", [loop.t, loop.state, loop.hold], [loop.compensation_torque])
     fhat = [np.asarray(compensation(t, np.concatenate([q, qd, x[:7]]), np.zeros(loop.hold.numel()))).ravel()
-            for t, q, qd, x in zip(run.t, run.q[:-1], run.qd[:-1], run.states, strict=True)]  # fmt: skip
+            for t, q, qd, x in zip(run.t[:-1], run.q[:-1], run.qd[:-1], run.states, strict=True)]  # fmt: skip
     assert np.abs(fhat).max() > 0.01
