@@ -446,6 +446,7 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
         "q_eq": lin.q_eq.tolist(),
         "scope": SCOPE.format(gap=gap),
         "margins": linear_margins(system),
+        **program_record(loop, s0, imp),
         "seconds": time.perf_counter() - start,
     }
 
@@ -591,3 +592,20 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> 
         plant = phi @ plant + g_tau @ out[:n]
     pi = np.vstack([plant, state, *(flight.pop(p + sched.steps) for p in sched.pending)])
     return ProgramMonodromy(pi, spectral_radius(pi), sched, ring)
+
+
+PROGRAM_LOOP = (
+    "the loop the controller program closes (dvfc export's step, docs/math.md fact 22: the observer stepped on the "
+    "samples by the exact flow of (12) with V_wc and u_e held, a discrete state of the controller), linearised at "
+    "the same equilibrium over the same common period; rho above is the sampled simulator's loop (observer "
+    "integrated continuously)"
+)
+
+
+def program_record(loop: ClosedLoop, s0: np.ndarray, imp: Implementation) -> dict:
+    """``program_rho`` (the spectral radius of :func:`program_monodromy`) and ``program_loop`` (which loop
+    it is), for :func:`implemented_record`; None with the reason when its linearisation fails."""
+    try:
+        return {"program_rho": program_monodromy(loop, s0[: loop.robot.n], imp).rho, "program_loop": PROGRAM_LOOP}
+    except ValueError as exc:
+        return {"program_rho": None, "program_loop": f"not computed: {exc}"}
