@@ -18,7 +18,13 @@ and generated as C (:mod:`dvfc.analysis.export`). One step at ``t_k``:
 
 State (flat, :class:`Layout`): ``gbar = [pbar; quat]`` (7), the held ``e_e`` (6), the ring of the
 last ``B = latency + jitter + 1`` estimates (``7 B``), the sample counter ``k``, the last finite
-``q`` (``n``), and an integral state (``n``, zero: the law has none yet). A planned reference
+``q`` (``n``), and the integral state ``z_I`` (``n``; zero, and passed through, when the law has no
+integral action). With integral action (docs/math.md, facts 20-21) the torque reads ``-K_I z_k`` and
+``z_(k+1) = z_k + h xi_k`` from ``integral_start`` on (``z_I`` held at 0 before), with the sampled
+simulator's conditional anti-windup at the implementation's effort limits (when it saturates): joint
+``i`` keeps ``z_I,i`` when its commanded torque is beyond ``+-effort_i`` and the update would push it
+further (:mod:`dvfc.analysis.sampled`). A friction compensation ``fhat(qd_d)`` (fact 19) is part of the
+law, on the program's own ``qd_d``. A planned reference
 (docs/math.md, fact 16b) is part of the program (its start ``gbar(0)``, goal, duration and hold
 are constants); its clock is ``t_k``.
 
@@ -43,6 +49,7 @@ import numpy as np
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.compile import Buffered
+from dvfc.analysis.implementation import Implementation
 from dvfc.models.lie import SE3, SO3, quaternion_to_matrix
 from dvfc.models.loop import ClosedLoop
 
@@ -106,11 +113,13 @@ def _finite(x: cs.SX) -> cs.SX:
 
 def _quaternion_exp(w: cs.SX) -> cs.SX:
     """The unit quaternion of ``exp(hat(w))``: ``[cos(theta/2); sin(theta/2) w / theta]``, with the
-    series of ``sin(theta/2)/theta`` below ``1e-4`` (error below ``1e-18``)."""
+    series of ``cos(theta/2)`` and ``sin(theta/2)/theta`` below ``theta = 1e-4`` (errors below ``1e-18``;
+    differentiable at ``w = 0``, where ``theta = |w|`` is not: the program's Jacobian, fact 22)."""
     theta2 = w.T @ w
     theta = cs.sqrt(theta2)
-    half = cs.if_else(theta2 < 1e-8, 0.5 - theta2 / 48, cs.sin(theta / 2) / theta)
-    return cs.vertcat(cs.cos(theta / 2), half * w)
+    small = theta2 < 1e-8
+    half = cs.if_else(small, 0.5 - theta2 / 48, cs.sin(theta / 2) / theta)
+    return cs.vertcat(cs.if_else(small, 1 - theta2 / 8 + theta2**2 / 384, cs.cos(theta / 2)), half * w)
 
 
 def _quaternion_product(a: cs.SX, b: cs.SX) -> cs.SX:
@@ -155,9 +164,28 @@ def ring_size(case: Case) -> int:
 def step_function(case: Case) -> cs.Function:
     """One control step of the case's controller, ``dvfc_program(t, q, qd, features, capture, x)
     -> (tau, x_next, status)`` (see the module's description; ``capture < 0``: no image)."""
-    loop = program_loop(case)
-    n, m, h = loop.robot.n, loop.camera.m, case.settings.implementation.period
-    layout = Layout(n, ring_size(case))
+    return program_function(program_loop(case), case.settings.implementation, ring_size(case))
+
+
+def integral_update(loop: ClosedLoop, z: cs.SX, xi: cs.SX, tau: cs.SX, effort: np.ndarray, h: float) -> cs.SX:
+    """``z_I`` after one sample (facts 20-21): ``z + h xi`` (``xi`` the law's integrand, 0 before
+    ``integral_start``), joint ``i`` held when its commanded ``tau_i`` is beyond a finite
+    ``effort_i`` and ``-K_I,i h xi_i`` would push it further (conditional integration, the sampled
+    simulator's rule)."""
+    held = [
+        cs.logic_or(cs.logic_and(tau[i] > e, xi[i] < 0), cs.logic_and(tau[i] < -e, xi[i] > 0))
+        if np.isfinite(e)
+        else cs.SX(0)
+        for i, e in enumerate(effort)
+    ]
+    return z + cs.if_else(cs.vertcat(*held), cs.DM.zeros(loop.robot.n), h * xi)
+
+
+def program_function(loop: ClosedLoop, imp: Implementation, ring: int) -> cs.Function:
+    """:func:`step_function` for a loop in its sampled form (:func:`program_loop`), an
+    implementation (its period, effort limits) and a ring of ``ring`` estimates."""
+    n, m, h = loop.robot.n, loop.camera.m, imp.period
+    layout = Layout(n, ring)
     t, q, qd = cs.SX.sym("t"), cs.SX.sym("q", n), cs.SX.sym("qd", n)
     features, capture, x = cs.SX.sym("features", 2 * m), cs.SX.sym("capture"), cs.SX.sym("x", layout.size)
     gbar, e_held, k = x[layout.gbar], x[layout.e_e], x[layout.counter]
@@ -170,12 +198,18 @@ def step_function(case: Case) -> cs.Function:
     in_ring = cs.logic_and(cs.logic_and(capture <= k, capture > k - layout.ring), cs.floor(capture) == capture)
     usable = cs.logic_and(cs.logic_and(given, in_ring), cs.logic_and(_finite(features), plausible(e_new, loop)))
     e_e = cs.if_else(usable, e_new, e_held)
+    z_i = x[layout.integral]
     arguments = [loop.t, loop.state, loop.hold]
-    law = cs.Function("law", arguments, [loop.tau, loop.camera_velocity, loop.u[n + 6 : n + 12]])
-    tau, v_wc, u_e = law(t, cs.vertcat(q, qd, gbar), cs.vertcat(cs.DM.zeros(n), e_e))
+    law = cs.Function("law", arguments, [loop.tau, loop.camera_velocity, loop.u[n + 6 : n + 12], loop.integrand])
+    state = cs.vertcat(q, qd, gbar, z_i) if loop.integral else cs.vertcat(q, qd, gbar)
+    tau, v_wc, u_e, xi = law(t, state, cs.vertcat(cs.DM.zeros(n), e_e))
     gbar_next = observer_step(gbar[:3], gbar[3:], v_wc, u_e, h)
+    effort = imp.limits(loop.robot.limits).effort if imp.saturate else np.full(n, np.inf)
+    z_next = integral_update(loop, z_i, xi, tau, effort, h) if loop.integral else z_i
     joints = cs.logic_and(_finite(q), _finite(qd))
     working = cs.logic_and(_finite(tau), _finite(gbar_next))
+    if loop.integral:
+        working = cs.logic_and(working, _finite(z_next))
     fine = cs.logic_and(joints, working)
     q_safe = cs.if_else(_finite(q), q, x[layout.q_last])
     gravity = cs.Function("gravity", [loop.robot.q], [loop.robot.gravity])(q_safe)
@@ -194,7 +228,7 @@ def step_function(case: Case) -> cs.Function:
         *slots,
         k + 1,
         q_safe,
-        x[layout.integral],
+        cs.if_else(fine, z_next, z_i) if loop.integral else z_i,
     )
     return cs.Function(
         "dvfc_program",

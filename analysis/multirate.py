@@ -446,6 +446,7 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
         "q_eq": lin.q_eq.tolist(),
         "scope": SCOPE.format(gap=gap),
         "margins": linear_margins(system),
+        **program_record(loop, s0, imp),
         "seconds": time.perf_counter() - start,
     }
 
@@ -491,3 +492,129 @@ def implemented_text(record: dict) -> str:
     return (f"loop as implemented, linearised at rest (fact 14, local): {verdict}: rho = {record['rho']:.6g} over "
             f"{record['period'] * 1e3:.4g} ms, rate {rate} 1/s, Lyapunov margin "
             f"{record['lyapunov_margin']:.3g}; linear margins {margins}")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ProgramMonodromy:
+    """Fact 14 for the loop the controller program closes (docs/math.md, fact 22): the plant's held
+    flow between samples (``[dq; dqd]``, exact) and the program's step (``dvfc_program``) linearised
+    at the static-target equilibrium by CasADi's Jacobian, its observer a discrete state.
+
+    ``pi`` acts on ``[dq; dqd; dpbar; dthetabar; e held; z_I (with integral action); the ring's
+    estimates by age 1..B (6 each); the features of the images in flight (schedule.pending, 2m each)]``
+    over one common period of the schedules; ``rho`` its spectral radius."""
+
+    pi: np.ndarray
+    rho: float
+    schedule: Schedule
+    ring: int
+
+
+def _tangent(quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(embed, project)`` between ``[dp; dtheta]`` (6) and ``[dp; dquat]`` (7) at ``quat``
+    (``Rbar = Rbar* exp(dtheta)``: ``dquat = quat (x) [0; dtheta/2]``, and back
+    ``dtheta = 2 vec(quat^* (x) dquat)``)."""
+    w, v = quat[0], quat[1:]
+    cross = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    left = np.block([[w, -v[None, :]], [v[:, None], w * np.eye(3) + cross]])  # quat (x) .
+    embed, project = np.zeros((7, 6)), np.zeros((6, 7))
+    embed[:3, :3] = project[:3, :3] = np.eye(3)
+    embed[3:, 3:] = left[:, 1:] / 2
+    project[3:, 3:] = 2 * left.T[1:, :]  # the conjugate's product, its vector part
+    return embed, project
+
+
+def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> ProgramMonodromy:
+    """:class:`ProgramMonodromy` of a scenario's loop and implementation (fact 14's applicability and
+    :func:`schedule`; the plant's period map from :func:`held_linearization`)."""
+    from dvfc.analysis.controller import Layout, program_function  # the program needs the loop's models
+
+    lin = held_linearization(loop, q0)
+    sched = schedule(imp)
+    n, m, h = loop.robot.n, loop.camera.m, imp.period
+    ring = imp.latency_steps + imp.latency_jitter + 1
+    program = program_function(replace(loop, sampled=True, plant=None), imp, ring)
+    layout = Layout(n, ring)
+    t, q, qd, f, c, x = (cs.SX.sym(name, *program.size_in(i)) for i, name in enumerate(program.name_in()))
+    tau, x_next, _ = program(t, q, qd, f, c, x)
+    jacobian = cs.Function("program_jacobian", [t, q, qd, f, c, x],
+                           [tau, x_next, cs.jacobian(cs.vertcat(tau, x_next), cs.vertcat(q, qd, f, x))])  # fmt: skip
+    rest = rest_model(loop)
+    features = cs.Function("features", [rest.q], [cs.substitute(rest.features, rest.t, 0), cs.jacobian(
+        cs.substitute(rest.features, rest.t, 0), rest.q)])  # fmt: skip
+    f_eq, f_q = (np.asarray(v) for v in features(lin.q_eq))
+    gbar_eq = loop.reference.position_quaternion()
+    embed, project = _tangent(gbar_eq[3:])
+    late = 1e3  # s: past the planned reference, the ramp and integral_start
+    first = ring * (sched.lag + 1)  # a counter (a multiple of the ring) with every capture >= 0
+    x_eq = np.zeros(layout.size)
+    x_eq[layout.gbar] = gbar_eq
+    for j in range(ring):
+        x_eq[layout.slot(j)] = gbar_eq
+    x_eq[layout.q_last] = lin.q_eq
+    phi, g_tau, _ = lin.flow(h)
+    phi, g_tau = phi[: 2 * n, : 2 * n], g_tau[: 2 * n]
+    z_i = n if loop.integral else 0
+    controller = 12 + z_i + 6 * ring
+    size = 2 * n + controller + 2 * m * len(sched.pending)
+    eye = np.eye(size)
+    plant, state = eye[: 2 * n], eye[2 * n : 2 * n + controller]
+    flight = {p: eye[2 * n + controller + 2 * m * i : 2 * n + controller + 2 * m * (i + 1)]
+              for i, p in enumerate(sched.pending)}  # fmt: skip
+
+    def embedding(k: int) -> np.ndarray:
+        """The program's ``dx`` from the reduced controller coordinates before the step at counter ``k``
+        (the ring's age ``a`` in slot ``(k - a) mod B``)."""
+        e = np.zeros((layout.size, controller))
+        e[layout.gbar, :6] = embed
+        e[layout.e_e, 6:12] = np.eye(6)
+        e[layout.integral.start : layout.integral.start + z_i, 12 : 12 + z_i] = np.eye(z_i)
+        for a in range(1, ring + 1):
+            e[layout.slot((k - a) % ring), 12 + z_i + 6 * (a - 1) : 12 + z_i + 6 * a] = embed
+        return e
+
+    def projection(k: int) -> np.ndarray:
+        """The reduced controller coordinates from the program's ``dx`` after the step, counter ``k``."""
+        r = np.zeros((controller, layout.size))
+        r[:6, layout.gbar] = project
+        r[6:12, layout.e_e] = np.eye(6)
+        r[12 : 12 + z_i, layout.integral.start : layout.integral.start + z_i] = np.eye(z_i)
+        for a in range(1, ring + 1):
+            r[12 + z_i + 6 * (a - 1) : 12 + z_i + 6 * a, layout.slot((k - a) % ring)] = project
+        return r
+
+    captures = set(sched.captures)
+    for k in range(sched.steps):
+        if k in captures:
+            flight[k] = f_q @ plant[:n]
+        arriving = k - sched.lag in flight
+        image = flight.pop(k - sched.lag) if arriving else np.zeros((2 * m, size))
+        x_eq[layout.counter] = first + k
+        capture = first + k - sched.lag if arriving else -1.0
+        tau, x_next, jac = (np.asarray(v) for v in jacobian(late, lin.q_eq, np.zeros(n), f_eq, capture, x_eq))
+        tau, x_next = tau.ravel(), x_next.ravel()
+        moved = np.abs(np.concatenate([tau - lin.tau_eq, x_next[: layout.counter] - x_eq[: layout.counter]])).max()
+        if not (moved < 1e-8 and np.isfinite(jac).all()):
+            raise ValueError(f"the program's equilibrium is not a fixed point of its step (moved {moved:.2e})")
+        out = jac @ np.vstack([plant, image, embedding(first + k) @ state])
+        state = projection(first + k + 1) @ out[n:]
+        plant = phi @ plant + g_tau @ out[:n]
+    pi = np.vstack([plant, state, *(flight.pop(p + sched.steps) for p in sched.pending)])
+    return ProgramMonodromy(pi, spectral_radius(pi), sched, ring)
+
+
+PROGRAM_LOOP = (
+    "the loop the controller program closes (dvfc export's step, docs/math.md fact 22: the observer stepped on the "
+    "samples by the exact flow of (12) with V_wc and u_e held, a discrete state of the controller), linearised at "
+    "the same equilibrium over the same common period; rho above is the sampled simulator's loop (observer "
+    "integrated continuously)"
+)
+
+
+def program_record(loop: ClosedLoop, s0: np.ndarray, imp: Implementation) -> dict:
+    """``program_rho`` (the spectral radius of :func:`program_monodromy`) and ``program_loop`` (which loop
+    it is), for :func:`implemented_record`; None with the reason when its linearisation fails."""
+    try:
+        return {"program_rho": program_monodromy(loop, s0[: loop.robot.n], imp).rho, "program_loop": PROGRAM_LOOP}
+    except ValueError as exc:
+        return {"program_rho": None, "program_loop": f"not computed: {exc}"}

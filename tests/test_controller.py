@@ -5,6 +5,7 @@ bad input."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import casadi as cs
 import numpy as np
@@ -13,10 +14,11 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import logm
 
 import dvfc
-from dvfc.analysis.controller import Status, observer_step
+from dvfc.analysis.controller import Status, observer_step, program_loop
 from dvfc.analysis.export import ExportError
 from dvfc.analysis.sampled import SampledSimulator
-from dvfc.analysis.scenario import DEFAULT_SCENARIO
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
+from dvfc.analysis.sil import software_in_the_loop
 from dvfc.models.lie import SE3, quaternion_to_matrix
 
 
@@ -203,3 +205,79 @@ def test_controller_needs_an_implementation():
     """``dvfc.controller`` of a scenario without ``[implementation]``: one line naming the section."""
     with pytest.raises(ExportError, match=r"^implementation: "):
         dvfc.controller(dvfc.load(DEFAULT_SCENARIO.parent / "ur5_paper_ideal.toml"))
+
+
+SEVEN_JOINTS = Path(__file__).parent / "data" / "xarm7_sampled.toml"
+
+
+def changed(path: Path, gains: dict, implementation: dict | None = None):
+    """The scenario at ``path`` with ``[gains]`` and ``[implementation]`` entries changed (not compiled)."""
+    case = dvfc.load(path)
+    data = case.scenario.model_dump()
+    data["gains"].update(gains)
+    data["implementation"].update(implementation or {})
+    data["simulation"]["jit"] = False
+    return case.with_scenario(Scenario.model_validate(data))
+
+
+INTEGRAL = {"k_i_factor": 10.0, "integral_start": 0.02}
+SATURATED = {"saturate": True, "torque_scale": 0.004}
+"""Efforts scaled to 0.4 %: the shoulder's and elbow's gravity torques (-21 and -16 N m) always beyond their
+limits (-0.6 N m), the base's (up to +0.86 N m) at times, the wrists' both ways: the anti-windup holds
+``z_I,i`` at some samples and joints and not at others, on both sides."""
+
+
+def law_replay(case, run):
+    """Per sample of a software-in-the-loop ``run``: the program's torque and next ``z_I``, and the
+    sampled simulator's law and its ``z_I`` update (:class:`SampledSimulator`, another graph) at the
+    same ``(t, q, qd, gbar, z_I)`` and the same held ``e_e`` (the program's, after its image)."""
+    controller = dvfc.controller(case)
+    simulator = SampledSimulator(replace(case.loop, sampled=True), case.settings)
+    layout, n, integral = controller.layout, controller.n, case.loop.integral
+    rows = []
+    for k in range(len(run.tau)):
+        x = run.states[k]
+        image = run.features[k] if run.captures[k] >= 0 else None
+        step = controller.evaluate(x, run.t[k], run.q[k], run.qd[k], image, int(run.captures[k]))
+        e_e = step.state[layout.e_e]
+        s = np.concatenate([run.q[k], run.qd[k], x[:7], x[layout.integral] if integral else []])
+        law, _ = simulator._last(run.t[k], s, e_e, simulator._effort, *simulator.design)
+        after = simulator._period(s, run.t[k], e_e, simulator._effort, simulator._friction, *simulator.design)[0]
+        z_sim = np.asarray(after).ravel()[2 * n + 7 :]
+        rows.append((step.tau, np.asarray(law).ravel(), x[layout.integral], step.state[layout.integral], z_sim))
+    return [np.array(column) for column in zip(*rows, strict=True)]
+
+
+@pytest.mark.slow
+def test_integral_action_of_the_program_is_the_sampled_simulators_rule():
+    """Facts 20-21 in the program: over 0.1 s of software in the loop (50 samples) of the default UR5
+    with ``K_I = 10 K_xi`` from 0.02 s and saturated efforts, at every sample the torque equals the
+    sampled simulator's law (``-K_I z_k`` included) and ``z_(k+1)`` its update (``z_k + h xi_k``, 0
+    before ``integral_start``, the conditional anti-windup), both to 1e-10 relative: the same law in
+    two graphs (the program's SX, the simulator's MX) differs by rounding only. ``z_I`` is held at
+    some samples and integrates at others, and is 0 before 0.02 s."""
+    case = changed(DEFAULT_SCENARIO, INTEGRAL, SATURATED)
+    run = software_in_the_loop(case, duration=0.1)
+    tau, law, z, z_next, z_sim = law_replay(case, run)
+    assert np.abs(tau - law).max() <= 1e-10 * np.abs(law).max()
+    assert np.abs(z_next - z_sim).max() <= 1e-10 * np.abs(z_sim).max()
+    assert np.all(z_next[run.t[: len(tau)] < 0.02 - 1e-9] == 0.0)
+    late = run.t[: len(tau)] >= 0.02
+    held = (z_next == z) & late[:, None]
+    assert 0 < held.sum() < late.sum() * case.loop.robot.n, held.sum()
+
+
+@pytest.mark.slow
+def test_friction_compensation_of_the_program_is_the_sampled_simulators_law():
+    """Fact 19 in the program: the xArm 7 (its URDF's damping and friction) with ``friction_compensation =
+    "urdf"``, 0.05 s of software in the loop (100 samples at 2 kHz): every torque the sampled simulator's
+    law to 1e-10 relative, ``fhat(qd_d)`` reaching more than 0.01 N m (so the test sees it)."""
+    case = changed(SEVEN_JOINTS, {"friction_compensation": "urdf"})
+    run = software_in_the_loop(case, duration=0.05)
+    tau, law, *_ = law_replay(case, run)
+    assert np.abs(tau - law).max() <= 1e-10 * np.abs(law).max()
+    loop = program_loop(case)
+    compensation = cs.Function("fhat", [loop.t, loop.state, loop.hold], [loop.compensation_torque])
+    fhat = [np.asarray(compensation(t, np.concatenate([q, qd, x[:7]]), np.zeros(loop.hold.numel()))).ravel()
+            for t, q, qd, x in zip(run.t[:-1], run.q[:-1], run.qd[:-1], run.states, strict=True)]  # fmt: skip
+    assert np.abs(fhat).max() > 0.01
