@@ -41,6 +41,8 @@ from dvfc.analysis.start import planned_start, ramp_start
 from dvfc.analysis.synthesize import FAMILY, LIMITS_CRITERION, Bounds, LimitSearch, Trial, excess, scaled, within_limits
 from dvfc.analysis.verify import Claim, verify
 from dvfc.analysis.windows import case_windows
+from dvfc.models.camera import Camera
+from dvfc.models.errors import PlantErrors
 from dvfc.models.loop import ClosedLoop, Gains, Weights
 
 
@@ -197,6 +199,34 @@ def implementation_record(settings: Settings) -> dict:
             "payload": None if plant.payload is None else asdict(plant.payload), "mass_scale": plant.mass_scale
         },
     }  # fmt: skip
+
+
+def plant_errors_record(settings: Settings, camera: Camera) -> dict:
+    """What acts on the plant of the loop as implemented that the law's model leaves out
+    (``[plant]``, JSON-ready; each entry None when the plant has none of it): a payload, the
+    masses' scale, joint friction (viscous and Coulomb per joint, the smoothing), the camera
+    mount's error, the true intrinsics where they differ from ``camera`` (the controller's), the
+    feature points' errors."""
+    plant, errors = settings.plant, settings.errors
+    record = dict.fromkeys(("payload", "mass_scale", "friction", "mount", "intrinsics", "point_errors"))
+    if plant is not None:
+        record["payload"] = None if plant.payload is None else asdict(plant.payload)
+        record["mass_scale"] = None if plant.mass_scale == 1.0 else plant.mass_scale
+    if errors is None:
+        return record
+    if np.any(errors.viscous) or np.any(errors.coulomb):
+        record["friction"] = {"viscous": errors.viscous.tolist(), "coulomb": errors.coulomb.tolist(),
+                              "smoothing": errors.smoothing}  # fmt: skip
+    if np.any(errors.mount_xyz) or np.any(errors.mount_rpy):
+        record["mount"] = {"xyz": errors.mount_xyz.tolist(), "rpy": errors.mount_rpy.tolist()}
+    nominal = PlantErrors.none(camera, len(errors.viscous))
+    true = {"fx": errors.fx, "fy": errors.fy, "principal_point": np.asarray(errors.principal_point).tolist(),
+            "distortion": np.asarray(errors.distortion).tolist()}  # fmt: skip
+    if any(not np.array_equal(np.asarray(v), np.asarray(getattr(nominal, k))) for k, v in true.items()):
+        record["intrinsics"] = true
+    if np.any(errors.point_errors):
+        record["point_errors"] = np.asarray(errors.point_errors).tolist()
+    return record
 
 
 def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:

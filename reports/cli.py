@@ -22,14 +22,16 @@ from dvfc.analysis.cli import (
     resumable,
 )
 from dvfc.analysis.results import verdict
-from dvfc.reports.document import CACHE, STEPS, StageCache, assemble, write
+from dvfc.reports.document import STEPS, assemble, write
+from dvfc.reports.stages import CACHE, StageCache
 
 
 @app.command()
 def report(
     scenario: ScenarioArg = DEFAULT_SCENARIO,
     out_dir: OutOpt = None,
-    resume: Annotated[bool, typer.Option(help="Reuse the stages an interrupted report finished in --out.")] = False,
+    resume: Annotated[bool, typer.Option(help="Reuse the stages of a report in --out whose inputs are unchanged "
+                                               "(interrupted, or of an edited scenario).")] = False,
 ) -> None:
     """Write the design-review report of a scenario: report.html (self-contained) and report.pdf.
     Exit 0: certified and every check passes; 1: not certified, or a check fails or is inconclusive."""
@@ -37,8 +39,7 @@ def report(
     require_six(case, "report")
     directory = prepare_out_dir(out_dir or Path("out") / case.name)
     provenance_ = command_provenance(scenario)
-    key = f"{provenance_['scenario_sha256']} dvfc {provenance_['toolkit']['dvfc']}"
-    cache = StageCache(directory / CACHE, key, resume)
+    cache = StageCache(directory / CACHE, str(provenance_["toolkit"]["dvfc"]), resume)
     columns = (
         SpinnerColumn(),
         TextColumn("[bold]report[/] {task.description}"),

@@ -23,7 +23,7 @@ from typer.testing import CliRunner
 from dvfc.analysis.margins import PARAMETERS
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
-from dvfc.reports.document import CACHE
+from dvfc.reports.stages import CACHE
 
 pytestmark = pytest.mark.slow  # every test here reads the whole review of the default scenario (about a minute)
 
