@@ -31,7 +31,7 @@ from dvfc.analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.envelope import GridEnvelope, design_of, disturbance_bounds, envelope, grid_envelope, start_storage
 from dvfc.analysis.grid import GridSpec, SweepState
-from dvfc.analysis.linearize import MARGINAL_POLES, linearize, sharpest_from_rest
+from dvfc.analysis.linearize import MARGINAL_POLES, FromRest, from_rest
 from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.output import append_log, read_log
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
@@ -276,15 +276,16 @@ def channels_text(point: dict, planar: bool) -> str:
             f"{out['e_c']:g} I, {out['e_e']:g} I), D_w = diag({fmt(dist['tau_d'])}, {velocity}))")
 
 
-def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
+def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict, rest: FromRest | None = None) -> dict:
     """Lower bounds on the true L2 gain and how far the certificates sit above them: the
     linearisation's peak gain and the gain of the run from rest that ``verify`` checks Theorem 2 on
-    (:func:`dvfc.analysis.linearize.sharpest_from_rest`, driven to its sharpness)."""
+    (:func:`dvfc.analysis.linearize.sharpest_from_rest`, driven to its sharpness; ``rest``: both,
+    when already made by :func:`dvfc.analysis.linearize.from_rest`)."""
     try:
-        lin = linearize(loop, s0[: loop.robot.n])
+        rest = from_rest(loop, s0[: loop.robot.n]) if rest is None else rest
     except ValueError as exc:
         return {"gamma_lower": None, "lower_bound_reason": str(exc)}
-    nonlinear, rest, converged = sharpest_from_rest(loop, lin)
+    lin, nonlinear, converged = rest.lin, rest.gain, rest.converged
     lower = max(lin.peak_gain, nonlinear)
     ratio = lambda g: None if g is None else g / lower  # noqa: E731
     return {
@@ -293,7 +294,7 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
         **({"hinf_note": MARGINAL_POLES} if math.isinf(lin.hinf) else {}),
         "gamma_lower_nonlinear": nonlinear,
         "worst_disturbance": {"signal": "the linearisation's worst sinusoid", "frequency_rad_s": lin.peak_frequency,
-                              "horizon_s": float(rest.t[-1]), "converged": converged},
+                              "horizon_s": float(rest.run.t[-1]), "converged": converged},
         "gamma_lower": lower,
         "tightness": ratio(record["gamma"]),
         "tightness_tight": ratio(record.get("gamma_tight")),
@@ -361,18 +362,21 @@ def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, 
     return certify(point, spec.reference.se3(), theta_max=theta_max, gamma_bound=bound, with_sdp=with_sdp)
 
 
-def certificate_result(case: Case, provenance: dict, *, lower_bounds: bool = True) -> tuple[dict, Certificate]:
+def certificate_result(
+    case: Case, provenance: dict, *, lower_bounds: bool = True, rest: FromRest | None = None
+) -> tuple[dict, Certificate]:
     """Theorem 2 at the case's gains: the paper's gamma, the fact-4 gamma, and (optionally)
-    lower bounds on the true gain, over the ``[certify]`` region; the operating envelope; with an
-    implementation, the local certificate of the loop as implemented (``implemented``,
-    docs/math.md, fact 14: :func:`dvfc.analysis.multirate.implemented_record`)."""
+    lower bounds on the true gain (``rest``: the run from rest they take, when already made), over
+    the ``[certify]`` region; the operating envelope; with an implementation, the local
+    certificate of the loop as implemented (``implemented``, docs/math.md, fact 14:
+    :func:`dvfc.analysis.multirate.implemented_record`)."""
     start = time.perf_counter()
     spec, point, planar = case.scenario, case.point, case.planar
     cert = certificate_for(spec, point)
     tight = tight_gamma_planar(point) if planar else tight_gamma(point, case.reference)
     record = point_record(point, cert, tight if cert.gamma is not None else None)
     if lower_bounds:
-        record.update(lower_bound_record(case.loop, case.s0, record))
+        record.update(lower_bound_record(case.loop, case.s0, record, rest))
     record["envelope"] = envelope_record(case)
     if case.settings.implementation is not None:
         record["implemented"] = implemented_record(case.loop, case.s0, case.settings)
@@ -395,11 +399,16 @@ def certificate_result(case: Case, provenance: dict, *, lower_bounds: bool = Tru
 
 
 def verification_result(
-    case: Case, provenance: dict, envelope: dict | None = None, implemented_run: Trajectory | None = None
+    case: Case,
+    provenance: dict,
+    envelope: dict | None = None,
+    implemented_run: Trajectory | None = None,
+    rest: FromRest | None = None,
 ) -> tuple[dict, list[Claim]]:
     """Every claim of the paper checked on simulated runs, at the gamma certified for the gains;
     the envelope's claims against ``envelope`` (:func:`envelope_record` of the case), the limits
-    on ``implemented_run`` (the case run as implemented), each computed here when not given."""
+    on ``implemented_run`` (the case run as implemented), Theorem 2 from rest on ``rest``
+    (:func:`dvfc.analysis.linearize.from_rest`), each computed here when not given."""
     start = time.perf_counter()
     spec, loop, point = case.scenario, case.loop, case.point
     cert = certificate_for(spec, point, with_sdp=False, bounded=False)
@@ -408,7 +417,7 @@ def verification_result(
         gamma = exact_gamma(point, case.reference, np.eye(3))[0]
         gamma = None if not np.isfinite(gamma) else gamma
     envelope = envelope_record(case, search=False) if envelope is None else envelope
-    claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run)
+    claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run, rest)
     count = lambda status: sum(c.status == status for c in claims)  # noqa: E731
     result = {
         "scenario": spec.name,

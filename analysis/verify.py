@@ -20,7 +20,7 @@ import numpy as np
 
 from dvfc.analysis.adversary import worst_disturbance
 from dvfc.analysis.envelope import DisturbanceBounds, level_bounds
-from dvfc.analysis.linearize import linearize, sharpest_from_rest, weight_diagonals
+from dvfc.analysis.linearize import FromRest, from_rest, weight_diagonals
 from dvfc.analysis.quiet import silenced
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, rotation_angle
@@ -293,10 +293,13 @@ def conditioning_claim(traj: Trajectory, threshold: float) -> Claim:
                  traj.message)  # fmt: skip
 
 
-def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None) -> list[Claim]:
+def theorem_2(
+    loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None, rest: FromRest | None = None
+) -> list[Claim]:
     """(43) with disturbances along a run with the scenario's target motion and torque
     disturbances (band-limited noise of 1 N m RMS added if it has none); (44) and (45) on a run
-    from rest under the worst disturbance of the linearisation (:func:`from_rest_claims`)."""
+    from rest under the worst disturbance of the linearisation (:func:`from_rest_claims`; ``rest``:
+    that run, when already made by :func:`dvfc.analysis.linearize.from_rest`)."""
     disturbed = loop if loop.disturbances else replace(
         loop, disturbances=[BandLimitedNoise(np.ones(loop.robot.n), 5.0, seed=0)]
     )  # fmt: skip
@@ -311,14 +314,13 @@ def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float
         return [*claims, Claim("dissipation inequality at the certified gamma", "Theorem 2, (44)-(45)",
                                float("nan"), "a gamma from P >= 0", False, "P >= 0 holds for no gamma")]  # fmt: skip
     try:
-        lin = linearize(loop, s0[: loop.robot.n])
+        rest = from_rest(loop, s0[: loop.robot.n]) if rest is None else rest
     except ValueError as exc:  # no configuration puts the camera at the reference (n < 6)
         return [*claims, Claim("dissipation inequality at the certified gamma from x(0) = 0", "Theorem 2, (44)-(45)",
                                float("nan"), "a run from the equilibrium", None, f"not run: {exc}",
                                inconclusive=True)]  # fmt: skip
-    _, rest, converged = sharpest_from_rest(loop, lin)
     weights = None if loop.performance is None else weight_diagonals(loop)
-    return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged, weights=weights)]
+    return [*claims, *from_rest_claims(rest.run, gamma, rest.lin.peak_gain, converged=rest.converged, weights=weights)]
 
 
 ATTAINED = 0.95
@@ -647,30 +649,37 @@ def verify(
     gamma: float | None,
     envelope: dict | None = None,
     implemented_run: Trajectory | None = None,
+    rest: FromRest | None = None,
 ) -> list[Claim]:
     """All claims, in the paper's order, on the paper's loop (continuous, exact model, no
     image border), then the operating envelope's (facts 7-8) when given, then the run as
     implemented against the robot's limits. Each variant of the paper's loop runs once, so
     its right-hand sides are evaluated by CasADi's virtual machine rather than compiled; the
     run as implemented follows the scenario's ``jit`` (``implemented_run``: that run, when
-    already made)."""
+    already made; ``rest``: the run from rest of Theorem 2's checks, when already made)."""
     paper = replace(settings, jit=False, implementation=None, plant=None, view=False)
     return [
-        *verify_paper(loop, s0, paper, gamma, envelope),
+        *verify_paper(loop, s0, paper, gamma, envelope, rest),
         *implemented(loop, s0, settings, implemented_run),
     ]
 
 
 def verify_paper(
-    loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None, envelope: dict | None = None
+    loop: ClosedLoop,
+    s0: np.ndarray,
+    settings: Settings,
+    gamma: float | None,
+    envelope: dict | None = None,
+    rest: FromRest | None = None,
 ) -> list[Claim]:
-    """The paper's claims on its idealised loop, and the operating envelope's when given."""
+    """The paper's claims on its idealised loop, and the operating envelope's when given (``rest``:
+    the run from rest of :func:`theorem_2`, when already made)."""
     return [
         *([] if isinstance(loop, PlanarLoop) else kinematic_claims(loop, s0)),
         *lemma_2(loop, s0, settings),
         *theorem_1(loop, s0, settings),
         lyapunov_derivative(loop, s0, settings),
-        *theorem_2(loop, s0, settings, gamma),
+        *theorem_2(loop, s0, settings, gamma, rest),
         *image_mode(loop, s0, settings),
         *([] if envelope is None else envelope_claims(loop, s0, settings, envelope)),
     ]

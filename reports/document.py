@@ -31,6 +31,7 @@ from dvfc.analysis.campaign import (
 from dvfc.analysis.campaign import summarize as summarize_campaign
 from dvfc.analysis.case import Case
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
+from dvfc.analysis.linearize import FromRest, from_rest
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, tracking_bound
 from dvfc.analysis.output import atomic_write
 from dvfc.analysis.pose import xyz_rpy
@@ -149,12 +150,14 @@ def assemble(
     same = settings.implementation is None and settings.plant is None and implemented.status == "ok"
     trajectory = implemented if same else stage("simulation", case, lambda: Simulator(loop, settings).run(s0))
     progress(STEPS[1])
-    certificate = _current(stage("certificate", case, lambda: certificate_result(case, provenance)[0]), spec,
-                           provenance)  # fmt: skip
+    rest = stage("from_rest", case, lambda: _from_rest(case))  # shared by the lower bound and Theorem 2's checks
+    rest = rest if isinstance(rest, FromRest) else None  # no equilibrium: both say why
+    certificate = _current(stage("certificate", case, lambda: certificate_result(case, provenance, rest=rest)[0],
+                                 (rest,)), spec, provenance)  # fmt: skip
     envelope = certificate["points"][0]["envelope"]
     progress(STEPS[2])
     verification = _current(stage("verification", case, lambda: verification_result(case, provenance, envelope,
-                                  implemented)[0], (envelope, implemented)), spec, provenance)  # fmt: skip
+                                  implemented, rest)[0], (envelope, implemented, rest)), spec, provenance)  # fmt: skip
     progress(STEPS[3])
     measured = None
     if settings.implementation is not None:
@@ -202,6 +205,14 @@ def assemble(
         spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance,
         as_built, measured, dispersion, s0[: loop.robot.n].copy(), plant_errors_record(settings, loop.camera),
     )  # fmt: skip
+
+
+def _from_rest(case: Case) -> FromRest | str:
+    """The case's run from rest (:func:`dvfc.analysis.linearize.from_rest`), or why there is none."""
+    try:
+        return from_rest(case.loop, case.s0[: case.loop.robot.n])
+    except ValueError as exc:
+        return str(exc)
 
 
 def _current(result: dict, spec: Scenario, provenance: dict) -> dict:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import pickle
 import shutil
 import time
@@ -25,6 +26,9 @@ from dvfc.analysis.schema import Scenario
 CACHE = ".dvfc-report"
 """Directory (inside the output directory) holding the finished stages of a report."""
 
+TIMINGS = "timings.txt"
+"""The file (in :data:`CACHE`) a report writes its table of step times to (:class:`StepTimes`)."""
+
 DISPLAY = ("name", "grid", "synthesize", "report.map")
 """Fields no kept stage reads: the name shown, the gain map's (drawn anew by every report), the
 synthesis' (no report stage synthesises)."""
@@ -35,6 +39,7 @@ RUNS = (*DISPLAY, "certify", "envelope", "dispersion", "report")
 IGNORES: dict[str, tuple[str, ...]] = {
     "implemented": RUNS,
     "simulation": RUNS,
+    "from_rest": (*RUNS, "simulation"),  # its own horizon and tolerances
     "certificate": (*DISPLAY, "dispersion", "report"),
     "verification": (*DISPLAY, "dispersion", "report", "certify.gamma"),  # its gamma: P >= 0 without the bound
     "margins": (*DISPLAY, "dispersion", "report", "certify"),
@@ -135,3 +140,34 @@ class StageCache:
         path.mkdir(parents=True, exist_ok=True)
         atomic_write(stamp, lambda h: h.write(key.encode()))
         return path
+
+
+def _clock() -> tuple[float, float]:
+    """Wall time and the CPU time of this process and its children (the C compiler), in seconds."""
+    t = os.times()
+    return time.perf_counter(), t.user + t.system + t.children_user + t.children_system
+
+
+@dataclass
+class StepTimes:
+    """The wall and CPU time of each step of a report: calling it with a step's name ends the
+    step before (``"end"`` ends the last); :meth:`table` says which kept stages each reused."""
+
+    rows: list[tuple[str, float, float]] = field(default_factory=list)
+    _open: tuple[str, float, float] | None = None
+
+    def __call__(self, name: str) -> None:
+        wall, cpu = _clock()
+        if self._open is not None:
+            self.rows.append((self._open[0], wall - self._open[1], cpu - self._open[2]))
+        self._open = None if name == "end" else (name, wall, cpu)
+
+    def table(self, cache: StageCache) -> str:
+        """The steps as a text table (wall, CPU with the compiler's), then the kept stages made or reused."""
+        lines = [f"{'step':32s} {'wall [s]':>9s} {'CPU [s]':>9s}"]
+        lines += [f"{name:32s} {wall:9.1f} {cpu:9.1f}" for name, wall, cpu in self.rows]
+        lines.append(f"{'total':32s} {sum(r[1] for r in self.rows):9.1f} {sum(r[2] for r in self.rows):9.1f}")
+        lines += ["", f"{'kept stage':32s} {'wall [s]':>9s}"]
+        kept = cache.timings.items()
+        lines += [f"{name:32s} {wall:9.1f} {'reused' if reused else 'made'}" for name, (wall, reused) in kept]
+        return "\n".join(lines) + "\n"
