@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -30,7 +31,7 @@ from dvfc.analysis.case import Case
 from dvfc.analysis.multirate import implemented_record, implemented_text
 from dvfc.analysis.output import append_log, raise_if_interrupted, read_log
 from dvfc.analysis.results import envelope_record
-from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory, rotation_angle
 from dvfc.models.errors import PlantErrors
@@ -230,13 +231,43 @@ def tracking_bound(case: Case, envelope: dict | None = None) -> TrackingBound:
     return envelope_bound(case, envelope) or continuous_bound(case)
 
 
+SIMULATORS = 4
+"""Simulators kept per process (least recently used dropped): one a case, with and without plant errors."""
+
+_simulators: OrderedDict[tuple[int, bool], tuple[Case, SampledSimulator]] = OrderedDict()
+
+
+def shared_simulator(case: Case, errors: bool) -> SampledSimulator:
+    """The simulator of ``case`` as implemented, with plant errors (none when the scenario gives
+    none, as :func:`with_value` sets them) or without, built once per process: every run of a
+    parameter other than the payload runs on it (:meth:`SampledSimulator.for_run`), without
+    building its functions again."""
+    key = (id(case), errors)
+    if key in _simulators:
+        _simulators.move_to_end(key)
+        return _simulators[key][1]
+    settings = case.settings
+    if errors and settings.errors is None:
+        settings = replace(settings, errors=PlantErrors.none(case.loop.camera, case.loop.robot.n))
+    simulator = as_implemented(case.loop, settings)
+    _simulators[key] = (case, simulator)  # the case held: its id stays its own while cached
+    if len(_simulators) > SIMULATORS:
+        _simulators.popitem(last=False)
+    return simulator
+
+
 def trial(case: Case, name: str, value: float, bound: TrackingBound) -> dict:
     """One run at ``name = value`` judged against ``bound``, with its wall time (s, setting
-    up the simulator included)."""
+    up the simulator included): on the process's :func:`shared_simulator`, but a payload (a new
+    plant, made in CasADi's virtual machine)."""
     loop = case.loop
     start = time.perf_counter()
     changed = with_value(loop, case.settings, name, value)
-    traj = as_implemented(loop, changed).run(case.s0)
+    if name == "payload_mass":
+        simulator = as_implemented(loop, changed)
+    else:
+        simulator = shared_simulator(case, changed.errors is not None).for_run(changed)
+    traj = simulator.run(case.s0)
     holds, detail = judge(traj, loop, changed, bound)
     return {"value": value, "holds": holds, "detail": detail, "seconds": time.perf_counter() - start}
 
