@@ -285,15 +285,15 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict, rest: Fro
         rest = from_rest(loop, s0[: loop.robot.n]) if rest is None else rest
     except ValueError as exc:
         return {"gamma_lower": None, "lower_bound_reason": str(exc)}
-    lin, nonlinear, converged = rest.lin, rest.gain, rest.converged
-    lower = max(lin.peak_gain, nonlinear)
+    nonlinear, converged = rest.gain, rest.converged
+    lower = max(rest.peak_gain, nonlinear)
     ratio = lambda g: None if g is None else g / lower  # noqa: E731
     return {
-        "gamma_lower_linear": lin.peak_gain,
-        "hinf_python_control": lin.hinf,
-        **({"hinf_note": MARGINAL_POLES} if math.isinf(lin.hinf) else {}),
+        "gamma_lower_linear": rest.peak_gain,
+        "hinf_python_control": rest.hinf,
+        **({"hinf_note": MARGINAL_POLES} if math.isinf(rest.hinf) else {}),
         "gamma_lower_nonlinear": nonlinear,
-        "worst_disturbance": {"signal": "the linearisation's worst sinusoid", "frequency_rad_s": lin.peak_frequency,
+        "worst_disturbance": {"signal": "the linearisation's worst sinusoid", "frequency_rad_s": rest.peak_frequency,
                               "horizon_s": float(rest.run.t[-1]), "converged": converged},
         "gamma_lower": lower,
         "tightness": ratio(record["gamma"]),
@@ -404,11 +404,13 @@ def verification_result(
     envelope: dict | None = None,
     implemented_run: Trajectory | None = None,
     rest: FromRest | None = None,
+    paper_run: Trajectory | None = None,
 ) -> tuple[dict, list[Claim]]:
     """Every claim of the paper checked on simulated runs, at the gamma certified for the gains;
     the envelope's claims against ``envelope`` (:func:`envelope_record` of the case), the limits
     on ``implemented_run`` (the case run as implemented), Theorem 2 from rest on ``rest``
-    (:func:`dvfc.analysis.linearize.from_rest`), each computed here when not given."""
+    (:func:`dvfc.analysis.linearize.from_rest`), the paper's loop in its own mode on ``paper_run``
+    (the case's continuous run), each computed here when not given."""
     start = time.perf_counter()
     spec, loop, point = case.scenario, case.loop, case.point
     cert = certificate_for(spec, point, with_sdp=False, bounded=False)
@@ -417,7 +419,7 @@ def verification_result(
         gamma = exact_gamma(point, case.reference, np.eye(3))[0]
         gamma = None if not np.isfinite(gamma) else gamma
     envelope = envelope_record(case, search=False) if envelope is None else envelope
-    claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run, rest)
+    claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run, rest, paper_run)
     count = lambda status: sum(c.status == status for c in claims)  # noqa: E731
     result = {
         "scenario": spec.name,

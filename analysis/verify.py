@@ -320,7 +320,7 @@ def theorem_2(
                                float("nan"), "a run from the equilibrium", None, f"not run: {exc}",
                                inconclusive=True)]  # fmt: skip
     weights = None if loop.performance is None else weight_diagonals(loop)
-    return [*claims, *from_rest_claims(rest.run, gamma, rest.lin.peak_gain, converged=rest.converged, weights=weights)]
+    return [*claims, *from_rest_claims(rest.run, gamma, rest.peak_gain, converged=rest.converged, weights=weights)]
 
 
 ATTAINED = 0.95
@@ -380,8 +380,11 @@ def rotation_angles(traj: Trajectory, reference: SE3) -> tuple[np.ndarray, np.nd
     return rotation_angle(r_ec), rotation_angle(r_ee)
 
 
-def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: dict) -> list[Claim]:
-    """Facts 7-8 on a run with the scenario's own target motion and torque disturbances:
+def envelope_claims(
+    loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: dict, run: Trajectory | None = None
+) -> list[Claim]:
+    """Facts 7-8 on a run with the scenario's own target motion and torque disturbances (``run``:
+    that run of the ideal loop, when already made):
 
     - the premise ``|w(t)| <= wbar``;
     - (fact 7) ``V(t) <= exp(-kappa (t - t0)) V(t0) + gamma'^2/(2 kappa) sup_{t0<=s<=t} |w(s)|^2``
@@ -395,7 +398,7 @@ def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: d
     if env.get("rate") is None:
         return [Claim("operating envelope", "MATH facts 7-8", float("nan"), "an envelope", None,
                       f"not certified: {env.get('reason')}")]  # fmt: skip
-    traj = Simulator(replace(loop, mode="ideal"), settings).run(s0)
+    traj = Simulator(replace(loop, mode="ideal"), settings).run(s0) if run is None else run
     t, v = traj.t, traj["V"][:, 0]
     w2 = np.sum(traj["w"] ** 2, axis=1)
     wbar = env["wbar"]
@@ -567,10 +570,11 @@ def _ultimate_errors(loop: ClosedLoop, traj: Trajectory, env: dict, bound: np.nd
     return claims
 
 
-def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Claim]:
+def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Trajectory | None = None) -> list[Claim]:
     """The loop run on ``e_e`` from the image: for the paper's loop the first-order estimate
-    (21), a measurement, not a claim; for the planar loop the exact map (P12), a claim."""
-    traj = Simulator(replace(loop, mode="image"), settings).run(s0)
+    (21), a measurement, not a claim; for the planar loop the exact map (P12), a claim (``run``:
+    that run, when already made)."""
+    traj = Simulator(replace(loop, mode="image"), settings).run(s0) if run is None else run
     gap = float(np.linalg.norm(traj["e_e_image"] - traj["e_e"], axis=1).max())
     cond = float(traj["cond_image_jacobian"].max())
     residual = identity_residuals(traj)["dissipation"]
@@ -650,16 +654,18 @@ def verify(
     envelope: dict | None = None,
     implemented_run: Trajectory | None = None,
     rest: FromRest | None = None,
+    paper_run: Trajectory | None = None,
 ) -> list[Claim]:
     """All claims, in the paper's order, on the paper's loop (continuous, exact model, no
     image border), then the operating envelope's (facts 7-8) when given, then the run as
     implemented against the robot's limits. Each variant of the paper's loop runs once, so
     its right-hand sides are evaluated by CasADi's virtual machine rather than compiled; the
     run as implemented follows the scenario's ``jit`` (``implemented_run``: that run, when
-    already made; ``rest``: the run from rest of Theorem 2's checks, when already made)."""
+    already made; ``rest``: the run from rest of Theorem 2's checks, ``paper_run``: the paper's loop
+    run from ``s0`` in the loop's own mode, each when already made)."""
     paper = replace(settings, jit=False, implementation=None, plant=None, view=False)
     return [
-        *verify_paper(loop, s0, paper, gamma, envelope, rest),
+        *verify_paper(loop, s0, paper, gamma, envelope, rest, paper_run),
         *implemented(loop, s0, settings, implemented_run),
     ]
 
@@ -671,15 +677,18 @@ def verify_paper(
     gamma: float | None,
     envelope: dict | None = None,
     rest: FromRest | None = None,
+    run: Trajectory | None = None,
 ) -> list[Claim]:
     """The paper's claims on its idealised loop, and the operating envelope's when given (``rest``:
-    the run from rest of :func:`theorem_2`, when already made)."""
+    the run from rest of :func:`theorem_2`, ``run``: the loop's run from ``s0`` in its own mode,
+    which :func:`image_mode` or :func:`envelope_claims` takes, each when already made)."""
+    image, ideal = (run if loop.mode == mode else None for mode in ("image", "ideal"))
     return [
         *([] if isinstance(loop, PlanarLoop) else kinematic_claims(loop, s0)),
         *lemma_2(loop, s0, settings),
         *theorem_1(loop, s0, settings),
         lyapunov_derivative(loop, s0, settings),
         *theorem_2(loop, s0, settings, gamma, rest),
-        *image_mode(loop, s0, settings),
-        *([] if envelope is None else envelope_claims(loop, s0, settings, envelope)),
+        *image_mode(loop, s0, settings, image),
+        *([] if envelope is None else envelope_claims(loop, s0, settings, envelope, ideal)),
     ]

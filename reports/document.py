@@ -10,6 +10,7 @@ turns them into HTML (figures inline as SVG, CSS inline, nothing fetched); :func
 from __future__ import annotations
 
 import math
+import os
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -89,15 +90,21 @@ class ReportData:
     (:func:`dvfc.analysis.results.plant_errors_record`)."""
 
 
+MARGIN_WORKERS = min(2, os.cpu_count() or 1)
+"""Local processes the report's margin searches run in (one search a task): the two cores a
+report is made for, the searches of the payload (in CasADi's virtual machine) beside the others."""
+
+
 def measure_margins(case: Case, cache: StageCache, envelope: dict, own_run: Trajectory) -> dict:
     """The margins of the case (:func:`dvfc.analysis.margins.margins`, given its envelope and
-    its run as implemented), measured in this process; the runs are logged in the cache's
-    scratch directory so that a resumed report continues an interrupted search.
-    ``{"reason": ...}`` when the scenario's own run does not hold."""
+    its run as implemented), measured in :data:`MARGIN_WORKERS` local processes; the runs are
+    logged in the cache's scratch directory so that a resumed report continues an interrupted
+    search. ``{"reason": ...}`` when the scenario's own run does not hold."""
     scratch = cache.scratch("margins", case, (envelope, own_run))
+    tasks = lambda function, arguments: run_tasks(function, arguments, MARGIN_WORKERS)  # noqa: E731
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            return margins(case, scratch or Path(tmp), map_tasks=run_tasks,
+            return margins(case, scratch or Path(tmp), map_tasks=tasks,
                            resume=scratch is not None, envelope=envelope, own_run=own_run)  # fmt: skip
         except MarginError as exc:
             return {"reason": str(exc)}
@@ -157,7 +164,8 @@ def assemble(
     envelope = certificate["points"][0]["envelope"]
     progress(STEPS[2])
     verification = _current(stage("verification", case, lambda: verification_result(case, provenance, envelope,
-                                  implemented, rest)[0], (envelope, implemented, rest)), spec, provenance)  # fmt: skip
+                                  implemented, rest, trajectory)[0], (envelope, implemented, rest, trajectory)),
+                            spec, provenance)  # fmt: skip
     progress(STEPS[3])
     measured = None
     if settings.implementation is not None:
