@@ -143,11 +143,12 @@ def assemble(
     cache: StageCache | None = None,
 ) -> ReportData:
     """Run every job of the review on the case, each once: the simulation of the paper's loop
-    and of the loop as implemented (one run when they are the same loop), the certificate with
-    its envelope, the verification (reusing both), the margins of the loop as implemented
-    (without an ``[implementation]``, none), the gain map; ``progress`` is told each step of
-    :data:`STEPS`; the runs, the certificate, the verification and the margins go through
-    ``cache``."""
+    and of the loop as implemented (one run when they are the same loop), the run from rest
+    under the linearisation's worst sinusoid, the certificate with its envelope and lower bounds
+    (on that run), the verification (on both simulations and that run), the margins of the loop
+    as implemented (without an ``[implementation]``, none), the campaign, the gain map;
+    ``progress`` is told each step of :data:`STEPS`; every stage but the gain map and the
+    figures goes through ``cache`` (:class:`dvfc.reports.stages.StageCache`)."""
     spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     stage = cache or StageCache(None, "", False)
     progress(STEPS[0])
