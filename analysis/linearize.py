@@ -233,6 +233,28 @@ def linearize(loop: ClosedLoop, q0: np.ndarray) -> Linearization:
     return _linearization(local, output, z, w, model.t, q_eq, weight_diagonals(loop))
 
 
+
+@dataclass(frozen=True)
+class FromRest:
+    """The linearisation's H-infinity norm at the equilibrium (``peak_gain`` at ``peak_frequency``,
+    rad/s, and python-control's ``hinf``) and the run from rest under its worst sinusoid
+    (:func:`sharpest_from_rest`: its gain, the run, whether the gain converged): made once and
+    shared by the lower bound of ``certify`` and the Theorem 2 checks from rest of ``verify``."""
+
+    peak_gain: float
+    peak_frequency: float
+    hinf: float
+    gain: float
+    run: Trajectory
+    converged: bool
+
+
+def from_rest(loop: ClosedLoop, q0: np.ndarray) -> FromRest:
+    """:func:`linearize` at ``q0`` and :func:`sharpest_from_rest` (``ValueError`` when the loop
+    has no equilibrium near ``q0``)."""
+    lin = linearize(loop, q0)
+    return FromRest(lin.peak_gain, lin.peak_frequency, lin.hinf, *sharpest_from_rest(loop, lin))
+
 def _linearization(rate, output, z, w, t, q_eq: np.ndarray, weights: tuple[np.ndarray, np.ndarray]) -> Linearization:
     """The Jacobians of ``dz/dt = rate(z, w)`` and ``x = output(z, w)`` at ``z = 0, w = 0``, as a
     python-control system from ``d`` to ``S x`` (``weights = (S, D_w)`` diagonals, ``w = D_w d``,

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import time
 import xml.etree.ElementTree as ET
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -42,7 +43,7 @@ from dvfc.analysis.multirate import (
 )
 from dvfc.analysis.output import append_log, raise_if_interrupted, read_log
 from dvfc.analysis.results import envelope_record
-from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
+from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import Settings, Trajectory, rotation_angle
 from dvfc.models.errors import PlantErrors
@@ -342,6 +343,31 @@ def tracking_bound(case: Case, envelope: dict | None = None) -> TrackingBound:
     return envelope_bound(case, envelope) or continuous_bound(case)
 
 
+SIMULATORS = 4
+"""Simulators kept per process (least recently used dropped): one a case, with and without plant errors."""
+
+_simulators: OrderedDict[tuple[int, bool], tuple[Case, SampledSimulator]] = OrderedDict()
+
+
+def shared_simulator(case: Case, errors: bool) -> SampledSimulator:
+    """The simulator of ``case`` as implemented, with plant errors (none when the scenario gives
+    none, as :func:`with_value` sets them) or without, built once per process: every run of a
+    parameter other than the payload runs on it (:meth:`SampledSimulator.for_run`), without
+    building its functions again."""
+    key = (id(case), errors)
+    if key in _simulators:
+        _simulators.move_to_end(key)
+        return _simulators[key][1]
+    settings = case.settings
+    if errors and settings.errors is None:
+        settings = replace(settings, errors=PlantErrors.none(case.loop.camera, case.loop.robot.n))
+    simulator = as_implemented(case.loop, settings)
+    _simulators[key] = (case, simulator)  # the case held: its id stays its own while cached
+    if len(_simulators) > SIMULATORS:
+        _simulators.popitem(last=False)
+    return simulator
+
+
 @dataclass(frozen=True)
 class LinearCheck:
     """Fact 14 beside the measured searches: the sampled loop linearised at rest (``system``)
@@ -372,6 +398,14 @@ class LinearCheck:
             return None
 
 
+def _simulator(case: Case, name: str, settings: Settings) -> SampledSimulator:
+    """The simulator of a search point: the process's :func:`shared_simulator` for ``settings``, but
+    for a payload (a new plant, made in CasADi's virtual machine)."""
+    if name == "payload_mass":
+        return as_implemented(case.loop, settings)
+    return shared_simulator(case, settings.errors is not None).for_run(settings)
+
+
 def unstable_text(rho: float) -> str:
     """Why a run at a value where the linearised sampled loop is unstable does not hold."""
     return f"the sampled loop linearised at rest is unstable at this value (fact 14: rho = {rho:.6g} >= 1)"
@@ -398,7 +432,7 @@ def trial(
     horizons, growth = [], None
     for factor in HORIZONS:
         settings = replace(changed, duration=factor * case.settings.duration)
-        traj = first if factor == 1 and first is not None else as_implemented(loop, settings).run(case.s0)
+        traj = first if factor == 1 and first is not None else _simulator(case, name, settings).run(case.s0)
         horizons.append(settings.duration)
         holds, detail = judge(traj, loop, settings, bound)
         growth = envelope_growth(traj, bound) if holds else None

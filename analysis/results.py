@@ -42,13 +42,15 @@ from dvfc.analysis.envelope import (
 from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.implementation import SubstepChoice
-from dvfc.analysis.linearize import MARGINAL_POLES, linearize, sharpest_from_rest
+from dvfc.analysis.linearize import MARGINAL_POLES, FromRest, from_rest
 from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.sampled import limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Settings, Trajectory, summary
 from dvfc.analysis.start import planned_start, ramp_start
 from dvfc.analysis.verify import Claim, verify
+from dvfc.models.camera import Camera
+from dvfc.models.errors import PlantErrors
 from dvfc.models.loop import ClosedLoop, Weights
 
 
@@ -90,6 +92,34 @@ def implementation_record(settings: Settings) -> dict:
             "payload": None if plant.payload is None else asdict(plant.payload), "mass_scale": plant.mass_scale
         },
     }  # fmt: skip
+
+
+def plant_errors_record(settings: Settings, camera: Camera) -> dict:
+    """What acts on the plant of the loop as implemented that the law's model leaves out
+    (``[plant]``, JSON-ready; each entry None when the plant has none of it): a payload, the
+    masses' scale, joint friction (viscous and Coulomb per joint, the smoothing), the camera
+    mount's error, the true intrinsics where they differ from ``camera`` (the controller's), the
+    feature points' errors."""
+    plant, errors = settings.plant, settings.errors
+    record = dict.fromkeys(("payload", "mass_scale", "friction", "mount", "intrinsics", "point_errors"))
+    if plant is not None:
+        record["payload"] = None if plant.payload is None else asdict(plant.payload)
+        record["mass_scale"] = None if plant.mass_scale == 1.0 else plant.mass_scale
+    if errors is None:
+        return record
+    if np.any(errors.viscous) or np.any(errors.coulomb):
+        record["friction"] = {"viscous": errors.viscous.tolist(), "coulomb": errors.coulomb.tolist(),
+                              "smoothing": errors.smoothing}  # fmt: skip
+    if np.any(errors.mount_xyz) or np.any(errors.mount_rpy):
+        record["mount"] = {"xyz": errors.mount_xyz.tolist(), "rpy": errors.mount_rpy.tolist()}
+    nominal = PlantErrors.none(camera, len(errors.viscous))
+    true = {"fx": errors.fx, "fy": errors.fy, "principal_point": np.asarray(errors.principal_point).tolist(),
+            "distortion": np.asarray(errors.distortion).tolist()}  # fmt: skip
+    if any(not np.array_equal(np.asarray(v), np.asarray(getattr(nominal, k))) for k, v in true.items()):
+        record["intrinsics"] = true
+    if np.any(errors.point_errors):
+        record["point_errors"] = np.asarray(errors.point_errors).tolist()
+    return record
 
 
 def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:
@@ -139,24 +169,25 @@ def channels_text(point: dict, planar: bool) -> str:
             f"{out['e_c']:g} I, {out['e_e']:g} I), D_w = diag({fmt(dist['tau_d'])}, {velocity}))")
 
 
-def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict) -> dict:
+def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict, rest: FromRest | None = None) -> dict:
     """Lower bounds on the true L2 gain and how far the certificates sit above them: the
     linearisation's peak gain and the gain of the run from rest that ``verify`` checks Theorem 2 on
-    (:func:`dvfc.analysis.linearize.sharpest_from_rest`, driven to its sharpness)."""
+    (:func:`dvfc.analysis.linearize.sharpest_from_rest`, driven to its sharpness; ``rest``: both,
+    when already made by :func:`dvfc.analysis.linearize.from_rest`)."""
     try:
-        lin = linearize(loop, s0[: loop.robot.n])
+        rest = from_rest(loop, s0[: loop.robot.n]) if rest is None else rest
     except ValueError as exc:
         return {"gamma_lower": None, "lower_bound_reason": str(exc)}
-    nonlinear, rest, converged = sharpest_from_rest(loop, lin)
-    lower = max(lin.peak_gain, nonlinear)
+    nonlinear, converged = rest.gain, rest.converged
+    lower = max(rest.peak_gain, nonlinear)
     ratio = lambda g: None if g is None else g / lower  # noqa: E731
     return {
-        "gamma_lower_linear": lin.peak_gain,
-        "hinf_python_control": lin.hinf,
-        **({"hinf_note": MARGINAL_POLES} if math.isinf(lin.hinf) else {}),
+        "gamma_lower_linear": rest.peak_gain,
+        "hinf_python_control": rest.hinf,
+        **({"hinf_note": MARGINAL_POLES} if math.isinf(rest.hinf) else {}),
         "gamma_lower_nonlinear": nonlinear,
-        "worst_disturbance": {"signal": "the linearisation's worst sinusoid", "frequency_rad_s": lin.peak_frequency,
-                              "horizon_s": float(rest.t[-1]), "converged": converged},
+        "worst_disturbance": {"signal": "the linearisation's worst sinusoid", "frequency_rad_s": rest.peak_frequency,
+                              "horizon_s": float(rest.run.t[-1]), "converged": converged},
         "gamma_lower": lower,
         "tightness": ratio(record["gamma"]),
         "tightness_tight": ratio(record.get("gamma_tight")),
@@ -241,18 +272,21 @@ def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, 
     return certify(point, spec.reference.se3(), theta_max=theta_max, gamma_bound=bound, with_sdp=with_sdp)
 
 
-def certificate_result(case: Case, provenance: dict, *, lower_bounds: bool = True) -> tuple[dict, Certificate]:
+def certificate_result(
+    case: Case, provenance: dict, *, lower_bounds: bool = True, rest: FromRest | None = None
+) -> tuple[dict, Certificate]:
     """Theorem 2 at the case's gains: the paper's gamma, the fact-4 gamma, and (optionally)
-    lower bounds on the true gain, over the ``[certify]`` region; the operating envelope; with an
-    implementation, the local certificate of the loop as implemented (``implemented``,
-    docs/math.md, fact 14: :func:`dvfc.analysis.multirate.implemented_record`)."""
+    lower bounds on the true gain (``rest``: the run from rest they take, when already made), over
+    the ``[certify]`` region; the operating envelope; with an implementation, the local
+    certificate of the loop as implemented (``implemented``, docs/math.md, fact 14:
+    :func:`dvfc.analysis.multirate.implemented_record`)."""
     start = time.perf_counter()
     spec, point, planar = case.scenario, case.point, case.planar
     cert = certificate_for(spec, point)
     tight = tight_gamma_planar(point) if planar else tight_gamma(point, case.reference)
     record = point_record(point, cert, tight if cert.gamma is not None else None)
     if lower_bounds:
-        record.update(lower_bound_record(case.loop, case.s0, record))
+        record.update(lower_bound_record(case.loop, case.s0, record, rest))
     record["envelope"] = envelope_record(case)
     if (coverage := integral_coverage(point)) is not None:
         record["integral"] = coverage
@@ -277,11 +311,18 @@ def certificate_result(case: Case, provenance: dict, *, lower_bounds: bool = Tru
 
 
 def verification_result(
-    case: Case, provenance: dict, envelope: dict | None = None, implemented_run: Trajectory | None = None
+    case: Case,
+    provenance: dict,
+    envelope: dict | None = None,
+    implemented_run: Trajectory | None = None,
+    rest: FromRest | None = None,
+    paper_run: Trajectory | None = None,
 ) -> tuple[dict, list[Claim]]:
     """Every claim of the paper checked on simulated runs, at the gamma certified for the gains;
     the envelope's claims against ``envelope`` (:func:`envelope_record` of the case), the limits
-    on ``implemented_run`` (the case run as implemented), each computed here when not given."""
+    on ``implemented_run`` (the case run as implemented), Theorem 2 from rest on ``rest``
+    (:func:`dvfc.analysis.linearize.from_rest`), the paper's loop in its own mode on ``paper_run``
+    (the case's continuous run), each computed here when not given."""
     start = time.perf_counter()
     spec, loop, point = case.scenario, case.loop, case.point
     cert = certificate_for(spec, point, with_sdp=False, bounded=False)
@@ -290,7 +331,7 @@ def verification_result(
         gamma = exact_gamma(point, case.reference, np.eye(3))[0]
         gamma = None if not np.isfinite(gamma) else gamma
     envelope = envelope_record(case, search=False) if envelope is None else envelope
-    claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run)
+    claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run, rest, paper_run)
     count = lambda status: sum(c.status == status for c in claims)  # noqa: E731
     result = {
         "scenario": spec.name,

@@ -23,7 +23,7 @@ import numpy as np
 from dvfc.analysis.adversary import worst_disturbance
 from dvfc.analysis.envelope import DisturbanceBounds, level_bounds
 from dvfc.analysis.implementation import SubstepChoice
-from dvfc.analysis.linearize import linearize, sharpest_from_rest, weight_diagonals
+from dvfc.analysis.linearize import FromRest, from_rest, weight_diagonals
 from dvfc.analysis.quiet import silenced
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, rotation_angle
@@ -339,10 +339,13 @@ def conditioning_claim(traj: Trajectory, threshold: float) -> Claim:
                  traj.message)  # fmt: skip
 
 
-def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None) -> list[Claim]:
+def theorem_2(
+    loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None, rest: FromRest | None = None
+) -> list[Claim]:
     """(43) with disturbances along a run with the scenario's target motion and torque
     disturbances (band-limited noise of 1 N m RMS added if it has none); (44) and (45) on a run
-    from rest under the worst disturbance of the linearisation (:func:`from_rest_claims`)."""
+    from rest under the worst disturbance of the linearisation (:func:`from_rest_claims`; ``rest``:
+    that run, when already made by :func:`dvfc.analysis.linearize.from_rest`)."""
     disturbed = loop if loop.disturbances else replace(
         loop, disturbances=[BandLimitedNoise(np.ones(loop.robot.n), 5.0, seed=0)]
     )  # fmt: skip
@@ -357,14 +360,13 @@ def theorem_2(loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float
         return [*claims, Claim("dissipation inequality at the certified gamma", "Theorem 2, (44)-(45)",
                                float("nan"), "a gamma from P >= 0", False, "P >= 0 holds for no gamma")]  # fmt: skip
     try:
-        lin = linearize(loop, s0[: loop.robot.n])
+        rest = from_rest(loop, s0[: loop.robot.n]) if rest is None else rest
     except ValueError as exc:  # no configuration puts the camera at the reference (n < 6)
         return [*claims, Claim("dissipation inequality at the certified gamma from x(0) = 0", "Theorem 2, (44)-(45)",
                                float("nan"), "a run from the equilibrium", None, f"not run: {exc}",
                                inconclusive=True)]  # fmt: skip
-    _, rest, converged = sharpest_from_rest(loop, lin)
     weights = None if loop.performance is None else weight_diagonals(loop)
-    return [*claims, *from_rest_claims(rest, gamma, lin.peak_gain, converged=converged, weights=weights,
+    return [*claims, *from_rest_claims(rest.run, gamma, rest.peak_gain, converged=rest.converged, weights=weights,
                                        v_floor=storage_floor(loop))]
 
 
@@ -433,8 +435,11 @@ def rotation_angles(traj: Trajectory, reference: SE3) -> tuple[np.ndarray, np.nd
     return rotation_angle(r_ec), rotation_angle(r_ee)
 
 
-def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: dict) -> list[Claim]:
-    """Facts 7-8 on a run with the scenario's own target motion and torque disturbances:
+def envelope_claims(
+    loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: dict, run: Trajectory | None = None
+) -> list[Claim]:
+    """Facts 7-8 on a run with the scenario's own target motion and torque disturbances (``run``:
+    that run of the ideal loop, when already made):
 
     - the premise ``|w(t)| <= wbar``;
     - (fact 7) ``V(t) <= exp(-kappa (t - t0)) V(t0) + gamma'^2/(2 kappa) sup_{t0<=s<=t} |w(s)|^2``
@@ -448,7 +453,7 @@ def envelope_claims(loop: ClosedLoop, s0: np.ndarray, settings: Settings, env: d
     if env.get("rate") is None:
         return [Claim("operating envelope", "MATH facts 7-8", float("nan"), "an envelope", None,
                       f"not certified: {env.get('reason')}")]  # fmt: skip
-    traj = Simulator(replace(loop, mode="ideal"), settings).run(s0)
+    traj = Simulator(replace(loop, mode="ideal"), settings).run(s0) if run is None else run
     t, v = traj.t, traj["V"][:, 0]
     w2 = np.sum(traj["w"] ** 2, axis=1)
     wbar = env["wbar"]
@@ -624,10 +629,11 @@ def _ultimate_errors(loop: ClosedLoop, traj: Trajectory, env: dict, bound: np.nd
     return claims
 
 
-def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Claim]:
+def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Trajectory | None = None) -> list[Claim]:
     """The loop run on ``e_e`` from the image: for the paper's loop the first-order estimate
-    (21), a measurement, not a claim; for the planar loop the exact map (P12), a claim."""
-    traj = Simulator(replace(loop, mode="image"), settings).run(s0)
+    (21), a measurement, not a claim; for the planar loop the exact map (P12), a claim (``run``:
+    that run, when already made)."""
+    traj = Simulator(replace(loop, mode="image"), settings).run(s0) if run is None else run
     gap = float(np.linalg.norm(traj["e_e_image"] - traj["e_e"], axis=1).max())
     cond = float(traj["cond_image_jacobian"].max())
     residual = identity_residuals(traj)["dissipation"]
@@ -733,30 +739,42 @@ def verify(
     gamma: float | None,
     envelope: dict | None = None,
     implemented_run: Trajectory | None = None,
+    rest: FromRest | None = None,
+    paper_run: Trajectory | None = None,
 ) -> list[Claim]:
     """All claims, in the paper's order, on the paper's loop (continuous, exact model, no
     image border), then the operating envelope's (facts 7-8) when given, then the run as
     implemented against the robot's limits. Each variant of the paper's loop runs once, so
     its right-hand sides are evaluated by CasADi's virtual machine rather than compiled; the
     run as implemented follows the scenario's ``jit`` (``implemented_run``: that run, when
-    already made)."""
+    already made; ``rest``: the run from rest of Theorem 2's checks, ``paper_run``: the paper's loop
+    run from ``s0`` in the loop's own mode, each when already made)."""
     paper = replace(settings, jit=False, implementation=None, plant=None, view=False)
     return [
-        *verify_paper(loop, s0, paper, gamma, envelope),
+        *verify_paper(loop, s0, paper, gamma, envelope, rest, paper_run),
         *implemented(loop, s0, settings, implemented_run),
     ]
 
 
 def verify_paper(
-    loop: ClosedLoop, s0: np.ndarray, settings: Settings, gamma: float | None, envelope: dict | None = None
+    loop: ClosedLoop,
+    s0: np.ndarray,
+    settings: Settings,
+    gamma: float | None,
+    envelope: dict | None = None,
+    rest: FromRest | None = None,
+    run: Trajectory | None = None,
 ) -> list[Claim]:
-    """The paper's claims on its idealised loop, and the operating envelope's when given."""
+    """The paper's claims on its idealised loop, and the operating envelope's when given (``rest``:
+    the run from rest of :func:`theorem_2`, ``run``: the loop's run from ``s0`` in its own mode,
+    which :func:`image_mode` or :func:`envelope_claims` takes, each when already made)."""
+    image, ideal = (run if loop.mode == mode else None for mode in ("image", "ideal"))
     return [
         *([] if isinstance(loop, PlanarLoop) else kinematic_claims(loop, s0)),
         *lemma_2(loop, s0, settings),
         *theorem_1(loop, s0, settings),
         lyapunov_derivative(loop, s0, settings),
-        *theorem_2(loop, s0, settings, gamma),
-        *image_mode(loop, s0, settings),
-        *([] if envelope is None else envelope_claims(loop, s0, settings, envelope)),
+        *theorem_2(loop, s0, settings, gamma, rest),
+        *image_mode(loop, s0, settings, image),
+        *([] if envelope is None else envelope_claims(loop, s0, settings, envelope, ideal)),
     ]

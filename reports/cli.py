@@ -21,24 +21,28 @@ from dvfc.analysis.cli import (
     require_six,
     resumable,
 )
+from dvfc.analysis.output import atomic_write
 from dvfc.analysis.results import verdict
-from dvfc.reports.document import CACHE, STEPS, StageCache, assemble, write
+from dvfc.reports.document import STEPS, assemble, write
+from dvfc.reports.stages import CACHE, TIMINGS, StageCache, StepTimes
 
 
 @app.command()
 def report(
     scenario: ScenarioArg = DEFAULT_SCENARIO,
     out_dir: OutOpt = None,
-    resume: Annotated[bool, typer.Option(help="Reuse the stages an interrupted report finished in --out.")] = False,
+    resume: Annotated[bool, typer.Option(help="Reuse the stages of a report in --out whose inputs are unchanged "
+                                               "(interrupted, or of an edited scenario).")] = False,
 ) -> None:
     """Write the design-review report of a scenario: report.html (self-contained) and report.pdf.
     Exit 0: certified and every check passes; 1: not certified, or a check fails or is inconclusive."""
+    times = StepTimes()
+    times("scenario built")
     case = load_case(scenario)
     require_six(case, "report")
     directory = prepare_out_dir(out_dir or Path("out") / case.name)
     provenance_ = command_provenance(scenario)
-    key = f"{provenance_['scenario_sha256']} dvfc {provenance_['toolkit']['dvfc']}"
-    cache = StageCache(directory / CACHE, key, resume)
+    cache = StageCache(directory / CACHE, str(provenance_["toolkit"]["dvfc"]), resume)
     columns = (
         SpinnerColumn(),
         TextColumn("[bold]report[/] {task.description}"),
@@ -52,6 +56,7 @@ def report(
         task = bar.add_task("", total=len(STEPS) + 1)
 
         def step(name: str) -> None:
+            times(name)
             done = STEPS.index(name) if name in STEPS else len(STEPS)
             bar.update(task, description=name, completed=done)
             if not err.is_terminal:  # CI logs, nohup: one plain line a stage
@@ -60,6 +65,8 @@ def report(
         data = assemble(case, provenance_, progress=step, cache=cache)
         step("HTML and PDF")
         html, pdf = write(data, directory)
+        times("end")
+        atomic_write(directory / CACHE / TIMINGS, lambda h: h.write(times.table(cache).encode()))
     out.print(f"report: {html}\n        {pdf}", markup=False)
     outcome = verdict(data.certificate, data.verification)
     out.print(outcome["headline"], markup=False)

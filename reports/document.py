@@ -10,8 +10,7 @@ turns them into HTML (figures inline as SVG, CSS inline, nothing fetched); :func
 from __future__ import annotations
 
 import math
-import pickle
-import shutil
+import os
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,8 +33,9 @@ from dvfc.analysis.campaign import summarize as summarize_campaign
 from dvfc.analysis.case import Case
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
 from dvfc.analysis.implementation import SubstepChoice
+from dvfc.analysis.linearize import FromRest, from_rest
 from dvfc.analysis.margins import MarginError, linear_margin_text, margins, tracking_bound
-from dvfc.analysis.output import atomic_write, raise_if_interrupted
+from dvfc.analysis.output import atomic_write
 from dvfc.analysis.pose import xyz_rpy
 from dvfc.analysis.results import (
     best_gamma,
@@ -43,6 +43,7 @@ from dvfc.analysis.results import (
     channels_text,
     grid_envelope_for,
     implementation_record,
+    plant_errors_record,
     statements,
     verdict,
     verification_result,
@@ -51,8 +52,10 @@ from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, ScenarioError
 from dvfc.analysis.simulate import Simulator, Trajectory, identity_residuals, summary
 from dvfc.analysis.tasks import run_tasks
+from dvfc.models.camera import Camera
 from dvfc.models.loop import ClosedLoop
 from dvfc.reports import figures
+from dvfc.reports.stages import StageCache
 
 STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "dispersions", "gain map", "figures")
 """The stages of :func:`assemble`, in order (reported to ``progress``)."""
@@ -81,59 +84,28 @@ class ReportData:
     dispersion: dict | None
     """The campaign of the scenario's ``[dispersion]`` (:func:`measure_campaign`), or
     ``{"reason": ...}`` when it cannot run; None without a ``[dispersion]``."""
+    q0: np.ndarray
+    """The start configuration run (the scenario's, or the one solved for ``q0 = "auto"``)."""
+    plant_errors: dict
+    """What acts on the plant that the law's model leaves out
+    (:func:`dvfc.analysis.results.plant_errors_record`)."""
 
 
-CACHE = ".dvfc-report"
-"""Directory (inside the output directory) holding the finished stages of a report."""
-
-
-class StageCache:
-    """Finished stages of a report, kept in ``directory`` so an interrupted report resumes.
-
-    Each stage is pickled atomically with a key (the scenario's SHA-256 and the toolkit's
-    version); a stage is reused only with ``resume`` and a matching key.
-    """
-
-    def __init__(self, directory: Path | None, key: str, resume: bool) -> None:
-        self.directory, self.key, self.resume = directory, key, resume
-
-    def __call__(self, name: str, compute: Callable[[], object]):
-        path = None if self.directory is None else self.directory / f"{name}.pkl"
-        if self.resume and path is not None and path.exists():
-            with path.open("rb") as handle:
-                stored = pickle.load(handle)
-            if stored["key"] == self.key:
-                return stored["value"]
-        value = compute()
-        raise_if_interrupted()  # the stage may be incomplete: not kept
-        if path is not None:
-            path.parent.mkdir(exist_ok=True)
-            payload = pickle.dumps({"key": self.key, "value": value})
-            atomic_write(path, lambda h: h.write(payload))
-        return value
-
-    def scratch(self, name: str) -> Path | None:
-        """A directory for the partial work of a stage (kept for a resumed report of the same
-        key, emptied otherwise); None when nothing is kept."""
-        if self.directory is None:
-            return None
-        path, stamp = self.directory / name, self.directory / f"{name}.key"
-        if not (self.resume and stamp.exists() and stamp.read_text() == self.key):
-            shutil.rmtree(path, ignore_errors=True)
-        path.mkdir(parents=True, exist_ok=True)
-        atomic_write(stamp, lambda h: h.write(self.key.encode()))
-        return path
+MARGIN_WORKERS = min(2, os.cpu_count() or 1)
+"""Local processes the report's margin searches run in (one search a task): the two cores a
+report is made for, the searches of the payload (in CasADi's virtual machine) beside the others."""
 
 
 def measure_margins(case: Case, cache: StageCache, envelope: dict, own_run: Trajectory) -> dict:
     """The margins of the case (:func:`dvfc.analysis.margins.margins`, given its envelope and
-    its run as implemented), measured in this process; the runs are logged in the cache's
-    scratch directory so that a resumed report continues an interrupted search.
-    ``{"reason": ...}`` when the scenario's own run does not hold."""
-    scratch = cache.scratch("margins")
+    its run as implemented), measured in :data:`MARGIN_WORKERS` local processes; the runs are
+    logged in the cache's scratch directory so that a resumed report continues an interrupted
+    search. ``{"reason": ...}`` when the scenario's own run does not hold."""
+    scratch = cache.scratch("margins", case, (envelope, own_run))
+    tasks = lambda function, arguments: run_tasks(function, arguments, MARGIN_WORKERS)  # noqa: E731
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            return margins(case, scratch or Path(tmp), map_tasks=run_tasks,
+            return margins(case, scratch or Path(tmp), map_tasks=tasks,
                            resume=scratch is not None, envelope=envelope, own_run=own_run)  # fmt: skip
         except MarginError as exc:
             return {"reason": str(exc)}
@@ -152,11 +124,11 @@ def measure_campaign(case: Case, cache: StageCache, envelope: dict) -> dict:
         spec = CampaignSpec.of(case, tracking_bound(case, envelope))
     except ScenarioError as exc:
         return {"reason": str(exc)}
-    scratch = cache.scratch("campaign")
+    scratch = cache.scratch("dispersions", case, (envelope,))
     with tempfile.TemporaryDirectory() as tmp:
         directory = scratch or Path(tmp)
         run_campaign(spec, directory, case.scenario.report.campaign_runs, resume=scratch is not None,
-                     scenario_sha256=cache.key)  # fmt: skip
+                     scenario_sha256=cache.key("dispersions", case, (envelope,)))  # fmt: skip
         table = read_runs(directory)
     summary_ = summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)
     run = summary_["worst"][0]["run"]
@@ -172,32 +144,39 @@ def assemble(
     cache: StageCache | None = None,
 ) -> ReportData:
     """Run every job of the review on the case, each once: the simulation of the paper's loop
-    and of the loop as implemented (one run when they are the same loop), the certificate with
-    its envelope, the verification (reusing both), the margins of the loop as implemented
-    (without an ``[implementation]``, none), the gain map; ``progress`` is told each step of
-    :data:`STEPS`; the runs, the certificate, the verification and the margins go through
-    ``cache``."""
+    and of the loop as implemented (one run when they are the same loop), the run from rest
+    under the linearisation's worst sinusoid, the certificate with its envelope and lower bounds
+    (on that run), the verification (on both simulations and that run), the margins of the loop
+    as implemented (without an ``[implementation]``, none), the campaign, the gain map;
+    ``progress`` is told each step of :data:`STEPS`; every stage but the gain map and the
+    figures goes through ``cache`` (:class:`dvfc.reports.stages.StageCache`)."""
     spec, loop, s0, settings = case.scenario, case.loop, case.s0, case.settings
     stage = cache or StageCache(None, "", False)
     progress(STEPS[0])
-    implemented = stage("implemented", lambda: as_implemented(loop, settings).run(s0))
+    implemented = stage("implemented", case, lambda: as_implemented(loop, settings).run(s0))
     # the paper's loop is the one implemented when there is no [implementation] and no [plant]: the same
     # run, unless it stopped where a feature left the image (the paper's run goes on there)
     same = settings.implementation is None and settings.plant is None and implemented.status == "ok"
-    trajectory = implemented if same else stage("simulation", lambda: Simulator(loop, settings).run(s0))
+    trajectory = implemented if same else stage("simulation", case, lambda: Simulator(loop, settings).run(s0))
     progress(STEPS[1])
-    certificate = stage("certificate", lambda: certificate_result(case, provenance)[0])
+    rest = stage("from_rest", case, lambda: _from_rest(case))  # shared by the lower bound and Theorem 2's checks
+    rest = rest if isinstance(rest, FromRest) else None  # no equilibrium: both say why
+    certificate = _current(stage("certificate", case, lambda: certificate_result(case, provenance, rest=rest)[0],
+                                 (rest,)), spec, provenance)  # fmt: skip
     envelope = certificate["points"][0]["envelope"]
     progress(STEPS[2])
-    verification = stage("verification", lambda: verification_result(case, provenance, envelope, implemented)[0])
+    verification = _current(stage("verification", case, lambda: verification_result(case, provenance, envelope,
+                                  implemented, rest, trajectory)[0], (envelope, implemented, rest, trajectory)),
+                            spec, provenance)  # fmt: skip
     progress(STEPS[3])
     measured = None
     if settings.implementation is not None:
-        measured = stage("margins", lambda: measure_margins(case, stage, envelope, implemented))
+        measured = stage("margins", case, lambda: measure_margins(case, stage, envelope, implemented),
+                         (envelope, implemented))  # fmt: skip
     progress(STEPS[4])
     dispersion = None
     if spec.dispersion:
-        dispersion = stage("dispersions", lambda: measure_campaign(case, stage, envelope))
+        dispersion = stage("dispersions", case, lambda: measure_campaign(case, stage, envelope), (envelope,))
     progress(STEPS[5])
     point = case.point
     axes = spec.grid.axes() if spec.grid is not None else None
@@ -235,8 +214,22 @@ def assemble(
     }
     return ReportData(
         spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance,
-        as_built, measured, dispersion,
+        as_built, measured, dispersion, s0[: loop.robot.n].copy(), plant_errors_record(settings, loop.camera),
     )  # fmt: skip
+
+
+def _from_rest(case: Case) -> FromRest | str:
+    """The case's run from rest (:func:`dvfc.analysis.linearize.from_rest`), or why there is none."""
+    try:
+        return from_rest(case.loop, case.s0[: case.loop.robot.n])
+    except ValueError as exc:
+        return str(exc)
+
+
+def _current(result: dict, spec: Scenario, provenance: dict) -> dict:
+    """A kept stage's JSON result with this report's scenario name and provenance (a stage is
+    kept across edits of fields it does not read, the name among them)."""
+    return {**result, "scenario": spec.name, "provenance": provenance}
 
 
 def _dispersion_figures(dispersion: dict | None, loop: ClosedLoop) -> dict[str, str | None]:
@@ -283,14 +276,68 @@ def _envelope_figure(trajectory: Trajectory, loop: ClosedLoop, envelope: dict | 
 
 
 def _number(value: float | None, digits: int = 6) -> str:
-    """A number for the page: ``-`` when absent, ``digits`` significant figures."""
+    """A number for the page: ``-`` when absent, ``digits`` significant figures; anything else
+    (a string) as it is."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "-"
+    if isinstance(value, str | bool) or not isinstance(value, int | float | np.number):
+        return str(value)
     return f"{value:.{digits}g}"
 
 
 def _vector(values, digits: int = 4) -> str:
+    """A vector for the page, its entries by :func:`_number`; a string (``"auto"``) or None as :func:`_number`."""
+    if values is None or isinstance(values, str):
+        return _number(values)
     return "[" + ", ".join(_number(float(v), digits) for v in values) + "]"
+
+
+def camera_facts(camera: Camera, calibration: str | None) -> dict:
+    """The controller's camera as the page states it: ``fx``, ``fy`` (px), the principal point
+    (px from the top-left corner; None without an image size), the distortion coefficients
+    (None: none), the image size (None: not given) and the calibration file they came from."""
+    distortion = [float(k) for k in camera.distortion]
+    return {
+        "fx": float(camera.focal_length),
+        "fy": float(camera.focal_length * camera.aspect),
+        "principal_point": camera.centre.tolist() if camera.has_image else None,
+        "distortion": distortion if any(distortion) else None,
+        "size": (camera.width, camera.height) if camera.has_image else None,
+        "calibration": calibration,
+    }
+
+
+def plant_text(record: dict) -> list[str]:
+    """Each entry of a :func:`dvfc.analysis.results.plant_errors_record` in words."""
+    parts = []
+    if (f := record["friction"]) is not None:
+        parts.append(f"joint friction b qd + c tanh(qd / {_number(f['smoothing'], 3)} rad/s): viscous b = "
+                     f"{_vector(f['viscous'])} N m s/rad, Coulomb c = {_vector(f['coulomb'])} N m")  # fmt: skip
+    if (payload := record["payload"]) is not None:
+        parts.append(f"a payload of {_number(payload['mass'], 4)} kg on the camera link (centre of mass "
+                     f"{_vector(payload['com'])} m)")  # fmt: skip
+    if record["mass_scale"] is not None:
+        parts.append(f"masses and inertias {_number(record['mass_scale'], 4)}x the URDF's")
+    if (mount := record["mount"]) is not None:
+        parts.append(f"a camera mount error xyz {_vector(mount['xyz'])} m, rpy {_vector(mount['rpy'])} rad")
+    if (true := record["intrinsics"]) is not None:
+        parts.append(f"true intrinsics fx = {_number(true['fx'])} px, fy = {_number(true['fy'])} px, principal point "
+                     f"{_vector(true['principal_point'])} px, distortion {_vector(true['distortion'], 6)}")  # fmt: skip
+    if (points := record["point_errors"]) is not None:
+        largest = float(np.linalg.norm(np.asarray(points), axis=1).max())
+        parts.append(f"feature point errors up to {_number(largest, 3)} m")
+    return parts
+
+
+def disturbances_text(spec: Scenario, record: dict) -> list[str]:
+    """What disturbs the loop, in words: the target's motion, the joint-torque disturbances
+    ``tau_d`` and what acts on the plant that the law leaves out (:func:`plant_text`)."""
+    moving = [f"the target's motion ({spec.target.motion.kind})"] if spec.target.motion.kind != "static" else []
+    kinds = ", ".join(d.kind for d in spec.disturbance.torque)
+    torques = [f"{kinds} joint torques tau_d"] if kinds else []
+    acting = plant_text(record)
+    plant = ["acting on the plant of the loop as implemented, unknown to the law ([plant]): " + "; ".join(acting)]
+    return [*moving, *torques, *(plant if acting else [])]
 
 
 def render(data: ReportData) -> str:
@@ -328,6 +375,10 @@ def render(data: ReportData) -> str:
         linear_margin=linear_margin_text(data.margins) if data.margins and "margins" in data.margins else None,
         mode=data.loop.mode,
         camera_size=(data.loop.camera.width, data.loop.camera.height),
+        camera=camera_facts(data.loop.camera, spec.camera.calibration),
+        q0=data.q0,
+        disturbances=disturbances_text(spec, data.plant_errors),
+        plant_acting=plant_text(data.plant_errors),
         provenance=data.provenance,
     )
 

@@ -23,7 +23,7 @@ from typer.testing import CliRunner
 from dvfc.analysis.margins import PARAMETERS
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
-from dvfc.reports.document import CACHE
+from dvfc.reports.stages import CACHE
 
 pytestmark = pytest.mark.slow  # every test here reads the whole review of the default scenario (about a minute)
 
@@ -360,3 +360,84 @@ def test_scenario_table_describes_the_loop_that_was_run(report):
     assert "e_e ideal" not in cell
     assert "torques at 500 Hz held, images at 60 Hz, latency 20 ms, e_e from the image (21)" in cell
     assert "RK4 with 2 steps per control period" in cell and "the paper's continuous loop" in cell
+
+
+CALIBRATION = {
+    "image_width": 1280, "image_height": 1024, "camera_name": "cell", "distortion_model": "plumb_bob",
+    "camera_matrix": {"rows": 3, "cols": 3, "data": [805.0, 0, 642.5, 0, 801.0, 510.25, 0, 0, 1]},
+    "distortion_coefficients": {"rows": 1, "cols": 5, "data": [-0.05, 0.01, 0.0005, -0.0003, 0.0]},
+}  # fmt: skip
+"""A ROS camera_info calibration: fx 805 px, fy 801 px, principal point (642.5, 510.25) px, plumb-bob distortion."""
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory, monkeypatch_module) -> tuple[str, dict]:
+    """The report of the default scenario with what the scenario table must state rather than
+    copy: ``q0 = "auto"``, the camera from a calibration file, friction and a payload on the plant
+    (2 s, CasADi's virtual machine, the margins not measured); its HTML and its stored run as implemented."""
+    import yaml
+
+    from dvfc.reports import document
+
+    root = tmp_path_factory.mktemp("solved")
+    (root / "camera.yaml").write_text(yaml.safe_dump(CALIBRATION))
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["robot"]["q0"] = "auto"
+    data["camera"] = {"calibration": "camera.yaml"}
+    data["simulation"] |= {"duration": 2.0, "jit": False}
+    data["plant"] = {"friction": {"viscous": 0.3, "coulomb": 0.1}, "payload": {"mass": 0.2}}
+    (root / "solved.toml").write_text(tomli_w.dumps(data))
+    monkeypatch_module.setattr(document, "measure_margins", lambda *args: {"reason": "not measured here"})
+    result = CliRunner().invoke(app, ["report", str(root / "solved.toml"), "--out", str(root / "out")])
+    assert result.exit_code in (0, 1) and isinstance(result.exception, SystemExit | None), result.exception
+    stored = pickle.loads((root / "out" / CACHE / "implemented.pkl").read_bytes())["value"]
+    return (root / "out" / "report.html").read_text(), {"q0": stored["q"][0], "pdf": root / "out" / "report.pdf"}
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_module():
+    with pytest.MonkeyPatch.context() as patch:
+        yield patch
+
+
+def cell(html: str, name: str) -> str:
+    """The text of the scenario table's cell ``name`` (its id), tags removed."""
+    found = re.search(rf'<td id="{name}">(.*?)</td>', html, re.S)
+    assert found, name
+    return " ".join(unescape(re.sub(r"<[^>]+>", "", found.group(1))).split())
+
+
+def test_a_solved_q0_is_shown_as_the_configuration_run_and_said_to_be_solved(solved):
+    """``q0 = "auto"``: the scenario table gives the configuration inverse kinematics solved for
+    (the one the run starts from) and says it was solved, in the HTML and the PDF."""
+    html, stored = solved
+    row = cell(html, "q0")
+    assert row.startswith("q0 = [" + ", ".join(f"{v:.4g}" for v in stored["q0"]) + "] rad")
+    assert 'solved (robot.q0 = "auto") by inverse kinematics' in row
+    text = subprocess.run(["pdftotext", str(stored["pdf"]), "-"], capture_output=True, text=True, check=True).stdout
+    assert 'solved (robot.q0 = "auto")' in " ".join(text.split())
+
+
+def test_the_camera_row_states_the_calibrated_intrinsics(solved):
+    """The camera row gives fx, fy, the principal point, the distortion coefficients, the image
+    size and the calibration file they came from (never a focal length of "-")."""
+    row = cell(solved[0], "camera")
+    assert "fx = 805 px, fy = 801 px, principal point (642.5, 510.25) px" in row
+    assert "[k1, k2, p1, p2, k3] = [-0.05, 0.01, 0.0005, -0.0003, 0]" in row
+    assert "image 1280 x 1024 px; from the calibration file camera.yaml" in row
+    assert "focal length" not in row
+
+
+def test_what_acts_on_the_plant_is_listed_among_the_disturbances(solved):
+    """With ``[plant]`` friction and a payload the disturbances row names them as what acts on the
+    plant (with their values), besides the target's motion, never "none"."""
+    row = cell(solved[0], "disturbances")
+    assert row.startswith("the target's motion (circle); acting on the plant of the loop as implemented")
+    assert "viscous b = [0.3, 0.3, 0.3, 0.3, 0.3, 0.3] N m s/rad, Coulomb c = [0.1, 0.1, 0.1, 0.1, 0.1, 0.1] N m" in row
+    assert "a payload of 0.2 kg on the camera link" in row
+    assert "none" not in row
+
+
+def test_the_observer_row_says_where_its_start_came_from(solved):
+    """With ``[start] observer = "image"`` the [observer] error is unused: the row says so."""
+    assert "gbar(0) from the first image" in cell(solved[0], "observer")

@@ -1,0 +1,55 @@
+"""What the report's scenario table says of the camera and the plant, and its number formats."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dvfc.models.camera import Camera
+from dvfc.reports.document import _number, _vector, camera_facts, plant_text
+
+POINTS = np.array([[0.05, 0.05, 0], [-0.05, 0.05, 0], [-0.05, -0.05, 0], [0.05, -0.05, 0]])
+
+
+def test_a_string_or_none_is_shown_not_formatted_as_a_number():
+    """A field that may be a string (``q0 = "auto"``) or absent never breaks the page: it reads
+    as itself, or ``-``; numbers keep their significant figures."""
+    assert _vector("auto") == "auto" and _number("auto") == "auto"
+    assert _vector(None) == "-" and _number(None) == "-" and _number(float("nan")) == "-"
+    assert _vector([0.15, -1.4512345, 2]) == "[0.15, -1.451, 2]" and _number(np.float64(812.5)) == "812.5"
+
+
+def test_camera_facts_give_both_focal_lengths_the_principal_point_and_the_distortion():
+    """``fy = aspect fx``; the principal point given, or the image centre; zero distortion is none."""
+    calibrated = Camera(805.0, POINTS, 1280, 1024, (642.5, 510.25), 801.0 / 805.0, (-0.05, 0.01, 0.0005, -0.0003, 0))
+    facts = camera_facts(calibrated, "camera.yaml")
+    assert facts["fx"] == 805.0 and abs(facts["fy"] - 801.0) < 1e-12
+    assert facts["principal_point"] == [642.5, 510.25] and facts["size"] == (1280, 1024)
+    assert facts["distortion"] == [-0.05, 0.01, 0.0005, -0.0003, 0.0] and facts["calibration"] == "camera.yaml"
+    plain = camera_facts(Camera(800.0, POINTS, 1280, 1024), None)
+    assert plain["principal_point"] == [640.0, 512.0] and plain["distortion"] is None and plain["fy"] == 800.0
+    unsized = camera_facts(Camera(800.0, POINTS), None)
+    assert unsized["principal_point"] is None and unsized["size"] is None
+
+
+def test_plant_text_names_each_error_with_its_values():
+    """Friction, a payload, a mass scale, a mount error, true intrinsics and point errors each
+    read as one entry with their values; a plant without errors reads as nothing."""
+    record = {
+        "friction": {"viscous": [0.3, 0.2], "coulomb": [0.1, 0.1], "smoothing": 0.05},
+        "payload": {"mass": 0.5, "com": [0, 0, 0.05], "inertia": [0] * 6},
+        "mass_scale": 1.1,
+        "mount": {"xyz": [0.001, 0, 0], "rpy": [0, 0.01, 0]},
+        "intrinsics": {"fx": 830.0, "fy": 830.0, "principal_point": [650, 500], "distortion": [-0.1, 0, 0, 0, 0]},
+        "point_errors": [[0.0003, 0.0004, 0], [0, 0, 0]],
+    }
+    parts = plant_text(record)
+    assert parts[0] == ("joint friction b qd + c tanh(qd / 0.05 rad/s): viscous b = [0.3, 0.2] N m s/rad, "
+                        "Coulomb c = [0.1, 0.1] N m")  # fmt: skip
+    assert parts[1:] == [
+        "a payload of 0.5 kg on the camera link (centre of mass [0, 0, 0.05] m)",
+        "masses and inertias 1.1x the URDF's",
+        "a camera mount error xyz [0.001, 0, 0] m, rpy [0, 0.01, 0] rad",
+        "true intrinsics fx = 830 px, fy = 830 px, principal point [650, 500] px, distortion [-0.1, 0, 0, 0, 0]",
+        "feature point errors up to 0.0005 m",
+    ]
+    assert plant_text(dict.fromkeys(record)) == []
