@@ -121,8 +121,9 @@ def moment_independent(x: np.ndarray, y: np.ndarray, seed: int = 0) -> tuple[lis
                               print_to_console=False)  # fmt: skip
     out: list[Scores | None] = [None] * x.shape[1]
     for i, j in enumerate(varies):
-        extra = {"delta": float(d["delta_balanced"][i]), "delta_conf": float(d["delta_balanced_conf"][i])} if (
-            with_delta) else {}
+        extra = {}
+        if with_delta and np.isfinite(d["delta_balanced"][i]):  # SALib gives NaN where its bins are too few
+            extra = {"delta": float(d["delta_balanced"][i]), "delta_conf": float(d["delta_balanced_conf"][i])}
         out[j] = Scores(float(p["maximum"][i]), **extra)
     floor = float(np.max(p["maximum"][len(varies) :]))
     note = (

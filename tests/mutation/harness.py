@@ -440,9 +440,9 @@ MUTATIONS = (
     Mutation(
         "synthesize-no-recheck",
         "a synthesized design is written without the fact-14 re-check",
-        "analysis/results.py",
-        (('        if record["applies"] and not record["certified"]:', '        if False:'),),
-        ("tests/test_windows.py",),
+        "analysis/synthesize.py",
+        (('    return within and run.get("sampled") is None', '    return within'),),
+        ("tests/test_synthesize.py::test_no_design_of_the_family_passing_fact_14_with_margin_is_refused_in_one_line",),
     ),
     Mutation(
         "distortion-tangential-swapped",
