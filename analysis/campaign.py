@@ -324,7 +324,7 @@ BINS = 4
 def sensitivities(spec: CampaignSpec, data: dict, ratio: np.ndarray, holds: np.ndarray) -> tuple[list[dict], dict]:
     """Per drawn quantity, its entries' Spearman rank correlation with the tracking ratio (tracking
     error over its bound, infinite for a run that did not complete), their moment-independent
-    scores for the closeness to failing (:mod:`dvfc.analysis.sensitivity`: delta, PAWN, against the
+    scores for the closeness to failing (:mod:`dvfc.analysis.sensitivity`: PAWN, against the
     floor of an independent input) and the failure rate per quantile bin; the quantity's
     strongest entry (by PAWN, else by the rank correlation) stated, strongest quantity first.
     Also the floor and what it means."""
@@ -346,12 +346,11 @@ def sensitivities(spec: CampaignSpec, data: dict, ratio: np.ndarray, holds: np.n
             s = by_column[column]
             entries.append({"column": column, "spearman": None if math.isnan(rho) else rho,
                             "pawn": None if s is None else s.pawn,
-                            "delta": None if s is None else s.delta, "delta_conf": None if s is None else s.delta_conf,
                             "above_floor": sensitivity.above_floor(s, floor),
                             "bin_edges": edges.tolist(), "failure_rate": rates})  # fmt: skip
         strongest = max(entries, key=_strength)
         out.append({"quantity": key, **{k: strongest[k] for k in (
-            "spearman", "delta", "delta_conf", "pawn", "above_floor", "column", "failure_rate", "bin_edges")},
+            "spearman", "pawn", "above_floor", "column", "failure_rate", "bin_edges")},
                     "entries": entries})  # fmt: skip
     floor_record = {"pawn": floor.pawn, "references": sensitivity.REFERENCES, "note": floor.note}
     return sorted(out, key=lambda e: tuple(-v for v in _strength(e))), floor_record

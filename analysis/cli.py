@@ -76,8 +76,19 @@ app = typer.Typer(
     rich_markup_mode=None,
     help="Dynamic visual feedback control: simulate, verify, certify.",
 )
-err = Console(stderr=True)
-out = Console()
+WIDTH = 200
+"""The columns of a table written to a file or a pipe (a terminal's own width otherwise): wide
+enough that no column is cut, the same wherever the output goes."""
+
+
+def console(stderr: bool = False) -> Console:
+    """A console as wide as its terminal, or :data:`WIDTH` columns when the output is not one."""
+    terminal = Console(stderr=stderr)
+    return terminal if terminal.is_terminal else Console(stderr=stderr, width=WIDTH)
+
+
+err = console(stderr=True)
+out = console()
 
 
 @app.callback()
@@ -960,13 +971,13 @@ def show_campaign(result: dict) -> None:
     out.print(f"criterion: {result['criterion']}", markup=False, soft_wrap=True)
     out.print(result["zero_failure"]["statement"], markup=False, soft_wrap=True)
     out.print(f"tolerance: {tolerance_text(result['tolerance'])}", markup=False, soft_wrap=True)
-    table = Table(title="Drivers of the closeness to failing (PAWN, delta, Spearman; measured)")
-    for name in ("quantity", "entry", "PAWN", "above floor", "delta", "spearman", "failure rate per quartile"):
+    table = Table(title="Drivers of the closeness to failing (PAWN, Spearman; measured)")
+    for name in ("quantity", "entry", "PAWN", "above floor", "spearman", "failure rate per quartile"):
         table.add_column(name)
     for e in result["sensitivity"]:
         rates = " ".join("-" if r is None else f"{r:.2f}" for r in e["failure_rate"])
         above = {True: "yes", False: "no", None: "-"}[e["above_floor"]]
-        table.add_row(e["quantity"], e["column"], _number(e["pawn"]), above, _number(e["delta"]),
+        table.add_row(e["quantity"], e["column"], _number(e["pawn"]), above,
                       _number(e["spearman"]), rates)  # fmt: skip
     out.print(table)
     out.print(f"floor: {result['sensitivity_floor']['note']}", markup=False, soft_wrap=True)

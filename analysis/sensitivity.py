@@ -2,24 +2,20 @@
 from the runs already made (given data, no designed sample).
 
 A rank correlation sees only a monotone effect: a quantity that fails the loop both ways (a
-mount rotation of either sign) has a correlation near zero. The measures here compare the
-outcome's whole distribution conditioned on a quantity with its unconditioned distribution:
+mount rotation of either sign) has a correlation near zero. PAWN (``SALib.analyze.pawn``)
+compares the outcome's whole distribution within a slice of a quantity with its unconditioned
+distribution: the largest, over :func:`slices` equal-count slices, Kolmogorov-Smirnov distance
+between the two (the maximum statistic: a driver that fails both ways moves the middle slice),
+0 when the outcome does not depend on the quantity. It is indifferent to ties, which the outcome
+has when many runs fail alike. (Borgonovo's delta, SALib's other given-data measure, is a kernel
+density estimate that misleads on such ties and costs about a hundred times as much.)
 
-- Borgonovo's delta (``SALib.analyze.delta``, its bias-balanced estimate ``delta_balanced``):
-  half the expected L1 distance between the outcome's density and its density given the
-  quantity, in [0, 1], 0 when the outcome does not depend on it;
-- PAWN (``SALib.analyze.pawn``): the largest, over :func:`slices` equal-count slices of the
-  quantity, Kolmogorov-Smirnov distance between the outcome's distribution and its distribution
-  in the slice (the maximum statistic: a driver that fails both ways moves the middle slice).
-
-Both are estimates from finitely many runs and are biased upwards: an input the outcome does
-not depend on still scores above 0. Each campaign therefore adds :data:`REFERENCES` inputs drawn
-independently of everything (uniform, their own seed); an input whose PAWN score exceeds every
+It is an estimate from finitely many runs and is biased upwards: an input the outcome does not
+depend on still scores above 0. Each campaign therefore adds :data:`REFERENCES` inputs drawn
+independently of everything (uniform, their own seed); an input whose score exceeds every
 reference's is told apart from no effect by a rank test at level ``1 / (REFERENCES + 1) = 0.05``
-(under no effect its score is exchangeable with the references'). PAWN (Kolmogorov-Smirnov
-distances) ranks the inputs: it is indifferent to ties, which the outcome has when many runs fail
-alike; the delta estimate (a kernel density) is not, so it is given beside PAWN only when at most
-10% of the runs tie. These are measurements on the runs made, not causes.
+(under no effect its score is exchangeable with the references'). These are measurements on the
+runs made, not causes.
 
 The outcome is the run's closeness to failing (the largest of its tracking ratio and limit
 ratios: above 1 it fails). A run that did not complete has no finite closeness; it stands in
@@ -36,26 +32,16 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from SALib.analyze import delta, pawn
+from SALib.analyze import pawn
 
 REFERENCES = 19
 """Independent reference inputs: their largest PAWN score is the floor (a rank test at level 0.05)."""
 
-RESAMPLES = 100
-"""Bootstrap resamples of the delta estimate (its confidence interval)."""
-
-TIES = 0.1
-"""The largest fraction of runs sharing an outcome value with another run for which delta is given."""
-
-
 @dataclass(frozen=True)
 class Scores:
-    """One input's moment-independent sensitivities: PAWN's largest KS distance over slices and, where the
-    outcome has few ties, Borgonovo's delta with its bootstrap half-width at 95% confidence."""
+    """One input's moment-independent sensitivity: PAWN's largest KS distance over slices."""
 
     pawn: float
-    delta: float | None = None
-    delta_conf: float | None = None
 
 
 @dataclass(frozen=True)
@@ -88,12 +74,6 @@ def slices(runs: int) -> int:
     return max(s for s in SLICES if s <= max(3, runs // 10))
 
 
-def tied_fraction(y: np.ndarray) -> float:
-    """The fraction of ``y``'s entries equal to another entry."""
-    _, counts = np.unique(y, return_counts=True)
-    return float(counts[counts > 1].sum() / len(y))
-
-
 def moment_independent(x: np.ndarray, y: np.ndarray, seed: int = 0) -> tuple[list[Scores | None], Floor]:
     """The scores of each column of ``x`` (runs x inputs) for the outcome ``y`` (finite), and the
     floor of :data:`REFERENCES` independent inputs drawn with ``seed``. A column that does not
@@ -110,28 +90,17 @@ def moment_independent(x: np.ndarray, y: np.ndarray, seed: int = 0) -> tuple[lis
     columns = np.column_stack([x[:, varies], rng.uniform(size=(runs, REFERENCES))])
     bounds = [[float(c.min()), float(c.max())] for c in columns.T]
     problem = {"num_vars": len(bounds), "names": [f"x{j}" for j in range(len(bounds))], "bounds": bounds}
-    with_delta = tied_fraction(y) <= TIES
     with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():  # SALib's bin-merge notices
         warnings.simplefilter("ignore")
         p = pawn.analyze(problem, columns, y, S=slices(runs), seed=seed)
-        if with_delta:
-            inputs = {**problem, "num_vars": len(varies), "names": problem["names"][: len(varies)],
-                      "bounds": bounds[: len(varies)]}  # fmt: skip
-            d = delta.analyze(inputs, columns[:, : len(varies)], y, num_resamples=RESAMPLES, seed=seed,
-                              print_to_console=False)  # fmt: skip
     out: list[Scores | None] = [None] * x.shape[1]
     for i, j in enumerate(varies):
-        extra = {}
-        if with_delta and np.isfinite(d["delta_balanced"][i]):  # SALib gives NaN where its bins are too few
-            extra = {"delta": float(d["delta_balanced"][i]), "delta_conf": float(d["delta_balanced_conf"][i])}
-        out[j] = Scores(float(p["maximum"][i]), **extra)
+        out[j] = Scores(float(p["maximum"][i]))
     floor = float(np.max(p["maximum"][len(varies) :]))
     note = (
         f"the largest PAWN score of {REFERENCES} inputs drawn independently of the loop is {floor:.3f} on these "
         f"{runs} runs: an input above it is told apart from no effect at level 0.05 (a rank test)"
     )
-    if not with_delta:
-        note += f"; delta not given: {tied_fraction(y):.0%} of the runs tie"
     return out, Floor(floor, note)
 
 

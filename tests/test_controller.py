@@ -234,6 +234,7 @@ def law_replay(case, run):
     controller = dvfc.controller(case)
     simulator = SampledSimulator(replace(case.loop, sampled=True), case.settings)
     layout, n, integral = controller.layout, controller.n, case.loop.integral
+    period = simulator._period_function(1)  # z_I's update reads the sample alone, whatever the substeps
     rows = []
     for k in range(len(run.tau)):
         x = run.states[k]
@@ -242,7 +243,7 @@ def law_replay(case, run):
         e_e = step.state[layout.e_e]
         s = np.concatenate([run.q[k], run.qd[k], x[:7], x[layout.integral] if integral else []])
         law, _ = simulator._last(run.t[k], s, e_e, simulator._effort, *simulator.design)
-        after = simulator._period(s, run.t[k], e_e, simulator._effort, simulator._friction, *simulator.design)[0]
+        after = period(s, run.t[k], e_e, simulator._effort, simulator._friction, *simulator.design)[0]
         z_sim = np.asarray(after).ravel()[2 * n + 7 :]
         rows.append((step.tau, np.asarray(law).ravel(), x[layout.integral], step.state[layout.integral], z_sim))
     return [np.array(column) for column in zip(*rows, strict=True)]
