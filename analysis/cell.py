@@ -17,8 +17,8 @@ scale each) and the integral gain ``K_I = k_i_factor K_xi`` (docs/math.md, fact 
   the scenario's seed for every candidate, on a shortened horizon), with a penalty above any
   completed run's value outside the windows or fact 14;
 
-then confirms the best design found on a campaign with fresh seeds (the scenario's seed plus
-one: runs independent of the search's) of ``zero_failure_runs(p_fail, confidence)`` runs on the
+then confirms the best design found on a campaign with fresh seeds (campaign seed
+:data:`CONFIRM_SEED`: runs independent of the search's) of ``zero_failure_runs(p_fail, confidence)`` runs on the
 full horizon, judged by the scenario's criterion (:func:`dvfc.analysis.margins.tracking_bound`
 of the scenario as given, pinned in the written design's ``[criterion]``). The search's value
 and the confirmation are measurements on simulated runs, not certificates; the confirmation's
@@ -55,6 +55,10 @@ SCALE_BOX = (0.25, 4.0)
 K_I_BOX = (1.0, 60.0)
 """The box of ``k_i_factor`` searched: ``K_I = k_i_factor K_xi``, an integral time of 1 to 1/60 s
 (fact 21 measured the cell well damped up to ``60 K_xi``)."""
+
+SEARCH_SEED, CONFIRM_SEED = 0, 1
+"""The campaign seeds of the search's runs (``dvfc campaign``'s default: its runs ``0 .. runs - 1``)
+and of the confirmation's (independent of them)."""
 
 TAIL = 0.25
 """The surrogate is the mean of this largest fraction of the runs' closeness to failing."""
@@ -258,9 +262,8 @@ def synthesize_for_campaign(
 
     say = progress or (lambda _: None)
     bound = tracking_bound(case)
-    CampaignSpec.of(case, bound, case.scenario.implementation.seed)  # refuses what cannot run, before any work
+    CampaignSpec.of(case, bound)  # refuses what cannot run, before any work
     start = time.perf_counter()
-    seed = 0
     evaluated: dict[tuple, tuple[float, Design, Checks]] = {}
 
     def evaluate(xs: list[np.ndarray]) -> list[float]:
@@ -278,7 +281,7 @@ def synthesize_for_campaign(
                 values.append(evaluated[key][0])
                 continue
             values.append(None)
-            specs.append(CampaignSpec.of(candidate_case(case, d, horizon=search.horizon), bound, seed))
+            specs.append(CampaignSpec.of(candidate_case(case, d, horizon=search.horizon), bound, SEARCH_SEED))
             where.append((i, key, d, c))
         for (i, key, d, c), rows in zip(where, run_rows(specs, search.runs, search.workers), strict=True):
             evaluated[key] = (surrogate(rows), d, c)
@@ -303,7 +306,7 @@ def synthesize_for_campaign(
     say(f"confirming on {zero_failure_runs(p_fail, confidence)} runs with fresh seeds")
     start = time.perf_counter()
     confirmation = confirm(candidate_case(case, best), bound, zero_failure_runs(p_fail, confidence), confidence,
-                           case.scenario.implementation.seed + 1, search.workers)  # fmt: skip
+                           CONFIRM_SEED, search.workers)  # fmt: skip
     limits = None if confirmation.failures == 0 else refusal(best_checks, confirmation, case)
     return CellSynthesis(best, best_checks, value, confirmation, bound, len(evaluated), search, limits,
                          search_seconds, time.perf_counter() - start)  # fmt: skip

@@ -616,6 +616,9 @@ def synthesize_command(
     maximise the envelope's certified target speed (facts 7-8); with --for-campaign, gains and
     integral action that hold on the scenario's campaign; write them as a scenario."""
     start = time.perf_counter()
+    for name, value in (("--p-fail", p_fail), ("--confidence", confidence)):
+        if for_campaign and not 0 < value < 1:
+            raise fail(f"{name}: {value:g} is not in (0, 1)")
     case = load_case(scenario)
     spec, loop = case.scenario, case.loop
     n = loop.robot.n
@@ -711,9 +714,6 @@ def synthesize_command(
 def campaign_design(case: Case, scenario: Path, target: Path, json_target: str | None, p_fail: float,
                     confidence: float, workers: int) -> None:
     """``synthesize --for-campaign`` (:mod:`dvfc.analysis.cell`): exit 0 written, 1 refused, 2 bad input."""
-    for name, value in (("--p-fail", p_fail), ("--confidence", confidence)):
-        if not 0 < value < 1:
-            raise fail(f"{name}: {value:g} is not in (0, 1)")
     if not case.scenario.dispersion:
         raise fail("dispersion: --for-campaign needs a [dispersion] section")
     if case.planar or case.settings.implementation is None:
