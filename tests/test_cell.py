@@ -20,7 +20,7 @@ from dvfc.analysis.campaign import CampaignSpec, campaign_batch
 from dvfc.analysis.case import Case
 from dvfc.analysis.margins import tracking_bound
 from dvfc.analysis.multirate import implemented_record
-from dvfc.analysis.scenario import Scenario
+from dvfc.analysis.scenario import Scenario, ScenarioError, load
 from dvfc.analysis.windows import case_windows
 from dvfc.models.loop import Gains
 from dvfc.reports.cli import app
@@ -145,3 +145,10 @@ def test_the_shipped_cells_first_campaign_runs_all_hold():
     rows = campaign_batch(spec, 0, 20)
     assert all(rows["holds"]), json.dumps([r for r, h in zip(rows["reason"], rows["holds"], strict=True) if not h])
     assert max(rows["tracking_angle_deg"]) < TODAY[1]
+
+
+def test_a_criterion_that_is_not_positive_is_refused_naming_the_field(tmp_path):
+    text = CELL.read_text().replace("angle_deg = 5.940966332926753", "angle_deg = -1.0")
+    (tmp_path / "bad.toml").write_text(text)
+    with pytest.raises(ScenarioError, match=r"^criterion\.angle_deg"):
+        load(tmp_path / "bad.toml")
