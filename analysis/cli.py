@@ -36,6 +36,9 @@ from dvfc.analysis.campaign import (
 )
 from dvfc.analysis.campaign import row as campaign_row
 from dvfc.analysis.case import Case
+from dvfc.analysis.cell import Search as CellSearch
+from dvfc.analysis.cell import design_text, synthesize_for_campaign
+from dvfc.analysis.cell import record as cell_record
 from dvfc.analysis.certify import (
     INTEGRAL_COVERAGE,
     NOT_APPLICABLE,
@@ -616,17 +619,30 @@ def synthesize_command(
     resume: Annotated[
         bool, typer.Option(help="Reuse the runs of an interrupted limits search.")
     ] = False,
+    for_campaign: Annotated[
+        bool, typer.Option("--for-campaign", help="Gains and integral action that hold on the [dispersion] campaign.")
+    ] = False,
+    p_fail: Annotated[float, typer.Option(help="--for-campaign: P(fail) the confirmation bounds, in (0, 1).")] = P_FAIL,
+    confidence: Annotated[float, typer.Option(help="--for-campaign: its confidence, in (0, 1).")] = CONFIDENCE,
+    workers: Annotated[int, typer.Option(min=1, help="--for-campaign: local worker processes.")] = 1,
 ) -> None:
     """Choose diagonal gains within the [synthesize] bounds that minimise the certified gamma
     (fact 6), reach [synthesize] gamma with the smallest gains, or (objective = "target_speed")
-    maximise the envelope's certified target speed (facts 7-8); write them as a scenario."""
+    maximise the envelope's certified target speed (facts 7-8); with --for-campaign, gains and
+    integral action that hold on the scenario's campaign; write them as a scenario."""
     start = time.perf_counter()
+    for name, value in (("--p-fail", p_fail), ("--confidence", confidence)):
+        if for_campaign and not 0 < value < 1:
+            raise fail(f"{name}: {value:g} is not in (0, 1)")
     case = load_case(scenario)
     spec, n = case.scenario, case.loop.robot.n
     if spec.loop != "paper" or n < 6:
         raise fail(f"loop: gain synthesis is for the paper's loop with n >= 6 joints (this is {spec.loop}, n = {n})")
     check_json_target(json_target)
     target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
+    if for_campaign:
+        campaign_design(case, scenario, target, json_target, p_fail, confidence, workers)
+        return
     prepare_out_dir(target.parent)
     try:
         synthesis_bounds(case)
@@ -653,6 +669,60 @@ def synthesize_command(
     emit(record, None, json_target, show_synthesis)
     if not done.accepted or (done.theta_bar is not None and record["max_target_speed"] is None):
         raise typer.Exit(1)
+
+
+def campaign_design(case: Case, scenario: Path, target: Path, json_target: str | None, p_fail: float,
+                    confidence: float, workers: int) -> None:
+    """``synthesize --for-campaign`` (:mod:`dvfc.analysis.cell`): exit 0 written, 1 refused, 2 bad input."""
+    if not case.scenario.dispersion:
+        raise fail("dispersion: --for-campaign needs a [dispersion] section")
+    if case.planar or case.settings.implementation is None:
+        raise fail("implementation: --for-campaign designs the loop as implemented; add an [implementation]")
+    start = time.perf_counter()
+    try:
+        CampaignSpec.of(case, tracking_bound(case))
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    prepare_out_dir(target.parent)
+    with err.status("searching gains that hold on the campaign") as status:
+        def say(text: str) -> None:
+            status.update(text)
+            if not err.is_terminal:
+                err.print(text, markup=False, soft_wrap=True)
+
+        result = synthesize_for_campaign(case, p_fail=p_fail, confidence=confidence,
+                                         search=CellSearch(workers=workers), progress=say)  # fmt: skip
+    record = {"scenario": case.name, **cell_record(result), "scenario_file": None}
+    if result.holds:
+        urdf = str(case.loop.robot.urdf) if case.scenario.robot.urdf is not None else None
+        text = design_text(Path(scenario).read_text(), case, result.design, result.bound,
+                           name=f"{case.name}-synthesized", urdf=urdf)  # fmt: skip
+        atomic_write(target, lambda h: h.write(text.encode()))
+        record["scenario_file"] = str(target)
+    record |= {"seconds": time.perf_counter() - start, "provenance": command_provenance(scenario)}
+    emit(record, None, json_target, show_campaign_design)
+    if not result.holds:
+        raise typer.Exit(1)
+
+
+def show_campaign_design(record: dict) -> None:
+    """Human output of ``synthesize --for-campaign``: the design, its checks, the confirmation, the file."""
+    if record["scenario_file"] is None:
+        out.print(f"NOT SYNTHESIZED: {record['limits']}", markup=False, soft_wrap=True)
+        return
+    d, c, s, f = record["design"], record["checks"], record["search"], record["confirmation"]
+    out.print(
+        f"gains: k_xi = {d['k_xi']}\n       k_c = {d['k_c']}\n       k_e = {d['k_e']}\n"
+        f"       k_i_factor = {d['k_i_factor']:g} (K_I = k_i_factor K_xi)\n"
+        f"inside the gain windows; certified gamma = {c['gamma']:.6g}; loop as implemented with the integral state "
+        f"(fact 14, local): rho = {c['rho']:.6g} <= {c['rho_max']:g}, Lyapunov margin {c['lyapunov_margin']:.3g}\n"
+        f"search: {s['method']}, {s['candidates']} candidates, surrogate {record['surrogate']:.4g} ({s['surrogate']})\n"
+        f"confirmation: {f['statement']}; largest tracking angle {f['max_tracking_angle_deg']:.3g} deg "
+        f"(criterion {record['tracking_bound']['angle_deg']:.4g})\n"
+        f"scenario written: {record['scenario_file']} ({record['seconds']:.0f} s)",
+        markup=False,
+        soft_wrap=True,
+    )
 
 
 @app.command("margins")

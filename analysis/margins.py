@@ -218,7 +218,7 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
 @dataclass(frozen=True)
 class TrackingBound:
     """What the true tracking error ``g_d^-1 g`` over the last half of a run is held to: its
-    position (m) and rotation angle (deg), and how the bound was obtained (``source``:
+    position (m) and rotation angle (deg), and how the bound was obtained (``source``: ``"scenario"``,
     ``"envelope"`` or ``"continuous"``; ``text`` completes :data:`CRITERION`)."""
 
     position: float
@@ -338,8 +338,13 @@ def continuous_bound(case: Case) -> TrackingBound:
 
 
 def tracking_bound(case: Case, envelope: dict | None = None) -> TrackingBound:
-    """The envelope's certified tracking bound (:func:`envelope_bound`), else
-    :func:`continuous_bound`."""
+    """The scenario's pinned ``[criterion]`` (source ``"scenario"``), else the envelope's certified
+    tracking bound (:func:`envelope_bound`), else :func:`continuous_bound`."""
+    pinned = case.scenario.criterion
+    if pinned is not None:
+        text = (f"the scenario's [criterion], pinned: position <= {pinned.position:.4g} m and angle <= "
+                f"{pinned.angle_deg:.4g} deg")  # fmt: skip
+        return TrackingBound(pinned.position, pinned.angle_deg, "scenario", text)
     return envelope_bound(case, envelope) or continuous_bound(case)
 
 

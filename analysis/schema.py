@@ -511,6 +511,17 @@ class EnvelopeSection(_Strict):
     theta_bar_deg: Annotated[float, Field(gt=0, lt=180, allow_inf_nan=False)] | None = None
 
 
+class CriterionSection(_Strict):
+    """The tracking bound of the criterion of ``margins`` and ``campaign``, pinned: the true tracking
+    error over the last half of a run within ``position`` (m) and ``angle_deg`` (deg). Absent: the
+    design's certified operating envelope (docs/math.md, fact 7; with integral action the same design's
+    without ``K_I``, fact 20.4), else twice the continuous loop's error. A design judged by the
+    criterion of another (say, the one it replaces) pins that one's numbers here."""
+
+    position: Positive
+    angle_deg: Annotated[float, Field(gt=0, le=180, allow_inf_nan=False)]
+
+
 class ReportSection(_Strict):
     """What the report's gain map shows: the certified gamma, or (with an ``[envelope]``) the
     certified decay rate or the largest certified target speed; and the runs of the campaign
@@ -634,6 +645,7 @@ class Scenario(_Strict):
     performance: PerformanceSection = PerformanceSection()
     certify: CertifySection = CertifySection()
     envelope: EnvelopeSection | None = None
+    criterion: CriterionSection | None = None
     report: ReportSection = ReportSection()
     grid: GridSection | None = None
     synthesize: SynthesizeSection = SynthesizeSection()

@@ -7,6 +7,7 @@ import tomllib
 import zlib
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,20 @@ IDEAL_SCENARIO = DEFAULT_SCENARIO.parent / "ur5_paper_ideal.toml"
 """The paper's idealised loop on the UR5 (the identities hold on it); the default scenario is
 the loop as a real UR5 runs it."""
 DEFAULT = tomllib.loads(IDEAL_SCENARIO.read_text())
+
+
+CELL = Path(__file__).parent.parent / "examples" / "ur5_cell.toml"
+
+
+def cell_with_default_design() -> tuple[Scenario, Path]:
+    """``examples/ur5_cell.toml``'s plant, errors and dispersions with the default example's design: its
+    gains, no integral action, the paper's constant start, the criterion its own envelope's (the cell as
+    docs/math.md, facts 18-21, measured it). Returns ``(scenario, base folder)``."""
+    data = tomllib.loads(CELL.read_text())
+    data["gains"] = {"k_xi": [20.0, 20.0, 20.0, 5.0, 5.0, 1.5], "k_c": [3.0] * 6, "k_e": 10.0}
+    for section in ("start", "criterion"):
+        data.pop(section, None)
+    return Scenario.model_validate(data), CELL.parent
 
 
 def scenario_dict(edit: Callable[[dict], None] | None = None) -> dict:

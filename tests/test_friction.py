@@ -6,7 +6,6 @@ recovered with an exact model)."""
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import casadi as cs
 import numpy as np
@@ -14,11 +13,9 @@ import pytest
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.results import envelope_record, statements
-from dvfc.analysis.scenario import load
 
-from conftest import build_loop, run
+from conftest import build_loop, cell_with_default_design, run
 
-CELL = Path(__file__).parent.parent / "examples" / "ur5_cell.toml"
 NOMINAL = np.concatenate([[1.0, 1.0, 1.0, 0.1, 0.1, 0.1], [3.0, 3.0, 3.0, 0.56, 0.56, 0.56], [0.05]])
 """``[b; c; eps]`` of ``examples/ur5_cell.toml``'s plant."""
 TWO_SIGMA = NOMINAL.copy()
@@ -69,7 +66,7 @@ def test_compensation_reads_the_law_s_qd_d_never_the_measured_qd():
 
 @pytest.fixture(scope="module")
 def cell():
-    return Case.load(CELL)
+    return Case(*cell_with_default_design())
 
 
 def test_fact_18_5_the_envelope_with_the_plant_s_friction_is_vacuous_on_the_cell(cell):
@@ -96,7 +93,7 @@ def test_fact_19_2a_an_exact_compensation_recovers_the_frictionless_envelope(cel
     the same smoothing) the residual's bound is 0 and no cross term is left: the friction record is
     CERTIFIED with the frictionless envelope's ``c_inf`` and bounds exactly. With the model's smoothing
     changed (0.06 rad/s) the residual's Coulomb bound is ``chat`` itself and it is vacuous again."""
-    spec, base = load(CELL)
+    spec, base = cell_with_default_design()
     data = spec.model_dump()
     data["gains"]["friction_compensation"] = dict(data["plant"]["friction"])
     exact = envelope_record(Case(type(spec).model_validate(data), base), search=False)

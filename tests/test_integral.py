@@ -8,7 +8,6 @@ from __future__ import annotations
 import hashlib
 from dataclasses import replace
 from fractions import Fraction
-from pathlib import Path
 
 import casadi as cs
 import numpy as np
@@ -29,9 +28,8 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, ScenarioError, bu
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.models.loop import Gains
 
-from conftest import build_loop, run, scenario_dict, static_target
+from conftest import build_loop, cell_with_default_design, run, scenario_dict, static_target
 
-CELL = Path(__file__).parent.parent / "examples" / "ur5_cell.toml"
 WRIST_3_TWO_SIGMA = 0.56 * np.exp(0.6)
 """Wrist 3's Coulomb friction at +2 sigma of the cell's dispersion (N m)."""
 CELL_FRICTION = np.concatenate([[1.0, 1.0, 1.0, 0.1, 0.1, 0.1], [3.0, 3.0, 3.0, 0.56, 0.56, WRIST_3_TWO_SIGMA], [0.05]])
@@ -177,10 +175,10 @@ def test_fact_21_monodromy_with_the_integral_equals_a_sample_by_sample_simulatio
 
 @pytest.mark.slow
 def test_fact_21_rho_of_the_cell_with_the_integral_and_its_friction_slope():
-    """(21) On ``examples/ur5_cell.toml`` with ``K_I = 10 K_xi``: 36 states, ``rho = 0.94052`` (certified),
-    and with the plant's friction linearised at rest (slope ``b + c/eps``) 0.96460; without the integral
-    fact 14's 0.93690 and 0.98934."""
-    spec, base = load(CELL)
+    """(21) On ``examples/ur5_cell.toml``'s plant with the default design and ``K_I = 10 K_xi``: 36 states,
+    ``rho = 0.94052`` (certified), and with the plant's friction linearised at rest (slope ``b + c/eps``)
+    0.96460; without the integral fact 14's 0.93690 and 0.98934."""
+    spec, base = cell_with_default_design()
     loop, s0, settings = build(spec, base)
     plain = implemented_record(loop, s0, settings)
     record = implemented_record(with_integral(loop), s0, settings)
