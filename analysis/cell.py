@@ -31,6 +31,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import tomlkit
@@ -346,11 +347,11 @@ def refusal(found: Checks, confirmation: Confirmation | None, case: Case) -> str
 
 
 def design_text(original: str, case: Case, design: Design, bound: TrackingBound, *, name: str,
-                urdf: str | None) -> str:
+                source: Path, target: Path) -> str:
     """The scenario file with ``design`` written (:func:`dvfc.analysis.synthesize.scenario_text`,
     comments kept), ``k_i_factor`` set (``k_i`` removed) and the criterion pinned in ``[criterion]``."""  # fmt: skip
     point = GainPoint(design.k_xi, design.k_c, design.k_e, case.point.weights, case.point.plant)
-    doc = tomlkit.parse(scenario_text(original, point, name=name, weights=False, urdf=urdf))
+    doc = tomlkit.parse(scenario_text(original, point, name=name, weights=False, source=source, target=target))
     gains = doc["gains"]
     if "k_i" in gains:
         del gains["k_i"]

@@ -10,6 +10,7 @@ import json
 import os
 import sys
 import time
+from collections import ChainMap
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
@@ -85,9 +86,12 @@ enough that no column is cut, the same wherever the output goes."""
 
 
 def console(stderr: bool = False) -> Console:
-    """A console as wide as its terminal, or :data:`WIDTH` columns when the output is not one."""
+    """A console as wide as its terminal, or, when the output is not one, ``$COLUMNS`` columns
+    (read at each print) or :data:`WIDTH` without it."""
     terminal = Console(stderr=stderr)
-    return terminal if terminal.is_terminal else Console(stderr=stderr, width=WIDTH)
+    if terminal.is_terminal:
+        return terminal
+    return Console(stderr=stderr, environ=ChainMap(os.environ, {"COLUMNS": str(WIDTH)}))
 
 
 err = console(stderr=True)
@@ -696,7 +700,7 @@ def campaign_design(case: Case, scenario: Path, target: Path, json_target: str |
     if result.holds:
         urdf = str(case.loop.robot.urdf) if case.scenario.robot.urdf is not None else None
         text = design_text(Path(scenario).read_text(), case, result.design, result.bound,
-                           name=f"{case.name}-synthesized", urdf=urdf)  # fmt: skip
+                           name=f"{case.name}-synthesized", source=Path(scenario), target=target)  # fmt: skip
         atomic_write(target, lambda h: h.write(text.encode()))
         record["scenario_file"] = str(target)
     record |= {"seconds": time.perf_counter() - start, "provenance": command_provenance(scenario)}
