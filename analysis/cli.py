@@ -91,7 +91,7 @@ def console(stderr: bool = False) -> Console:
     terminal = Console(stderr=stderr)
     if terminal.is_terminal:
         return terminal
-    return Console(stderr=stderr, environ=ChainMap(os.environ, {"COLUMNS": str(WIDTH)}))
+    return Console(stderr=stderr, _environ=ChainMap(os.environ, {"COLUMNS": str(WIDTH)}))
 
 
 err = console(stderr=True)
@@ -698,7 +698,6 @@ def campaign_design(case: Case, scenario: Path, target: Path, json_target: str |
                                          search=CellSearch(workers=workers), progress=say)  # fmt: skip
     record = {"scenario": case.name, **cell_record(result), "scenario_file": None}
     if result.holds:
-        urdf = str(case.loop.robot.urdf) if case.scenario.robot.urdf is not None else None
         text = design_text(Path(scenario).read_text(), case, result.design, result.bound,
                            name=f"{case.name}-synthesized", source=Path(scenario), target=target)  # fmt: skip
         atomic_write(target, lambda h: h.write(text.encode()))

@@ -106,7 +106,8 @@ def test_bad_confirmation_probability_is_one_line_exit_2(tmp_path):
 def test_the_written_design_keeps_the_comments_and_pins_the_criterion(tmp_path, shipped):
     case = shipped
     design = cell.Design(np.array([30.0, 30, 30, 6, 6, 2]), np.full(6, 3.5), np.full(6, 12.0), 15.0)
-    text = cell.design_text(CELL.read_text(), case, design, tracking_bound(case), name="cell-x", source=CELL, target=CELL)
+    text = cell.design_text(CELL.read_text(), case, design, tracking_bound(case), name="cell-x",
+                            source=CELL, target=CELL)
     assert "# Joint friction, which the law does not model." in text
     g = Scenario.model_validate(tomllib.loads(text)).gains
     assert (g.k_xi, g.k_c, g.k_e, g.k_i_factor) == (design.k_xi.tolist(), design.k_c.tolist(), design.k_e.tolist(),
