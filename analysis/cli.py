@@ -10,7 +10,6 @@ import json
 import os
 import sys
 import time
-from collections import ChainMap
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
@@ -19,7 +18,7 @@ from typing import Annotated
 
 import numpy as np
 import typer
-from rich.console import Console
+from rich.console import Console, ConsoleDimensions
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
@@ -85,13 +84,24 @@ WIDTH = 200
 enough that no column is cut, the same wherever the output goes."""
 
 
+class FileConsole(Console):
+    """A console whose output is not a terminal: ``$COLUMNS`` columns, read at each print, or
+    :data:`WIDTH` without it."""
+
+    @property
+    def size(self) -> ConsoleDimensions:
+        columns = os.environ.get("COLUMNS", "")
+        return ConsoleDimensions(int(columns) if columns.isdigit() else WIDTH, super().size.height)
+
+    @size.setter
+    def size(self, new_size: tuple[int, int]) -> None:
+        Console.size.fset(self, new_size)
+
+
 def console(stderr: bool = False) -> Console:
-    """A console as wide as its terminal, or, when the output is not one, ``$COLUMNS`` columns
-    (read at each print) or :data:`WIDTH` without it."""
+    """A console as wide as its terminal, or a :class:`FileConsole` when the output is not one."""
     terminal = Console(stderr=stderr)
-    if terminal.is_terminal:
-        return terminal
-    return Console(stderr=stderr, _environ=ChainMap(os.environ, {"COLUMNS": str(WIDTH)}))
+    return terminal if terminal.is_terminal else FileConsole(stderr=stderr)
 
 
 err = console(stderr=True)
