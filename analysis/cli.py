@@ -537,7 +537,7 @@ def show_envelope(e: dict) -> None:
                                       f"(reference {start.get('method', 'constant')})"),
         ("visible, margin to border, min depth", f"{e['visible']}, {fmt(e['image_margin_px'], ' px')}, "
                                                   f"{fmt(e['depth_min'], ' m')}"),
-        ("largest certified target speed", fmt(e["max_target_speed"], " m/s")),
+        ("largest target speed with every statement certified (features in view)", fmt(e["max_target_speed"], " m/s")),
         ("largest certified |tau_d|", fmt(e["max_torque"], " N m")),
     ]  # fmt: skip
     for name, value in rows:
@@ -768,7 +768,15 @@ def margins_command(
             Progress(*columns, console=err, transient=True) as bar,
         ):
             task = bar.add_task("margins", total=planned_runs())
-            poll = lambda: bar.update(task, completed=runs_done(directory))  # noqa: E731
+            shown = [-1]
+
+            def poll() -> None:
+                done = runs_done(directory)
+                bar.update(task, completed=done)
+                if not err.is_terminal and done != shown[0]:  # CI logs, nohup: a plain line a run
+                    shown[0] = done
+                    err.print(f"margins: {done} of at most {planned_runs()} runs", markup=False)
+
             result = margins(
                 case,
                 directory,

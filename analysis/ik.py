@@ -26,7 +26,7 @@ it can take; the others over their limits narrowed by :data:`LIMIT_MARGIN` (:fun
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as cs
 import numpy as np
@@ -173,6 +173,8 @@ def solve_configuration(robot: Robot, goal: np.ndarray, seed: int = 0) -> Config
         if found:
             break
     best = _best_conditioned(robot, goal, search, found)
+    if best is not None:
+        best = replace(best, q=nearest_turn(best.q, robot.limits.lower, robot.limits.upper))
     if best is None:
         position, rotation = search.errors(closest)
         raise NoConfigurationError(
@@ -182,6 +184,17 @@ def solve_configuration(robot: Robot, goal: np.ndarray, seed: int = 0) -> Config
             _configuration(robot, closest, position, rotation),
         )
     return best
+
+
+def nearest_turn(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Each joint angle moved by whole turns (the same pose: every joint is revolute) to the value
+    within its limits nearest the middle of its range (0 where a side is unlimited), so that a start
+    does not sit a turn away from where the joint has room on both sides."""
+    finite = np.isfinite(lower) & np.isfinite(upper)
+    middle = np.where(finite, (np.where(finite, lower, 0.0) + np.where(finite, upper, 0.0)) / 2, 0.0)
+    moved = q + 2 * np.pi * np.round((middle - q) / (2 * np.pi))
+    inside = (moved >= lower) & (moved <= upper)
+    return np.where(inside, moved, q)
 
 
 def _configuration(robot: Robot, q: np.ndarray, position: float, rotation: float) -> Configuration:

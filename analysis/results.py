@@ -394,8 +394,8 @@ def statements(
              "detail": f"{env['image_margin_px']:.4g} px from the border" if env["visible"] else env["statement"]},
             {"statement": "at the target's own speed", "loop": "ideal continuous loop",
              "status": "CERTIFIED" if speed is not None and speed >= own else "NOT CERTIFIED",
-             "detail": f"largest certified target speed {'-' if speed is None else f'{speed:.4g}'} m/s against "
-                       f"{own:.4g} m/s"},
+             "detail": "largest target speed with every statement certified (features in view) "
+                       f"{'-' if speed is None else f'{speed:.4g}'} m/s against {own:.4g} m/s"},
             {"statement": "the start", "loop": "ideal continuous loop, from t = 0",
              "status": "CERTIFIED" if env["start"]["inside"] else "NOT CERTIFIED",
              "detail": f"V(0) = {env['start']['V0']:.4g} "
@@ -428,11 +428,13 @@ def statements(
     return out
 
 
-def verdict(certificate: dict, verification: dict) -> dict:
+def verdict(certificate: dict, verification: dict, statements_: list[dict] | None = None) -> dict:
     """The whole verdict of a review: the certificate AND every check behind it.
 
     ``passed`` only when the design is certified, no claim fails and no check is
-    inconclusive; ``failed`` and ``inconclusive`` list those claims with their reasons."""
+    inconclusive; ``failed`` and ``inconclusive`` list those claims with their reasons;
+    ``not_certified`` the review's statements (:func:`statements`, when given) that are not
+    certified or do not apply here, which the headline names too."""
     point = certificate["points"][0]
     pick = lambda status: [c for c in verification["claims"] if c["status"] == status]  # noqa: E731
     failed, inconclusive = pick("FAIL"), pick("INCONCLUSIVE")
@@ -445,8 +447,11 @@ def verdict(certificate: dict, verification: dict) -> dict:
         headline = "L2 gain CERTIFIED" + (", but " + " and ".join(checks) if checks else ", and every check passes")
     else:
         headline = "L2 gain NOT CERTIFIED" + (" and " + " and ".join(checks) if checks else "")
+    short = [s for s in statements_ or [] if s["status"] in ("NOT CERTIFIED", "DOES NOT APPLY")]
+    if short:
+        headline += f"; {len(short)} statement(s) not certified here or not applying (listed)"
     return {"passed": bool(point["certified"]) and not checks, "headline": headline, "failed": failed,
-            "inconclusive": inconclusive}  # fmt: skip
+            "inconclusive": inconclusive, "not_certified": short}  # fmt: skip
 
 
 def grid_result(spec: Scenario, grid: GridSpec, state: SweepState, files: dict[str, str], provenance: dict,

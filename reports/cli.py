@@ -22,7 +22,7 @@ from dvfc.analysis.cli import (
     resumable,
 )
 from dvfc.analysis.output import atomic_write
-from dvfc.analysis.results import verdict
+from dvfc.analysis.results import statements, verdict
 from dvfc.reports.document import STEPS, assemble, write
 from dvfc.reports.stages import CACHE, TIMINGS, StageCache, StepTimes
 
@@ -68,9 +68,12 @@ def report(
         times("end")
         atomic_write(directory / CACHE / TIMINGS, lambda h: h.write(times.table(cache).encode()))
     out.print(f"report: {html}\n        {pdf}", markup=False)
-    outcome = verdict(data.certificate, data.verification)
+    outcome = verdict(data.certificate, data.verification,
+                      statements(data.certificate, data.verification, data.margins, data.dispersion))  # fmt: skip
     out.print(outcome["headline"], markup=False)
     for claim in outcome["failed"] + outcome["inconclusive"]:
         out.print(f"  {claim['status']} {claim['paper']}: {claim['claim']} ({claim['detail']})", markup=False)
+    for s in outcome["not_certified"]:
+        out.print(f"  {s['status']} {s['statement']} ({s['loop']}): {s['detail']}", markup=False)
     if not outcome["passed"]:
         raise typer.Exit(1)

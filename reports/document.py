@@ -347,6 +347,7 @@ def render(data: ReportData) -> str:
     env.filters["vec"] = _vector
     spec = data.spec
     point = data.certificate["points"][0]
+    review = statements(data.certificate, data.verification, data.margins, data.dispersion)
     return env.get_template("report.html.j2").render(
         spec=spec,
         robot=data.loop.robot,
@@ -356,8 +357,8 @@ def render(data: ReportData) -> str:
         region=data.certificate["region"],
         assumptions=data.certificate["assumptions"],
         verification=data.verification,
-        verdict=verdict(data.certificate, data.verification),
-        statements=statements(data.certificate, data.verification, data.margins, data.dispersion),
+        verdict=verdict(data.certificate, data.verification, review),
+        statements=review,
         best_gamma=best_gamma(point),
         channels=channels_text(point, spec.loop == "planar"),
         target_start=xyz_rpy(np.asarray(data.loop.target.start.as_matrix())),

@@ -224,7 +224,7 @@ def l2_inequality(traj: Trajectory, gamma: float) -> str:
 MAP_LABELS = {
     "gamma": ("certified gamma [-]", "Theorem 2: certified gamma over the gains", "viridis_r"),
     "rate": ("certified decay rate kappa [1/s]", "Fact 7: certified decay rate over the gains", "viridis"),
-    "max_target_speed": ("largest certified target speed [m/s]",
+    "max_target_speed": ("largest target speed, features certified in view [m/s]",
                          "Facts 7-8: largest target speed kept in view over the gains", "viridis"),
 }  # fmt: skip
 """Per quantity of a :class:`GainMap`: axis label, title, colour map (dark = better)."""

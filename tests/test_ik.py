@@ -158,3 +158,23 @@ def test_the_search_box_keeps_every_limit_and_a_full_turn_where_there_is_none():
     m = LIMIT_MARGIN
     assert np.allclose(lower, [-pi, m, 1 - 2 * pi, -1 + m], rtol=0, atol=1e-15)
     assert np.allclose(upper, [pi, 2 * pi, 1 - m, 1 - m], rtol=0, atol=1e-15)
+
+
+def test_a_solved_start_is_the_turn_of_each_angle_nearest_the_middle_of_its_range():
+    """Whole turns change no pose of a revolute arm: each angle moves to the value congruent to it
+    modulo 2 pi that lies within its limits nearest their middle (0 where a side is unlimited), and
+    stays where no other turn fits."""
+    from dvfc.analysis.ik import nearest_turn
+
+    lower = np.array([-2 * np.pi, -2 * np.pi, 0.0, -1.0, -np.inf])
+    upper = np.array([2 * np.pi, 2 * np.pi, 1.0, 6.0, np.inf])
+    q = np.array([-5.430, 3.641, 0.5, 5.5, 9.0])
+    moved = nearest_turn(q, lower, upper)
+    turns = (moved - q) / (2 * np.pi)
+    assert np.allclose(turns, np.round(turns), atol=1e-12)
+    assert np.all((moved >= lower) & (moved <= upper))
+    middle = np.array([0.0, 0.0, 0.5, 2.5, 0.0])
+    for k, value in enumerate(moved):  # no other turn within the limits is nearer the middle
+        for other in (value - 2 * np.pi, value + 2 * np.pi):
+            assert not (lower[k] <= other <= upper[k]) or abs(other - middle[k]) >= abs(value - middle[k])
+    assert np.allclose(moved, [-5.430 + 2 * np.pi, 3.641 - 2 * np.pi, 0.5, 5.5 - 2 * np.pi, 9.0 - 2 * np.pi])
