@@ -7,14 +7,11 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import replace
-from fractions import Fraction
 
 import casadi as cs
 import numpy as np
 import pytest
 from pydantic import ValidationError
-from scipy.integrate import solve_ivp
-from test_multirate import captured
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import certify
@@ -29,6 +26,7 @@ from dvfc.analysis.simulate import identity_residuals
 from dvfc.models.loop import Gains
 
 from conftest import build_loop, cell_with_default_design, run, scenario_dict, static_target
+from loop_reference import linearised_run, rk4_period
 
 WRIST_3_TWO_SIGMA = 0.56 * np.exp(0.6)
 """Wrist 3's Coulomb friction at +2 sigma of the cell's dispersion (N m)."""
@@ -150,24 +148,7 @@ def test_fact_21_monodromy_with_the_integral_equals_a_sample_by_sample_simulatio
     assert pi.shape == (36, 36) and nz == 24
     rng = np.random.default_rng(21)
     start = rng.standard_normal(pi.shape[0]) * 1e-3
-    z, e = start[:nz], start[nz : nz + ne]
-    control, camera = Fraction(imp.control_rate).limit_denominator(), Fraction(imp.camera_rate).limit_denominator()
-    period = (control / camera).numerator
-    lag = round(imp.latency * imp.control_rate)
-    capture = lambda k: captured(k + 100 * period, control, camera)  # noqa: E731
-    before = [k for k in range(-lag, 0) if capture(k)]
-    line = {k: start[nz + ne * (i + 1) : nz + ne * (i + 2)] for i, k in enumerate(before)}
-    h, c = 1 / imp.control_rate, system.output
-    for k in range(2 * period):
-        line[k] = c @ z
-        if capture(k - lag):
-            e = line[k - lag]
-        tau = lin.f @ z + lin.f_e @ e
-        xi = lin.xi @ z + lin.xi_e @ e
-        flow = solve_ivp(lambda t, y, u=tau, m=e: lin.a @ y + lin.b_tau @ u + lin.b_e @ m, (0.0, h), z,
-                         method="DOP853", rtol=1e-12, atol=1e-16)  # fmt: skip
-        z = flow.y[:, -1]
-        z[-6:] += h * xi
+    z, e, period = linearised_run(system, imp, start, integral=6)
     assert sched.steps == period
     expected = (pi @ pi @ start)[: nz + ne]
     assert np.abs(np.concatenate([z, e]) - expected).max() < 1e-8 * np.abs(expected).max()
@@ -232,14 +213,7 @@ def test_sampled_integral_law_equals_a_sample_by_sample_loop(as_built):
         z_i = s[-n:].copy()
         windup = ((tau > effort) & (xi < 0)) | ((tau < -effort) & (xi > 0))
         skipped += int(windup.sum())
-        step = h / imp.substeps
-        for i in range(imp.substeps):
-            t0 = t + i * step
-            k1 = np.asarray(rate(t0, s, u)).ravel()
-            k2 = np.asarray(rate(t0 + step / 2, s + step / 2 * k1, u)).ravel()
-            k3 = np.asarray(rate(t0 + step / 2, s + step / 2 * k2, u)).ravel()
-            k4 = np.asarray(rate(t0 + step, s + step * k3, u)).ravel()
-            s = s + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        s = rk4_period(rate, t, s, u, h, imp.substeps)
         for q in loop.quaternions:
             s[q] /= np.linalg.norm(s[q])
         s[-n:] = z_i + np.where(windup, 0.0, h * xi)

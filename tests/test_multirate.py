@@ -8,12 +8,10 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 from typer.testing import CliRunner
 
 from dvfc.analysis.cli import app
@@ -29,6 +27,8 @@ from dvfc.analysis.multirate import (
 from dvfc.analysis.sampled import SampledSimulator
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
 from dvfc.analysis.simulate import Trajectory
+
+from loop_reference import linearised_run
 
 PANDA = Path(__file__).parent.parent / "examples" / "panda_circle.toml"
 
@@ -48,14 +48,6 @@ def record(default):
     return implemented_record(loop, s0, settings)
 
 
-def captured(k: int, control_rate: Fraction, camera_rate: Fraction) -> bool:
-    """Whether control sample ``k >= 1`` is the first at or after some camera tick
-    ``j / camera_rate``: the first tick after ``t_(k-1)`` is not after ``t_k`` (exact rational
-    arithmetic)."""
-    first_tick = math.floor((k - 1) * camera_rate / control_rate) + 1
-    return first_tick / camera_rate <= k / control_rate
-
-
 def test_monodromy_equals_a_sample_by_sample_simulation_of_the_linearised_loop(default):
     """Two common periods (100 ms) of the linearised loop simulated independently: the
     continuous linearised dynamics integrated by ``solve_ivp`` (DOP853, rtol 1e-12) between
@@ -71,22 +63,7 @@ def test_monodromy_equals_a_sample_by_sample_simulation_of_the_linearised_loop(d
     nz, ne = lin.b_e.shape
     rng = np.random.default_rng(14)
     start = rng.standard_normal(pi.shape[0]) * 1e-3
-    z, e = start[:nz], start[nz : nz + ne]
-    control, camera = Fraction(imp.control_rate).limit_denominator(), Fraction(imp.camera_rate).limit_denominator()
-    period = (control / camera).numerator  # samples after which the captures repeat
-    lag = round(imp.latency * imp.control_rate)
-    capture = lambda k: captured(k + 100 * period, control, camera)  # noqa: E731
-    before = [k for k in range(-lag, 0) if capture(k)]  # the images in flight at the start
-    line = {k: start[nz + ne * (i + 1) : nz + ne * (i + 2)] for i, k in enumerate(before)}
-    h, c = 1 / imp.control_rate, system.output
-    for k in range(2 * period):
-        line[k] = c @ z
-        if capture(k - lag):
-            e = line[k - lag]
-        tau = lin.f @ z + lin.f_e @ e
-        flow = solve_ivp(lambda t, y, u=tau, m=e: lin.a @ y + lin.b_tau @ u + lin.b_e @ m, (0.0, h), z,
-                         method="DOP853", rtol=1e-12, atol=1e-16)  # fmt: skip
-        z = flow.y[:, -1]
+    z, e, period = linearised_run(system, imp, start)
     assert sched.steps == period
     expected = (pi @ pi @ start)[: nz + ne]
     assert np.abs(np.concatenate([z, e]) - expected).max() < 1e-8 * np.abs(expected).max()

@@ -19,6 +19,7 @@ from dvfc.analysis.verify import IMPLEMENTED_TOL, implemented, implemented_stora
 from dvfc.models.robot import Payload, Robot
 
 from conftest import build_loop
+from loop_reference import rk4_period
 
 HORIZON = 0.1
 
@@ -178,14 +179,7 @@ def test_sampled_run_equals_a_sample_by_sample_loop(as_built):
             e_held = pending.pop(0)[1]
         tau = np.asarray(law(t, s, np.concatenate([np.zeros(n), e_held]))).ravel()
         u = np.concatenate([tau, e_held])
-        step = h / imp.substeps
-        for i in range(imp.substeps):
-            t0 = t + i * step
-            k1 = np.asarray(rate(t0, s, u)).ravel()
-            k2 = np.asarray(rate(t0 + step / 2, s + step / 2 * k1, u)).ravel()
-            k3 = np.asarray(rate(t0 + step / 2, s + step / 2 * k2, u)).ravel()
-            k4 = np.asarray(rate(t0 + step, s + step * k3, u)).ravel()
-            s = s + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        s = rk4_period(rate, t, s, u, h, imp.substeps)
         for q in loop.quaternions:
             s[q] /= np.linalg.norm(s[q])
         states.append(s)
