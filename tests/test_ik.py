@@ -166,15 +166,16 @@ def test_a_solved_start_is_the_turn_of_each_angle_nearest_the_middle_of_its_rang
     stays where no other turn fits."""
     from dvfc.analysis.ik import nearest_turn
 
-    lower = np.array([-2 * np.pi, -2 * np.pi, 0.0, -1.0, -np.inf])
-    upper = np.array([2 * np.pi, 2 * np.pi, 1.0, 6.0, np.inf])
-    q = np.array([-5.430, 3.641, 0.5, 5.5, 9.0])
+    lower = np.array([-2 * np.pi, -2 * np.pi, 0.0, -1.0, -np.inf, 1.0])
+    upper = np.array([2 * np.pi, 2 * np.pi, 1.0, 6.0, np.inf, np.inf])
+    q = np.array([-5.430, 3.641, 0.5, 5.5, 9.0, 7.0])
     moved = nearest_turn(q, lower, upper)
     turns = (moved - q) / (2 * np.pi)
     assert np.allclose(turns, np.round(turns), atol=1e-12)
     assert np.all((moved >= lower) & (moved <= upper))
-    middle = np.array([0.0, 0.0, 0.5, 2.5, 0.0])
+    middle = np.array([0.0, 0.0, 0.5, 2.5, 0.0, 0.0])
     for k, value in enumerate(moved):  # no other turn within the limits is nearer the middle
         for other in (value - 2 * np.pi, value + 2 * np.pi):
             assert not (lower[k] <= other <= upper[k]) or abs(other - middle[k]) >= abs(value - middle[k])
-    assert np.allclose(moved, [-5.430 + 2 * np.pi, 3.641 - 2 * np.pi, 0.5, 5.5, 9.0 - 2 * np.pi])  # 5.5: nearer 2.5 than -0.78
+    # 5.5 is nearer 2.5 than -0.78; a turn down from 7.0 (0.72) is nearer 0 but below the limit 1
+    assert np.allclose(moved, [-5.430 + 2 * np.pi, 3.641 - 2 * np.pi, 0.5, 5.5, 9.0 - 2 * np.pi, 7.0])

@@ -53,3 +53,21 @@ def test_plant_text_names_each_error_with_its_values():
         "feature point errors up to 0.0005 m",
     ]
     assert plant_text(dict.fromkeys(record)) == []
+
+
+def test_the_verdict_names_every_statement_not_certified_or_not_applying():
+    """A certified design whose claims all pass, with two statements of the review not certified
+    and one not applying: the verdict passes (the design's exit 0), and its headline counts the
+    three and lists them; the certified and measured statements are not listed."""
+    from dvfc.analysis.results import verdict
+
+    certificate = {"points": [{"certified": True}]}
+    verification = {"claims": [{"status": "PASS"}], "summary": {"claims": 1}}
+    statuses = {"L2 gain": "CERTIFIED", "every feature": "NOT CERTIFIED", "own speed": "NOT CERTIFIED",
+                "fact 14": "DOES NOT APPLY", "margins": "MEASURED"}  # fmt: skip
+    review = [{"statement": name, "status": status} for name, status in statuses.items()]
+    outcome = verdict(certificate, verification, review)
+    assert outcome["passed"]
+    assert [s["statement"] for s in outcome["not_certified"]] == ["every feature", "own speed", "fact 14"]
+    assert "3 statement(s) not certified" in outcome["headline"]
+    assert verdict(certificate, verification)["headline"] == "L2 gain CERTIFIED, and every check passes"

@@ -1086,6 +1086,23 @@ MUTATIONS = (
           'q_safe = cs.if_else(joints, q, x[layout.q_last])'),),
         ('tests/test_controller.py::test_non_finite_joints_give_gravity_compensation_at_the_last_finite_q',),
     ),
+    # The review's verdict and the solved start.
+    Mutation(
+        'verdict-hides-uncertified-statements',
+        'the verdict lists no statement that is not certified (the terminal says every check passes)',
+        'analysis/results.py',
+        (('    short = [s for s in statements_ or [] if s["status"] in ("NOT CERTIFIED", "DOES NOT APPLY")]',
+          '    short = [s for s in statements_ or [] if s["status"] in ("NOT CERTIFIED",)]'),),
+        ('tests/test_report_text.py::test_the_verdict_names_every_statement_not_certified_or_not_applying',),
+    ),
+    Mutation(
+        'solved-start-turn-unchecked',
+        "a solved start moved by whole turns even past the joint's limits",
+        'analysis/ik.py',
+        (('    return np.where(inside, moved, q)',
+          '    return moved'),),
+        ('tests/test_ik.py::test_a_solved_start_is_the_turn_of_each_angle_nearest_the_middle_of_its_range',),
+    ),
 )
 
 
