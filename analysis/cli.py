@@ -515,6 +515,9 @@ def show_envelope(e: dict) -> None:
     """Human output of the operating envelope (docs/math.md, facts 7-9)."""
     if e.get("rate") is None:
         out.print(f"Operating envelope: not certified: {e['reason']}", markup=False)
+        if (start := e.get("start") or {}).get("until_s") is not None:  # docs/math.md, fact 20.6
+            told = f"CERTIFIED: {start['statement']}" if start["inside"] else f"not certified: {start.get('reason')}"
+            out.print(f"START (until integral action engages): {told}", markup=False)
         if e.get("friction") is not None:
             out.print(f"ENVELOPE: {e['friction']['statement']}.", markup=False)
         return

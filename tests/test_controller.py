@@ -117,15 +117,19 @@ def test_image_is_read_with_the_estimate_of_its_capture_time(case, controller):
 
 
 def test_torque_is_the_sampled_loops_law_at_the_sample(case, controller):
-    """The program's torque is the law (35), (42) of the sampled simulator (its parametric model,
-    another graph) at the same ``(t, q, qd, gbar, e_e)``, to 1e-10 relative."""
+    """The program's torque is the law (35), (42) with the integral term ``-K_I z_I`` (fact 20) of the
+    sampled simulator (its parametric model, another graph) at the same ``(t, q, qd, gbar, e_e, z_I)``,
+    past ``integral_start``, to 1e-10 relative."""
     n, rng = controller.n, np.random.default_rng(1)
+    assert case.loop.integral
     simulator = SampledSimulator(replace(case.loop, sampled=True), case.settings)
     x = controller.initial_state()
     x[controller.layout.e_e] = 1e-3 * rng.standard_normal(6)
-    q, qd, t = case.s0[:n] + 0.01 * rng.standard_normal(n), 0.1 * rng.standard_normal(n), 0.7
+    x[controller.layout.integral] = 1e-2 * rng.standard_normal(n)
+    t = case.loop.integral_start + 0.5
+    q, qd = case.s0[:n] + 0.01 * rng.standard_normal(n), 0.1 * rng.standard_normal(n)
     tau, _ = controller.step(x, t, q, qd, None, -1)
-    s = np.concatenate([q, qd, x[:7]])
+    s = np.concatenate([q, qd, x[:7], x[controller.layout.integral]])
     law, _ = simulator._last(t, s, x[controller.layout.e_e], np.full(n, np.inf), *simulator.design)
     assert np.abs(tau - law.ravel()).max() < 1e-10 * np.abs(tau).max()
 

@@ -1103,6 +1103,22 @@ MUTATIONS = (
           '    return moved'),),
         ('tests/test_ik.py::test_a_solved_start_is_the_turn_of_each_angle_nearest_the_middle_of_its_range',),
     ),
+    Mutation(
+        'integral-start-certified-from-zero',
+        "fact 20.6's start kept certified when integral action engages at t = 0 (nothing before z_I moves)",
+        'analysis/start.py',
+        (('    if t_i <= 0:\n        return {**record, "inside": False',
+          '    if t_i < 0:\n        return {**record, "inside": False'),),
+        ('tests/test_integral.py::test_fact_20_6_the_start_is_certified_until_integral_action_engages',),
+    ),
+    Mutation(
+        'integral-start-said-for-all-time',
+        "fact 20.6's start of a design with K_I said for all t >= 0 instead of up to integral_start",
+        'analysis/start.py',
+        (('    return "for all t >= 0" if until is None else',
+          '    return "for all t >= 0" if True else'),),
+        ('tests/test_integral.py::test_fact_20_6_the_start_is_certified_until_integral_action_engages',),
+    ),
 )
 
 
