@@ -232,9 +232,8 @@ def test_without_integral_action_the_default_run_is_unchanged(as_built):
     """``K_I`` absent (every existing scenario): the state, the parameter vector and the run are those of
     the law (35), (42): 19 states, 35 parameters, and the default example's sampled run over 0.2 s has
     the recorded SHA-256 of its states. With ``K_I = 0`` the sampled loop carries ``z_I`` but moves the arm
-    bit for bit as without it."""
-    spec, base = load(DEFAULT_SCENARIO)
-    loop, s0, settings = build(spec, base)
+    bit for bit as without it (the default example without its ``k_i_factor``)."""
+    loop, s0, settings = build(*default_without_integral())
     assert loop.n_state == 19 and len(parameter_vector(loop)) == 35
     traj = as_implemented(loop, replace(settings, duration=0.2, jit=False)).run(s0)
     digest = hashlib.sha256(np.ascontiguousarray(traj["state"]).tobytes()).hexdigest()
