@@ -1103,6 +1103,60 @@ MUTATIONS = (
           '    return moved'),),
         ('tests/test_ik.py::test_a_solved_start_is_the_turn_of_each_angle_nearest_the_middle_of_its_range',),
     ),
+    # What would pass: the bisection over the hardware with the synthesis as its check.
+    Mutation(
+        'hardware-bracket-wrong-side',
+        'the value needed reported on the failing side of the bracket',
+        'analysis/hardware.py',
+        (('"needed": values[hi], "fails_at": values[lo], "fails_by": level,',
+          '"needed": values[lo], "fails_at": values[hi], "fails_by": level,'),),
+        ('tests/test_hardware.py::test_the_needed_control_rate_is_the_least_grid_value_passing_and_the_one_below_it_fails',),
+    ),
+    Mutation(
+        'hardware-bisection-halves-swapped',
+        'a passing midpoint taken for a failing one (the bisection keeps the wrong half)',
+        'analysis/hardware.py',
+        (('                passing.add(mid)\n                hi = mid',
+          '                passing.add(mid)\n                lo = mid'),),
+        ('tests/test_hardware.py::test_the_needed_control_rate_is_the_least_grid_value_passing_and_the_one_below_it_fails',),
+    ),
+    Mutation(
+        'hardware-needed-not-confirmed-at-full-size',
+        'the value found reported without the full-size synthesis (the reduced check taken for it)',
+        'analysis/hardware.py',
+        (('        confirmed = check(hi, FULL)', '        confirmed = check(hi, SCREEN)'),),
+        ('tests/test_hardware.py::test_a_value_that_fails_at_the_full_size_is_not_reported_needed_the_bisection_continues_above',),
+    ),
+    Mutation(
+        'hardware-full-size-failure-reported-needed',
+        'a value that fails at the full size still reported as needed',
+        'analysis/hardware.py',
+        (('        if confirmed["holds"]:\n            break', '        if True:\n            break'),),
+        ('tests/test_hardware.py::test_a_value_that_fails_at_the_full_size_is_not_reported_needed_the_bisection_continues_above',),
+    ),
+    Mutation(
+        'hardware-log-not-reused',
+        'a resumed search makes the logged evaluations again',
+        'analysis/hardware.py',
+        (('for e in ([] if log is None else read_log(log)) if "holds" in e}',
+          'for e in [] if "holds" in e}'),),
+        ('tests/test_hardware.py::test_an_interrupted_search_resumes_with_the_same_answer_and_no_evaluation_made_twice',),
+    ),
+    Mutation(
+        'hardware-jitter-held-in-periods',
+        'a new control rate keeps the latency jitter in control periods (shorter in seconds)',
+        'analysis/hardware.py',
+        (('            imp["latency_jitter"] = round(imp["latency_jitter"] * ratio)\n', ''),),
+        ('tests/test_hardware.py::test_a_new_control_rate_holds_in_seconds_what_the_scenario_gives_in_control_periods',),
+    ),
+    Mutation(
+        'hardware-control-grid-ignores-latency',
+        'the control-rate grid keeps the output step whole periods but not the latency',
+        'analysis/hardware.py',
+        (('    for p in (case.scenario.simulation.dt, *([latency] if latency > 0 else [])):',
+          '    for p in (case.scenario.simulation.dt,):'),),
+        ('tests/test_hardware.py::test_the_grids_keep_the_latency_and_the_output_step_whole_periods_and_the_camera_exact',),
+    ),
 )
 
 
