@@ -799,15 +799,16 @@ def show_what_would_pass(found: dict) -> None:
         out.print("what would pass: nothing to change (the synthesis passes at the scenario's hardware)", markup=False)
         return
     table = Table(title=f"What would pass: {found['scenario']} (measured)")
-    for col in ("parameter", "today", "needed", "bracket", "confirmation (full size)", "why it fails below"):
+    columns = ("parameter", "today", "needed", "bracket (full size)", "confirmation (full size)", "why it fails below")
+    for col in columns:
         table.add_column(col)
     for name, p in found["parameters"].items():
         value = lambda v, u=p["unit"]: hardware_value(v, u)  # noqa: E731
         if p["needed"] is None:
-            needed, bracket = "none in range", f"fails at {value(p['fails_at'])} ({p['fails_by']})"
+            needed, bracket = "none in range", f"fails at {value(p['fails_at'])}"
         else:
             needed = value(p["needed"])
-            bracket = f"{value(p['fails_at'])} ({p['fails_by']}) .. {value(p['passes_at'])} (full)"
+            bracket = f"fails at {value(p['fails_at'])}, passes at {value(p['passes_at'])}"
         c = p["confirmation"]
         confirmation = "-" if c is None else (f"{c['failures']} of {c['runs']} fail, P(fail) <= "
                                               f"{c['p_fail_upper']:.3g} at {c['confidence']:.0%}")  # fmt: skip

@@ -6,11 +6,12 @@ camera rate up, the latency down), the other two held, a bisection over the para
 (:func:`grid`) finds the least change at which ``dvfc synthesize --for-campaign``
 (:func:`dvfc.analysis.cell.synthesize_for_campaign`) writes a design. The inner check is that
 synthesis itself: during the bisection with a reduced budget (:data:`SCREEN_SEARCH`, a confirming
-campaign bounding P(fail) by :data:`SCREEN_P_FAIL`), then at the point found with the full budget
-(the command's search and its ``p_fail`` and ``confidence``). When the full synthesis fails there,
-that value counts as failing and the bisection continues above it, so the value reported as needed
-has always passed at the full size; the value below it (the bracket's other end) failed by the check
-the log names (``screen`` or ``full``).
+campaign bounding P(fail) by :data:`SCREEN_P_FAIL`), which only chooses where to look; every value the
+answer states is checked with the full budget (the command's search and its ``p_fail`` and
+``confidence``): the scenario's value, the value found (failing there, the bisection continues above
+it), the value below it (passing there, the bisection continues below it at the full size) and, when
+nothing passes, the range's end. The bracket reported fails at its lower end and passes at its upper
+end, both at the full size.
 
 Held while one parameter moves: the others' values in seconds and hertz, the dispersion and the
 criterion (the scenario's :func:`~dvfc.analysis.margins.tracking_bound`, pinned). What the scenario
@@ -244,57 +245,70 @@ class Evaluations:
 
 def bisect(case: Case, name: str, bound: TrackingBound, screen: Budget, full: Budget, checks: Evaluations) -> dict:
     """The least change of ``name`` at which the synthesis passes (the module's description): the
-    record of :func:`what_would_pass`'s ``parameters`` entries."""
+    record of :func:`what_would_pass`'s ``parameters`` entries. The reduced check only chooses where
+    to look: both ends of the bracket reported (and the range end when nothing passes) are checked
+    at the full size."""
     knob, values = KNOBS[name], grid(case, name)
     budgets = {SCREEN: screen, FULL: full}
+    full_fail: dict[int, dict] = {}  # index: its failing full-size check
+    passes: set[int] = set()  # indices a check (either) passes
 
-    def check(i: int, level: str) -> dict:
-        return checks.at(case, name, values[i], level, budgets[level], bound)
+    def check(i: int, level: str) -> bool:
+        entry = checks.at(case, name, values[i], level, budgets[level], bound)
+        if entry["holds"]:
+            passes.add(i)
+        elif level == FULL:
+            full_fail[i] = entry
+        return entry["holds"]
+
+    def entry(i: int) -> dict:
+        return checks.at(case, name, values[i], FULL, full, bound)
 
     record = {"parameter": name, "unit": knob.unit, "today": values[0], "needed": None,
-              "range": [values[0], values[-1]], "grid": grid_text(case, name), "fails_at": None, "fails_by": None,
+              "range": [values[0], values[-1]], "grid": grid_text(case, name), "fails_at": None,
               "fails_because": None, "passes_at": None, "confirmation": None, "design": None}  # fmt: skip
-    today = check(0, FULL)
-    if today["holds"]:
-        return {**record, **_passing(today), "needed": values[0], "passes_at": values[0],
+    if check(0, FULL):
+        return {**record, **_passing(entry(0)), "needed": values[0], "passes_at": values[0],
                 "statement": "passes as it is: no change needed"}  # fmt: skip
-    if len(values) == 1:
-        return {**record, "fails_at": values[0], "fails_by": FULL, "fails_because": today["limits"],
-                "statement": f"already at the end of the searched range ({_text(values[0], knob)})"}  # fmt: skip
-    failing = {0: (FULL, today)}  # index: the level and entry of its failing check
     lo, hi = 0, len(values) - 1
-    end = check(hi, SCREEN)
-    if not end["holds"]:
-        return {**record, "fails_at": values[hi], "fails_by": SCREEN, "fails_because": end["limits"],
-                "statement": f"no value to {_text(values[hi], knob)} passes (the bisection's budget, "
-                             f"{screen.runs}-run confirmation)"}  # fmt: skip
-    passing = {hi}  # indices the screen passes
+
+    def nothing(i: int) -> dict:
+        return {**record, "fails_at": values[i], "fails_because": full_fail[i]["limits"],
+                "statement": f"no value to {_text(values[i], knob)} passes (the full-size synthesis)"}  # fmt: skip
+
+    if hi == 0:
+        return {**nothing(0), "statement": f"already at the end of the searched range ({_text(values[0], knob)})"}
+    if not check(hi, SCREEN) and not check(hi, FULL):
+        return nothing(hi)
     while True:
-        while hi - lo > 1:
+        while hi - lo > 1:  # the reduced check's bracket
             mid = (lo + hi) // 2
-            entry = check(mid, SCREEN)
-            if entry["holds"]:
-                passing.add(mid)
+            if check(mid, SCREEN):
                 hi = mid
             else:
-                failing[mid] = (SCREEN, entry)
                 lo = mid
-        confirmed = check(hi, FULL)
-        if confirmed["holds"]:
+        if not check(hi, FULL):  # fails at the full size: look above it
+            lo = hi
+            above = [i for i in passes if i > lo]
+            if not above:
+                return nothing(lo)
+            hi = min(above)
+            continue
+        if lo in full_fail or not check(lo, FULL):
             break
-        failing[hi] = (FULL, confirmed)
-        lo = hi
-        above = [i for i in passing if i > lo]
-        if not above:
-            return {**record, "fails_at": values[lo], "fails_by": FULL, "fails_because": confirmed["limits"],
-                    "statement": f"no value to {_text(values[lo], knob)} passes at the full size"}  # fmt: skip
-        hi = min(above)
-    level, below = failing[lo]
-    passed = _passing(confirmed)
-    return {**record, **passed, "needed": values[hi], "fails_at": values[lo], "fails_by": level,
-            "fails_because": below["limits"], "passes_at": values[hi],
+        hi, lo = lo, max(i for i in full_fail if i < lo)  # the reduced check failed where the full passes
+        while hi - lo > 1:  # bisect at the full size
+            mid = (lo + hi) // 2
+            if check(mid, FULL):
+                hi = mid
+            else:
+                lo = mid
+        break
+    passed = _passing(entry(hi))
+    return {**record, **passed, "needed": values[hi], "fails_at": values[lo], "fails_because": full_fail[lo]["limits"],
+            "passes_at": values[hi],
             "statement": (f"passes at {_text(values[hi], knob)} (full size: {passed['confirmation']['statement']}); "
-                          f"fails at {_text(values[lo], knob)} ({level})")}  # fmt: skip
+                          f"fails at {_text(values[lo], knob)} (full size)")}  # fmt: skip
 
 
 def _passing(entry: dict) -> dict:
@@ -357,10 +371,9 @@ def what_would_pass(
         "held": ("each parameter moved alone, the others held; what the scenario gives in control periods held in "
                  "seconds to the nearest whole period when the control rate moves (latency_jitter and its "
                  "dispersion; the RK4 step at most the scenario's); the dispersion and the criterion held"),
-        "method": (f"bisection on each parameter's grid with the synthesis for the campaign as the check: reduced "
-                   f"during the bisection ({_size(screen)}), the value found confirmed at the full size "
-                   f"({_size(full)}; "
-                   "when it fails there the bisection continues above it)"),
+        "method": (f"bisection on each parameter's grid with the synthesis for the campaign as the check, reduced "
+                   f"while searching ({_size(screen)}); every value stated checked at the full size ({_size(full)}): "
+                   "the scenario's, the bracket's two ends, the range's end when nothing passes"),
         "assumption": ("a change that passes keeps passing further along its parameter: measured on simulated runs, "
                        "not proven (the synthesis is a search, its confirmation a campaign)"),
         "evaluations": len(checks.used),

@@ -6,6 +6,7 @@ and the command line's bad flags."""
 from __future__ import annotations
 
 import json
+import math
 from functools import partial
 from pathlib import Path
 
@@ -61,23 +62,40 @@ def test_the_needed_control_rate_is_the_least_grid_value_passing_and_the_one_bel
     grid = hw.grid(shipped, "control_rate")
     assert found["needed"] == found["passes_at"] == 800.0
     assert found["fails_at"] == 700.0 and grid.index(found["fails_at"]) == grid.index(found["passes_at"]) - 1
-    assert (700.0, found["fails_by"]) in check.asked and (800.0, "full") in check.asked
+    assert (700.0, "full") in check.asked and (800.0, "full") in check.asked  # both ends at the full size
     assert found["fails_because"] == "too slow at 700 Hz"
     assert found["confirmation"]["runs"] == 299  # the value needed is confirmed at the full size
+
+
+def test_the_search_is_a_bisection_log2_reduced_checks_and_three_at_the_full_size(shipped):
+    check = Threshold(730.0)
+    search(shipped, check)
+    grid = hw.grid(shipped, "control_rate")  # 16 values: the range's end, then 4 halvings of 15 intervals
+    screens = [rate for rate, level in check.asked if level == "screen"]
+    assert len(screens) <= 1 + math.ceil(math.log2(len(grid) - 1))
+    assert [rate for rate, level in check.asked if level == "full"] == [500.0, 800.0, 700.0]  # as it is, the two ends
 
 
 def test_a_value_that_fails_at_the_full_size_is_not_reported_needed_the_bisection_continues_above(shipped):
     check = Threshold(730.0, full=930.0)  # the reduced check passes from 800 Hz, the full one from 1000 Hz
     found = search(shipped, check)["parameters"]["control_rate"]
     assert found["needed"] == 1000.0 and (1000.0, "full") in check.asked
-    assert (found["fails_at"], found["fails_by"]) == (900.0, "full")
+    assert found["fails_at"] == 900.0 and (900.0, "full") in check.asked
     assert found["confirmation"]["runs"] == 299
 
 
+def test_where_the_reduced_check_fails_but_the_full_size_passes_the_bisection_goes_down_at_the_full_size(shipped):
+    check = Threshold(930.0, full=730.0)  # the reduced check passes from 1000 Hz, the full one from 800 Hz
+    found = search(shipped, check)["parameters"]["control_rate"]
+    assert (found["needed"], found["fails_at"]) == (800.0, 700.0)
+    assert {(800.0, "full"), (700.0, "full")} <= set(check.asked)
+
+
 def test_nothing_in_the_range_passes_says_so_with_the_end_that_failed(shipped):
-    found = search(shipped, Threshold(5000.0))["parameters"]["control_rate"]
+    check = Threshold(5000.0)
+    found = search(shipped, check)["parameters"]["control_rate"]
     assert found["needed"] is None and found["passes_at"] is None
-    assert (found["fails_at"], found["fails_by"]) == (2000.0, "screen")  # 4x the scenario's 500 Hz
+    assert found["fails_at"] == 2000.0 and (2000.0, "full") in check.asked  # 4x the scenario's 500 Hz, full size
     assert "no value to 2000 Hz passes" in found["statement"]
 
 
@@ -174,7 +192,7 @@ def test_the_refusing_synthesis_prints_and_jsons_what_would_pass(tmp_path, monke
     rate = found["what_would_pass"]["parameters"]["control_rate"]
     assert (rate["today"], rate["needed"], rate["fails_at"]) == (500.0, 800.0, 700.0)
     row = next(line for line in result.stdout.splitlines() if line.lstrip("│ ").startswith("control_rate"))
-    assert "800 Hz" in row and "700 Hz (screen) .. 800 Hz (full)" in row and "0 of 299 fail" in row
+    assert "fails at 700 Hz, passes at 800 Hz" in row and "0 of 299 fail" in row
     assert (tmp_path / "x.toml.what_would_pass.jsonl").exists()
 
 
@@ -210,7 +228,6 @@ def test_a_cell_too_slow_at_50_hz_passes_at_the_rate_found_and_the_synthesis_ref
         return cell.synthesize_for_campaign(case.with_scenario(Scenario.model_validate(data)), p_fail=p_fail,
                                             confidence=0.75, search=search)  # fmt: skip
 
-    budget = {"full": (full, 0.5), "screen": (screen.search, screen.p_fail)}[rate["fails_by"]]
-    assert not synthesis(rate["fails_at"], *budget).holds  # fails below
-    passing = synthesis(rate["passes_at"], full, 0.5)  # passes at, at the full size
+    assert not synthesis(rate["fails_at"], full, 0.5).holds  # fails below, at the full size
+    passing = synthesis(rate["passes_at"], full, 0.5)  # passes at
     assert passing.holds and passing.confirmation.failures == 0
