@@ -1,7 +1,7 @@
 """What to change when nothing passes: the least change of the hardware at which the synthesis for
 the campaign succeeds, measured.
 
-For each parameter of the ``[implementation]`` separately (:data:`KNOBS`: the control rate up, the
+For each parameter of the ``[implementation]`` separately (:data:`UNITS`: the control rate up, the
 camera rate up, the latency down), the other two held, a bisection over the parameter's grid
 (:func:`grid`) finds the least change at which ``dvfc synthesize --for-campaign``
 (:func:`dvfc.analysis.cell.synthesize_for_campaign`) writes a design. The inner check is that
@@ -44,22 +44,9 @@ from dvfc.analysis.margins import TrackingBound, tracking_bound
 from dvfc.analysis.output import append_log, raise_if_interrupted, read_log
 from dvfc.analysis.scenario import Scenario
 
-
-@dataclass(frozen=True)
-class Knob:
-    """A hardware parameter searched: its unit and the direction that helps (``"up"``: larger is better)."""
-
-    name: str
-    unit: str
-    better: str
-
-
-KNOBS = {
-    "control_rate": Knob("control_rate", "Hz", "up"),
-    "camera_rate": Knob("camera_rate", "Hz", "up"),
-    "latency": Knob("latency", "s", "down"),
-}
-"""The parameters searched, each separately, in this order."""
+UNITS = {"control_rate": "Hz", "camera_rate": "Hz", "latency": "s"}
+"""The parameters searched (each separately, in this order: the control and camera rates up, the
+latency down) and their units."""
 
 CONTROL_FACTOR = 4.0
 """The control rate is searched up to this times the scenario's."""
@@ -68,8 +55,8 @@ SCREEN_SEARCH = Search(runs=8, population=6, generations=3)
 """The synthesis's search during the bisection: 18 candidates on 8 common-random-number runs
 (the full search: 40 on 12)."""
 SCREEN_P_FAIL = 0.1
-"""The P(fail) the bisection's confirmations bound (29 runs at 95%); the point found is confirmed
-at the command's (299 runs for 1% at 95%)."""
+"""The P(fail) the bisection's confirmations bound (29 runs at 95%); every value stated is checked at
+the command's (299 runs for 1% at 95%)."""
 
 FULL_SEARCH = Search()
 """The full search: the synthesis's own (40 candidates on 12 runs)."""
@@ -228,7 +215,7 @@ class Evaluations:
         if key in self.done:
             return self.done[key]
         same = value == hardware(case.scenario)[name]
-        label = f"{'as it is' if same else f'{name} = {_text(value, KNOBS[name])}'} ({level})"
+        label = f"{'as it is' if same else f'{name} = {_text(value, UNITS[name])}'} ({level})"
         self.say(f"{label}: synthesising ({_size(budget)})")
         result = self.evaluate(case, scenario, budget, lambda text: self.say(f"{label}: {text}"))
         raise_if_interrupted()  # the synthesis may be cut short: not logged
@@ -248,7 +235,7 @@ def bisect(case: Case, name: str, bound: TrackingBound, screen: Budget, full: Bu
     record of :func:`what_would_pass`'s ``parameters`` entries. The reduced check only chooses where
     to look: both ends of the bracket reported (and the range end when nothing passes) are checked
     at the full size."""
-    knob, values = KNOBS[name], grid(case, name)
+    unit, values = UNITS[name], grid(case, name)
     budgets = {SCREEN: screen, FULL: full}
     full_fail: dict[int, dict] = {}  # index: its failing full-size check
     passes: set[int] = set()  # indices a check (either) passes
@@ -264,7 +251,7 @@ def bisect(case: Case, name: str, bound: TrackingBound, screen: Budget, full: Bu
     def entry(i: int) -> dict:
         return checks.at(case, name, values[i], FULL, full, bound)
 
-    record = {"parameter": name, "unit": knob.unit, "today": values[0], "needed": None,
+    record = {"parameter": name, "unit": unit, "today": values[0], "needed": None,
               "range": [values[0], values[-1]], "grid": grid_text(case, name), "fails_at": None,
               "fails_because": None, "passes_at": None, "confirmation": None, "design": None}  # fmt: skip
     if check(0, FULL):
@@ -274,10 +261,10 @@ def bisect(case: Case, name: str, bound: TrackingBound, screen: Budget, full: Bu
 
     def nothing(i: int) -> dict:
         return {**record, "fails_at": values[i], "fails_because": full_fail[i]["limits"],
-                "statement": f"no value to {_text(values[i], knob)} passes (the full-size synthesis)"}  # fmt: skip
+                "statement": f"no value to {_text(values[i], unit)} passes (the full-size synthesis)"}  # fmt: skip
 
     if hi == 0:
-        return {**nothing(0), "statement": f"already at the end of the searched range ({_text(values[0], knob)})"}
+        return {**nothing(0), "statement": f"already at the end of the searched range ({_text(values[0], unit)})"}
     if not check(hi, SCREEN) and not check(hi, FULL):
         return nothing(hi)
     while True:
@@ -307,8 +294,8 @@ def bisect(case: Case, name: str, bound: TrackingBound, screen: Budget, full: Bu
     passed = _passing(entry(hi))
     return {**record, **passed, "needed": values[hi], "fails_at": values[lo], "fails_because": full_fail[lo]["limits"],
             "passes_at": values[hi],
-            "statement": (f"passes at {_text(values[hi], knob)} (full size: {passed['confirmation']['statement']}); "
-                          f"fails at {_text(values[lo], knob)} (full size)")}  # fmt: skip
+            "statement": (f"passes at {_text(values[hi], unit)} (full size: {passed['confirmation']['statement']}); "
+                          f"fails at {_text(values[lo], unit)} (full size)")}  # fmt: skip
 
 
 def _passing(entry: dict) -> dict:
@@ -323,9 +310,9 @@ def _size(budget: Budget) -> str:
             f"{budget.runs}-run confirmation")  # fmt: skip
 
 
-def _text(value: float, knob: Knob) -> str:
+def _text(value: float, unit: str) -> str:
     """A value with its unit (a latency in ms)."""
-    return f"{value * 1e3:.4g} ms" if knob.unit == "s" else f"{value:.5g} {knob.unit}"
+    return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.5g} {unit}"
 
 
 def what_would_pass(
@@ -335,13 +322,13 @@ def what_would_pass(
     confidence: float = 0.95,
     search: Search = FULL_SEARCH,
     screen: Budget | None = None,
-    names: tuple[str, ...] = tuple(KNOBS),
+    names: tuple[str, ...] = tuple(UNITS),
     log: Path | None = None,
     resume: bool = False,
     evaluate: Evaluate = synthesis_check,
     progress: Callable[[str], None] | None = None,
 ) -> dict:
-    """For each of ``names`` (of :data:`KNOBS`), the least change at which the synthesis for the
+    """For each of ``names`` (of :data:`UNITS`), the least change at which the synthesis for the
     campaign passes (the module's description; JSON-ready, docs/cli.md). ``search``, ``p_fail`` and
     ``confidence``: the full budget; ``screen``: the bisection's (default :meth:`Budget.screen`);
     ``log``: the finished evaluations (kept with ``resume``, else started afresh); ``evaluate``: the inner
