@@ -99,6 +99,11 @@ class Design:
         return {"k_xi": self.k_xi.tolist(), "k_c": self.k_c.tolist(), "k_e": self.k_e.tolist(),
                 "k_i_factor": self.k_i_factor}  # fmt: skip
 
+    @staticmethod
+    def of(data: dict) -> Design:
+        """The design of its :meth:`as_dict`."""
+        return Design(*(np.asarray(data[k], dtype=float) for k in ("k_xi", "k_c", "k_e")), float(data["k_i_factor"]))
+
 
 @dataclass(frozen=True)
 class Checks:
