@@ -416,6 +416,28 @@ MUTATIONS = (
         ("tests/test_multirate.py::test_lyapunov_check_certifies_only_a_decreasing_positive_definite_form",),
     ),
     Mutation(
+        "multirate-self-motion-kept",
+        "on a redundant arm rho taken of the whole monodromy, the self-motion's eigenvalue 1 with it",
+        "analysis/multirate.py",
+        (("    m = self_motion.shape[1]\n    if m == 0:\n", "    m = self_motion.shape[1]\n    if True:\n"),),
+        ("tests/test_multirate.py::test_on_a_seven_joint_arm_pi_fixes_the_self_motion_and_rho_is_that_across_it",),
+    ),
+    Mutation(
+        "multirate-self-motion-in-qd",
+        "the self-motion's tangent placed in the joint velocities instead of the joint angles",
+        "analysis/multirate.py",
+        (("    tangent[: self_motion.shape[0]] = self_motion\n",
+          "    tangent[self_motion.shape[0] : 2 * self_motion.shape[0]] = self_motion\n"),),
+        ("tests/test_multirate.py::test_on_a_seven_joint_arm_pi_fixes_the_self_motion_and_rho_is_that_across_it",),
+    ),
+    Mutation(
+        "multirate-tangent-residual-unchecked",
+        "a tangent the monodromy does not fix certified (the residual ||Pi T - T|| not compared)",
+        "analysis/multirate.py",
+        (("return check.certified and self.residual < check.tolerance", "return check.certified"),),
+        ("tests/test_multirate.py::test_a_tangent_the_monodromy_does_not_fix_is_not_certified",),
+    ),
+    Mutation(
         "margins-torque-unchecked",
         "the margins' criterion ignores the torque limits when saturate is off",
         "analysis/margins.py",
