@@ -186,7 +186,7 @@ def test_the_refusing_synthesis_prints_and_jsons_what_would_pass(tmp_path, monke
                         partial(hw.what_would_pass, evaluate=Threshold(730.0), names=("control_rate",)))  # fmt: skip
     target, saved = tmp_path / "x.toml", tmp_path / "x.json"
     result = runner.invoke(app, ["synthesize", str(CELL), "--for-campaign", "--what-would-pass", "--out", str(target),
-                                 "--json", str(saved)])  # fmt: skip
+                                 "--json", str(saved)], env={"COLUMNS": "400"})  # fmt: skip
     assert result.exit_code == 1 and not target.exists()  # refused as it is: nothing written
     found = json.loads(saved.read_text(), parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
     rate = found["what_would_pass"]["parameters"]["control_rate"]
