@@ -1134,6 +1134,14 @@ MUTATIONS = (
         ('tests/test_integral.py::test_fact_20_6_the_start_is_certified_until_integral_action_engages',),
     ),
     Mutation(
+        'synthesis-drops-integral-action',
+        "the gain synthesis runs and checks its designs without the scenario's integral action",
+        'analysis/synthesize.py',
+        (('    return Gains(point.k_xi, point.k_c, point.k_e, k_i)',
+          '    return Gains(point.k_xi, point.k_c, point.k_e)'),),
+        ('tests/test_cli.py::test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains',),
+    ),
+    Mutation(
         'integral-start-said-for-all-time',
         "fact 20.6's start of a design with K_I said for all t >= 0 instead of up to integral_start",
         'analysis/start.py',
