@@ -351,6 +351,41 @@ def test_dispersions_section_states_the_campaigns_statement(tmp_path):
     assert row and row.group(1) == statement
 
 
+def test_dispersions_section_sets_the_design_before_the_synthesis_beside_this_one(tmp_path):
+    """The cell example (2 s, 6 runs) names the design it was synthesised from ([synthesized_from]): the
+    section "Dispersions" has both columns, each equal to ``dvfc campaign`` on that design's scenario with
+    the same runs and seed (common random numbers: failures, P(fail) bound, worst closeness and its
+    run), and the figure of both distributions."""
+    data = tomllib.loads((EXAMPLES / "ur5_cell.toml").read_text())
+    data["simulation"]["duration"] = 2.0
+    data["report"] = {"campaign_runs": 6}
+    scenario, before = tmp_path / "cell.toml", tmp_path / "before.toml"
+    scenario.write_text(tomli_w.dumps(data))
+    before_data = {**data, "gains": data["synthesized_from"]["gains"]}
+    del before_data["synthesized_from"]
+    before.write_text(tomli_w.dumps(before_data))
+    made = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(scenario), "--out", str(tmp_path / "r")],
+                          capture_output=True, text=True)  # fmt: skip
+    assert made.returncode in (0, 1), made.stderr
+    html = unescape((tmp_path / "r" / "report.html").read_text())
+    table = re.search(r'<table id="campaign-before-after">(.*?)</table>', html, re.S).group(1)
+    cells = {row[0]: row[1:] for row in (re.findall(r"<t[hd][^>]*>(.*?)</t[hd]>", r) for r in table.split("</tr>"))
+             if row}  # fmt: skip
+    assert cells[""] == ["before the synthesis", "this design"]
+    for column, path in enumerate((before, scenario)):
+        out = tmp_path / f"c{column}"
+        campaign = CliRunner().invoke(app, ["campaign", str(path), "--runs", "6", "--out", str(out)])
+        assert campaign.exit_code in (0, 1), campaign.output
+        summary = json.loads((out / "summary.json").read_text())
+        worst = summary["worst"][0]
+        assert cells["failures"][column] == f"{summary['failures']} of {summary['runs']}"
+        assert cells["P(fail) upper bound at 95% confidence (clopper-pearson, one-sided)"][column] == (
+            f"{summary['p_fail_upper']:.3g}")
+        assert cells["worst closeness to failing (run)"][column] == f"{worst['closeness']:.4g} (run {worst['run']})"
+    assert cells["worst closeness to failing (run)"][0] != cells["worst closeness to failing (run)"][1]
+    assert re.search(r'<figure id="fig-campaign-before"><svg', html)
+
+
 def test_scenario_table_describes_the_loop_that_was_run(report):
     """The scenario table's simulation row of the default example names the loop as implemented
     (500 Hz, 60 Hz camera, 20 ms, e_e from the image, RK4) and the paper's continuous loop of
