@@ -31,6 +31,7 @@ from dvfc.analysis.campaign import (
 )
 from dvfc.analysis.campaign import summarize as summarize_campaign
 from dvfc.analysis.case import Case
+from dvfc.analysis.export import running_controller
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
 from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import FromRest, from_rest
@@ -57,7 +58,8 @@ from dvfc.models.loop import ClosedLoop
 from dvfc.reports import figures
 from dvfc.reports.stages import StageCache
 
-STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "dispersions", "gain map", "figures")
+STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "controller", "dispersions",
+         "gain map", "figures")  # fmt: skip
 """The stages of :func:`assemble`, in order (reported to ``progress``)."""
 
 
@@ -78,6 +80,9 @@ class ReportData:
     implemented: dict
     """The run as implemented (:func:`dvfc.analysis.sampled.as_implemented`): how, its summary, and
     per joint its peak torque and speed against the URDF's limits."""
+    controller: dict | None
+    """The controller that runs (:func:`dvfc.analysis.export.running_controller`): the export's digest,
+    its replay and its step times, or ``{"reason": ...}``; None without an ``[implementation]``."""
     margins: dict | None
     """The margins of the loop as implemented (:func:`dvfc.analysis.margins.margins`), or
     ``{"reason": ...}`` when there are none to measure; None without an ``[implementation]``."""
@@ -109,6 +114,17 @@ def measure_margins(case: Case, cache: StageCache, envelope: dict, own_run: Traj
                            resume=scratch is not None, envelope=envelope, own_run=own_run)  # fmt: skip
         except MarginError as exc:
             return {"reason": str(exc)}
+
+
+CONTROLLER_CALLS = 10_000
+"""Calls of the compiled step the report times (``benchmarks/controller_step.py`` times 1e5)."""
+
+
+def measure_controller(case: Case) -> dict:
+    """The controller that runs (:func:`dvfc.analysis.export.running_controller`), exported to a
+    temporary folder and timed over :data:`CONTROLLER_CALLS` calls."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return running_controller(case, Path(tmp), CONTROLLER_CALLS)
 
 
 def _campaign(case: Case, cache: StageCache, name: str, bound: TrackingBound, uses: tuple) -> tuple[CampaignSpec, dict]:
@@ -191,6 +207,10 @@ def assemble(
         measured = stage("margins", case, lambda: measure_margins(case, stage, envelope, implemented),
                          (envelope, implemented))  # fmt: skip
     progress(STEPS[4])
+    controller = None
+    if settings.implementation is not None:
+        controller = stage("controller", case, lambda: measure_controller(case))
+    progress(STEPS[5])
     dispersion = None
     if spec.dispersion:
         dispersion = stage("dispersions", case, lambda: measure_campaign(case, stage, envelope), (envelope,))
@@ -198,7 +218,7 @@ def assemble(
             bound = dispersion.get("bound") or tracking_bound(case, envelope)  # a stage kept before it had one
             dispersion = {**dispersion, "before": stage("dispersions_before", before,
                                                         lambda: measure_before(before, stage, bound), (bound,))}
-    progress(STEPS[5])
+    progress(STEPS[6])
     point = case.point
     axes = spec.grid.axes() if spec.grid is not None else None
     gamma_certified = certificate["points"][0]["gamma"]
@@ -212,7 +232,7 @@ def assemble(
             own = GridSpec.around(point, spec.reference.se3(), itself, None, context)
             design[quantity] = float(certify_batch(own, 0, 1)[quantity][0])
         design |= {name: axis_value(point, name) for name in (gmap.x_axis, gmap.y_axis) if name is not None}
-    progress(STEPS[6])
+    progress(STEPS[7])
     gamma = verification["gamma"]
     drawn = {
         "paths": figures.paths(trajectory),
@@ -235,7 +255,8 @@ def assemble(
     }
     return ReportData(
         spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance,
-        as_built, measured, dispersion, s0[: loop.robot.n].copy(), plant_errors_record(settings, loop.camera),
+        as_built, controller, measured, dispersion, s0[: loop.robot.n].copy(),
+        plant_errors_record(settings, loop.camera),
     )  # fmt: skip
 
 
@@ -395,6 +416,7 @@ def render(data: ReportData) -> str:
         lemma2=supply_facts(data.trajectory),
         implemented=data.implemented,
         margins=data.margins,
+        controller=data.controller,
         dispersion=data.dispersion,
         linear_margin=linear_margin_text(data.margins) if data.margins and "margins" in data.margins else None,
         mode=data.loop.mode,

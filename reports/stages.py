@@ -44,6 +44,7 @@ IGNORES: dict[str, tuple[str, ...]] = {
     "certificate": (*DISPLAY, "dispersion", "report"),
     "verification": (*DISPLAY, "dispersion", "report", "certify.gamma"),  # its gamma: P >= 0 without the bound
     "margins": (*DISPLAY, "dispersion", "report", "certify"),
+    "controller": RUNS,  # the export, its replay over the run as implemented, its step times
     "dispersions": (*DISPLAY, "certify"),
     "dispersions_before": (*DISPLAY, "certify"),  # of the design before synthesis; takes the criterion's bound
 }

@@ -20,6 +20,7 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
+import dvfc
 from dvfc.analysis.margins import PARAMETERS
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
@@ -476,3 +477,35 @@ def test_what_acts_on_the_plant_is_listed_among_the_disturbances(solved):
 def test_the_observer_row_says_where_its_start_came_from(solved):
     """With ``[start] observer = "image"`` the [observer] error is unused: the row says so."""
     assert "gbar(0) from the first image" in cell(solved[0], "observer")
+
+
+def test_the_controller_section_states_the_exports_digest_replay_step_times_and_coverage(report, tmp_path):
+    """Section 7 of the default report: the program's SHA-256 equal to ``dvfc export``'s for the same
+    scenario, the replay over its 10 s (5000 samples at 500 Hz) identical to the bit, the compiled
+    step timed over 1e4 calls without and with an image in wall and thread CPU time (min <= median <=
+    p99.9 <= max), and what fact 14 for the program's loop (facts 14, 22) says of it."""
+    html = unescape(report[0].read_text())
+    section = section_of(html, '<h2 id="controller">7. The controller that runs</h2>')
+    exported = CliRunner().invoke(app, ["export", str(DEFAULT_SCENARIO), "--out", str(tmp_path / "c"), "--json", "-"])
+    assert exported.exit_code == 0, exported.output
+    digest = json.loads(exported.stdout)["sha256"]
+    assert re.search(r'<code id="controller-sha256">([0-9a-f]{64})</code>', section).group(1) == digest
+    paragraph = section[section.index('id="controller-replay"') :].split("</p>")[0]
+    replay = " ".join(re.sub(r"<[^>]+>", "", paragraph).split())
+    assert "5000 samples" in replay and "largest torque difference 0 N m" in replay
+    assert "joints within 0 of the Python step's" in replay and replay.rstrip().endswith("PASS.")
+    table = section[section.index('<table id="controller-timing">') :].split("</table>")[0]
+    rows = [re.findall(r"<td[^>]*>(.*?)</td>", r) for r in table.split("</tr>")[1:] if "<td" in r]
+    assert [r[0] for r in rows] == [f"{clock}, {image}" for clock in ("wall time", "thread CPU time")
+                                    for image in ("no image", "an image at every call")]  # fmt: skip
+    for row in rows:
+        calls, *times = row[1:]
+        assert calls == "10000"
+        values = [float(t) for t in times]
+        assert 0 < values[0] <= values[1] <= values[2] <= values[3]
+    coverage = " ".join(section[section.index('id="controller-coverage"') :].split("</p>")[0].split())
+    assert "Fact 14 for the program's loop (docs/math.md, facts 14 and 22)" in coverage
+    implemented = dvfc.certify(dvfc.load(DEFAULT_SCENARIO), lower_bounds=False)["points"][0]["implemented"]
+    assert f"rho = {implemented['program_rho']:.6g} (below 1: local exponential stability of the loop the program" in (
+        coverage)
+    assert f"observer integrates (12) continuously, rho = {implemented['rho']:.6g}" in coverage

@@ -39,6 +39,7 @@ def made(directory: Path, case, *, resume: bool = True, envelope: dict = ENVELOP
     stage("certificate", ("rest",))
     stage("verification", (envelope, "run", "rest"))
     stage("margins", (envelope, "run"))
+    stage("controller")
     stage("dispersions", (envelope,))
     if (before := design_before(case.scenario)) is not None:  # the report's Case.before()
         cache("dispersions_before", case_of(before.model_dump(), case.base),

@@ -501,6 +501,20 @@ MUTATIONS = (
         ("tests/test_report_stages.py::test_the_campaign_before_the_synthesis_is_remade_exactly_when_its_design_changes",),
     ),
     Mutation(
+        "program-digest-without-the-step",
+        "the exported program's SHA-256 leaves out the generated step (dvfc_program.c)",
+        "analysis/export.py",
+        (('PROGRAM = ("dvfc_controller.h", "dvfc_controller.c", "dvfc_program.h", "dvfc_program.c")', 'PROGRAM = ("dvfc_controller.h", "dvfc_controller.c", "dvfc_program.h")'),),  # noqa: E501
+        ("tests/test_export.py::test_the_program_digest_names_the_program_and_nothing_beside_it",),
+    ),
+    Mutation(
+        "report-controller-coverage-simulator-rho",
+        "the report's controller section states the sampled simulator's rho as the program's (fact 22)",
+        "reports/templates/report.html.j2",
+        (("rho = {{ imp_point.program_rho | num(6) }}", "rho = {{ imp_point.rho | num(6) }}"),),
+        ("tests/test_report.py::test_the_controller_section_states_the_exports_digest_replay_step_times_and_coverage",),
+    ),
+    Mutation(
         "true-pixels-nominal-centre",
         "the worst run's true features drawn about the controller's principal point, not the plant's",
         "analysis/campaign.py",
