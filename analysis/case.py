@@ -16,7 +16,7 @@ import numpy as np
 
 from dvfc.analysis.certify import GainPoint
 from dvfc.analysis.output import provenance
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, gain_point, load
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, design_before, gain_point, load
 from dvfc.analysis.simulate import Settings
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop
@@ -66,6 +66,12 @@ class Case:
         data = self.scenario.model_dump()
         data["gains"].update(gains)
         return self.with_scenario(Scenario.model_validate(data))
+
+    def before(self) -> Case | None:
+        """The case of the design the scenario's gains were synthesised from (``[synthesized_from]``,
+        :func:`~dvfc.analysis.scenario.design_before`), built; None without one."""
+        scenario = design_before(self.scenario)
+        return None if scenario is None else self.with_scenario(scenario)
 
     @property
     def name(self) -> str:

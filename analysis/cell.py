@@ -356,7 +356,8 @@ def refusal(found: Checks, confirmation: Confirmation | None, case: Case) -> str
 def design_text(original: str, case: Case, design: Design, bound: TrackingBound, *, name: str,
                 source: Path, target: Path) -> str:
     """The scenario file with ``design`` written (:func:`dvfc.analysis.synthesize.scenario_text`,
-    comments kept), ``k_i_factor`` set (``k_i`` removed) and the criterion pinned in ``[criterion]``."""  # fmt: skip
+    comments kept), ``k_i_factor`` set (``k_i`` removed), the criterion pinned in ``[criterion]`` and
+    the design it started from (``case``'s name and ``[gains]``) in ``[synthesized_from]``."""  # fmt: skip
     point = GainPoint(design.k_xi, design.k_c, design.k_e, case.point.weights, case.point.plant)
     doc = tomlkit.parse(scenario_text(original, point, name=name, weights=False, source=source, target=target))
     gains = doc["gains"]
@@ -366,6 +367,11 @@ def design_text(original: str, case: Case, design: Design, bound: TrackingBound,
     criterion = doc.setdefault("criterion", tomlkit.table())
     criterion["position"] = float(bound.position)
     criterion["angle_deg"] = float(bound.angle_deg)
+    origin = tomlkit.table()
+    origin.add(tomlkit.comment("the design the [gains] above were synthesised from (dvfc synthesize --for-campaign)"))
+    origin["name"] = case.name
+    origin["gains"] = case.scenario.gains.model_dump(mode="json", exclude_none=True, exclude_defaults=True)
+    doc["synthesized_from"] = origin
     return tomlkit.dumps(doc)
 
 

@@ -45,7 +45,7 @@ from dvfc.analysis.certify import (
     NOT_APPLICABLE,
     GainPoint,
 )
-from dvfc.analysis.export import ExportError, ExportResult, Timing, export_controller, exportable
+from dvfc.analysis.export import ExportError, ExportResult, export_controller, exportable, program_digest
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
 from dvfc.analysis.hardware import what_would_pass
 from dvfc.analysis.implementation import SubstepChoice
@@ -1250,29 +1250,19 @@ def export_record(done: ExportResult) -> dict:
     """The JSON of ``dvfc export`` (docs/cli.md)."""
     e = done.export
     record = {"files": [str(f) for f in e.files], "api": str(e.api), "state_size": e.state_size,
-              "check": None, "timing": None}  # fmt: skip
+              "sha256": program_digest(e), "check": None, "timing": None}  # fmt: skip
     if done.check is not None:
-        c = done.check
-        record["files"].append(str(c.inputs))
-        record["check"] = {"samples": c.samples, "max_abs_torque_difference": c.max_abs_torque_difference,
-                           "max_rel_torque_difference": c.max_rel_torque_difference,
-                           "closed_loop_max_state_difference": c.closed_loop_max_state_difference,
-                           "passed": c.passed}  # fmt: skip
+        record["files"].append(str(done.check.inputs))
+        record["check"] = done.check.as_dict()
     if done.timing is not None:
-        record["timing"] = timing_record(done.timing)
-        record["timing"]["thread_cpu"] = timing_record(done.cpu_timing)
+        record["timing"] = {**done.timing.as_dict(), "thread_cpu": done.cpu_timing.as_dict()}
     return record
-
-
-def timing_record(t: Timing) -> dict:
-    return {"calls": t.calls, "image": t.image, "min_us": t.min_us, "median_us": t.median_us, "p999_us": t.p999_us,
-            "max_us": t.max_us}  # fmt: skip
 
 
 def show_export(record: dict) -> None:
     """Human output of ``export``."""
-    out.print(f"exported: {record['api']} ({len(record['files'])} files, state of {record['state_size']} doubles)",
-              markup=False, soft_wrap=True)  # fmt: skip
+    out.print(f"exported: {record['api']} ({len(record['files'])} files, state of {record['state_size']} doubles); "
+              f"program SHA-256 {record['sha256']}", markup=False, soft_wrap=True)  # fmt: skip
     if (c := record["check"]) is not None:
         out.print(f"check over {c['samples']} samples: largest torque difference {c['max_abs_torque_difference']:.3g} "
                   f"N m, closed loop {c['closed_loop_max_state_difference']:.3g}", markup=False, soft_wrap=True)

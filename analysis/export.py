@@ -52,6 +52,10 @@ CLOSED_LOOP_TOLERANCE = 1e-9
 compiled step and by the Python step that :func:`check` accepts (identical torques give 0)."""
 
 
+PROGRAM = ("dvfc_controller.h", "dvfc_controller.c", "dvfc_program.h", "dvfc_program.c")
+"""The files of the program itself (its API and its step): what :func:`program_digest` hashes."""
+
+
 class ExportError(ValueError):
     """A scenario that cannot be exported (one line naming the field)."""
 
@@ -85,6 +89,13 @@ class Check:
         return (self.max_rel_torque_difference <= TORQUE_TOLERANCE
                 and self.closed_loop_max_state_difference <= CLOSED_LOOP_TOLERANCE)  # fmt: skip
 
+    def as_dict(self) -> dict:
+        """JSON-ready (``dvfc export --json``'s ``check``)."""
+        return {"samples": self.samples, "max_abs_torque_difference": self.max_abs_torque_difference,
+                "max_rel_torque_difference": self.max_rel_torque_difference,
+                "closed_loop_max_state_difference": self.closed_loop_max_state_difference,
+                "passed": self.passed}  # fmt: skip
+
     def text(self) -> str:
         """One sentence for the export's README."""
         return (f"{self.samples} samples, largest torque difference {self.max_abs_torque_difference:.3g} N m "
@@ -105,6 +116,11 @@ class Timing:
     median_us: float
     p999_us: float
     max_us: float
+
+    def as_dict(self) -> dict:
+        """JSON-ready, the times in microseconds."""
+        return {"calls": self.calls, "image": self.image, "cpu": self.cpu, "min_us": self.min_us,
+                "median_us": self.median_us, "p999_us": self.p999_us, "max_us": self.max_us}  # fmt: skip
 
     @staticmethod
     def of(seconds: np.ndarray, image: bool, cpu: bool) -> Timing:
@@ -181,10 +197,25 @@ def record_check(export: Export, result: Check) -> None:
     readme.write_text(readme.read_text().replace(f"({NOT_CHECKED})", f"({result.text()})"))
 
 
+def program_digest(export: Export) -> str:
+    """The SHA-256 of the exported program: each file of :data:`PROGRAM`, its name then its bytes, in
+    that order. The same scenario exports the same bytes, so the digest names the program a robot
+    runs; the README, the Makefile and the examples beside it are not part of it."""
+    digest = hashlib.sha256()
+    for name in PROGRAM:
+        digest.update(name.encode() + b"\0" + (export.directory / name).read_bytes())
+    return digest.hexdigest()
+
+
+def c_compiler() -> str | None:
+    """The system C compiler (``cc``, else ``gcc``) on the PATH, or None."""
+    return shutil.which("cc") or shutil.which("gcc")
+
+
 def build(export: Export) -> Path:
     """The export's controller and timing as a shared library built by the system ``cc`` with
     :data:`CFLAGS` (cached in :func:`dvfc.analysis.compile.cache_dir` by the hash of the sources)."""
-    compiler = shutil.which("cc") or shutil.which("gcc")
+    compiler = c_compiler()
     if compiler is None:
         raise ExportError("check: no C compiler (cc) on the PATH")
     files = [export.directory / name for name in (*SOURCES, "dvfc_timing.c")]
@@ -336,3 +367,29 @@ def export_controller(case: Case, directory: Path, *, checked: bool = False, cal
     record_check(export, result)
     compiled = compiled_controller(case, export)
     return ExportResult(export, result, timing(case, compiled, calls), timing(case, compiled, calls, cpu=True))
+
+
+NO_COMPILER = "no C compiler (cc) on the PATH: the exported controller is not built, replayed or timed"
+
+
+def running_controller(case: Case, directory: Path, calls: int = 10_000) -> dict:
+    """The controller that runs, as the report states it: ``case``'s export written to ``directory``,
+    its :func:`program_digest`, :func:`check` over the scenario's duration and the compiled step
+    timed over ``calls`` calls without and with an image, in wall and in the thread's CPU time, with
+    the load average when timed (measurements on this machine). ``{"reason": ...}`` when there is
+    nothing to export or no C compiler."""
+    try:
+        exportable(case)
+    except ExportError as exc:
+        return {"reason": str(exc)}
+    if c_compiler() is None:
+        return {"reason": NO_COMPILER}
+    export = generate(case, directory)
+    result, _ = check(case, export)
+    compiled = compiled_controller(case, export)
+    load = os.getloadavg()[0]
+    timings = [timing(case, compiled, calls, image, cpu).as_dict() for cpu in (False, True) for image in (False, True)]
+    return {"sha256": program_digest(export), "files": list(PROGRAM), "state_size": export.state_size,
+            "check": result.as_dict(), "tolerances": {"torque_relative": TORQUE_TOLERANCE,
+                                                      "closed_loop": CLOSED_LOOP_TOLERANCE},
+            "timing": timings, "load_average": load, "cores": os.cpu_count()}  # fmt: skip

@@ -25,6 +25,7 @@ from dvfc.analysis.schema import (
     CameraSection,
     DisturbancesSection,
     FrictionModel,
+    GainsSection,
     PlantSection,
     RobotSection,
     Scenario,
@@ -215,6 +216,8 @@ def build(
     camera_at_q0 = SE3.from_matrix(cs.Function("g_wc", [robot.q], [robot.camera_pose.as_matrix()])(q0))
     target = TargetMotion(t.start(camera_at_q0), m.radius, m.period, tuple(m.normal), tuple(m.spin_axis), m.spin_rate)
     point = gain_point(scenario, n)
+    if scenario.synthesized_from is not None:  # the design before synthesis: refused here, not in the report
+        gain_point(scenario, n, scenario.synthesized_from.gains, "synthesized_from.gains")
     kind = PlanarLoop if scenario.loop == "planar" else ClosedLoop
     loop = kind(
         robot=robot,
@@ -382,26 +385,36 @@ def _plant(section: PlantSection, robot: Robot) -> Robot | None:
         raise ScenarioError(f"plant: {exc}") from exc
 
 
-def gain_point(scenario: Scenario, n: int) -> GainPoint:
-    """The scenario's gains and weights as a certifier point (``n`` joints; ``K_c``, ``K_e``
-    of 6 entries, or 2 for the planar loop; ``K_I`` from ``k_i`` or ``k_i_factor K_xi``)."""
-    g = scenario.gains
+def gain_point(scenario: Scenario, n: int, gains: GainsSection | None = None, where: str = "gains") -> GainPoint:
+    """The scenario's gains (or ``gains``, named ``where`` in errors) and weights as a certifier point
+    (``n`` joints; ``K_c``, ``K_e`` of 6 entries, or 2 for the planar loop; ``K_I`` from ``k_i`` or
+    ``k_i_factor K_xi``)."""
+    g = scenario.gains if gains is None else gains
     task = TASK if scenario.loop == "planar" else 6
-    k_xi = _vector(g.k_xi, n, "gains.k_xi")
+    k_xi = _vector(g.k_xi, n, f"{where}.k_xi")
     k_i = None
     if g.k_i is not None or g.k_i_factor is not None:
         if scenario.loop == "planar":
             name = "k_i" if g.k_i is not None else "k_i_factor"
-            raise ScenarioError(f"gains.{name}: integral action is built for the paper's loop, not the planar one")
-        k_i = _vector(g.k_i, n, "gains.k_i") if g.k_i is not None else g.k_i_factor * k_xi
+            raise ScenarioError(f"{where}.{name}: integral action is built for the paper's loop, not the planar one")
+        k_i = _vector(g.k_i, n, f"{where}.k_i") if g.k_i is not None else g.k_i_factor * k_xi
     return GainPoint(
         k_xi,
-        _vector(g.k_c, task, "gains.k_c"),
-        _vector(g.k_e, task, "gains.k_e"),
+        _vector(g.k_c, task, f"{where}.k_c"),
+        _vector(g.k_e, task, f"{where}.k_e"),
         Weights(**scenario.weights.model_dump()),
         plant_weights(scenario, n),
         k_i,
     )
+
+
+def design_before(scenario: Scenario) -> Scenario | None:
+    """The scenario of the design its ``[gains]`` were synthesised from (``[synthesized_from]``): the
+    same scenario with those gains (and no ``[synthesized_from]``); None without one."""
+    origin = scenario.synthesized_from
+    if origin is None:
+        return None
+    return scenario.model_copy(update={"gains": origin.gains, "synthesized_from": None})
 
 
 def integral_start(scenario: Scenario) -> float:

@@ -285,6 +285,15 @@ class GainsSection(_Strict):
         return self
 
 
+class SynthesizedFromSection(_Strict):
+    """The design a scenario's ``[gains]`` were synthesised from (written by ``dvfc synthesize
+    --for-campaign``): the scenario's name then and its ``[gains]``; the report runs the campaign of
+    both designs side by side (every other section the same)."""
+
+    name: str | None = None
+    gains: GainsSection
+
+
 class DisturbanceSection(_Strict):
     kind: Literal["step", "sine", "noise"]
     amplitude: Finite | list[Finite] | None = None
@@ -638,6 +647,7 @@ class Scenario(_Strict):
     start: StartSection = StartSection()
     weights: WeightsSection
     gains: GainsSection
+    synthesized_from: SynthesizedFromSection | None = None
     disturbance: DisturbancesSection = DisturbancesSection()
     simulation: SimulationSection = SimulationSection()
     implementation: ImplementationSection | None = None

@@ -31,10 +31,11 @@ from dvfc.analysis.campaign import (
 )
 from dvfc.analysis.campaign import summarize as summarize_campaign
 from dvfc.analysis.case import Case
+from dvfc.analysis.export import running_controller
 from dvfc.analysis.grid import GainMap, GridSpec, axis_value, certify_batch, gain_map
 from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import FromRest, from_rest
-from dvfc.analysis.margins import MarginError, linear_margin_text, margins, tracking_bound
+from dvfc.analysis.margins import MarginError, TrackingBound, linear_margin_text, margins, tracking_bound
 from dvfc.analysis.output import atomic_write
 from dvfc.analysis.pose import xyz_rpy
 from dvfc.analysis.results import (
@@ -49,7 +50,7 @@ from dvfc.analysis.results import (
     verification_result,
 )
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import Scenario, ScenarioError
+from dvfc.analysis.scenario import Scenario, ScenarioError, gain_point
 from dvfc.analysis.simulate import Simulator, Trajectory, identity_residuals, summary
 from dvfc.analysis.tasks import run_tasks
 from dvfc.models.camera import Camera
@@ -57,7 +58,8 @@ from dvfc.models.loop import ClosedLoop
 from dvfc.reports import figures
 from dvfc.reports.stages import StageCache
 
-STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "dispersions", "gain map", "figures")
+STEPS = ("simulation", "certificate and lower bounds", "verification", "margins", "controller", "dispersions",
+         "gain map", "figures")  # fmt: skip
 """The stages of :func:`assemble`, in order (reported to ``progress``)."""
 
 
@@ -78,6 +80,9 @@ class ReportData:
     implemented: dict
     """The run as implemented (:func:`dvfc.analysis.sampled.as_implemented`): how, its summary, and
     per joint its peak torque and speed against the URDF's limits."""
+    controller: dict | None
+    """The controller that runs (:func:`dvfc.analysis.export.running_controller`): the export's digest,
+    its replay and its step times, or ``{"reason": ...}``; None without an ``[implementation]``."""
     margins: dict | None
     """The margins of the loop as implemented (:func:`dvfc.analysis.margins.margins`), or
     ``{"reason": ...}`` when there are none to measure; None without an ``[implementation]``."""
@@ -111,30 +116,58 @@ def measure_margins(case: Case, cache: StageCache, envelope: dict, own_run: Traj
             return {"reason": str(exc)}
 
 
-def measure_campaign(case: Case, cache: StageCache, envelope: dict) -> dict:
-    """The campaign of the case's ``[dispersion]`` (:mod:`dvfc.analysis.campaign`): ``[report]
-    campaign_runs`` runs judged by the margins criterion (the tracking bound of ``envelope``),
-    with the default confidence, in this process, its batches kept in the cache's scratch
-    directory so that a resumed report continues an interrupted campaign; then the worst run
-    made again for its features. ``summary`` is the campaign's ``summary.json`` (without
-    provenance), ``runs`` its dataset as columns, ``worst`` the worst run's trajectory and
-    ``worst_pixels`` the features its plant's camera saw (:func:`true_pixels`);
-    ``{"reason": ...}`` when the scenario cannot run a campaign."""
-    try:
-        spec = CampaignSpec.of(case, tracking_bound(case, envelope))
-    except ScenarioError as exc:
-        return {"reason": str(exc)}
-    scratch = cache.scratch("dispersions", case, (envelope,))
+CONTROLLER_CALLS = 10_000
+"""Calls of the compiled step the report times (``benchmarks/controller_step.py`` times 1e5)."""
+
+
+def measure_controller(case: Case) -> dict:
+    """The controller that runs (:func:`dvfc.analysis.export.running_controller`), exported to a
+    temporary folder and timed over :data:`CONTROLLER_CALLS` calls."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return running_controller(case, Path(tmp), CONTROLLER_CALLS)
+
+
+def _campaign(case: Case, cache: StageCache, name: str, bound: TrackingBound, uses: tuple) -> tuple[CampaignSpec, dict]:
+    """``[report] campaign_runs`` runs of the case's campaign judged against ``bound``, with the
+    default confidence, in this process, the batches kept in the scratch directory of stage ``name``
+    (taking ``uses``) so that a resumed report continues an interrupted campaign: its spec and
+    ``{"summary": summary.json without provenance, "runs": the dataset as columns}``
+    (:class:`ScenarioError` when the scenario cannot run a campaign)."""
+    spec = CampaignSpec.of(case, bound)
+    scratch = cache.scratch(name, case, uses)
     with tempfile.TemporaryDirectory() as tmp:
         directory = scratch or Path(tmp)
         run_campaign(spec, directory, case.scenario.report.campaign_runs, resume=scratch is not None,
-                     scenario_sha256=cache.key("dispersions", case, (envelope,)))  # fmt: skip
+                     scenario_sha256=cache.key(name, case, uses))  # fmt: skip
         table = read_runs(directory)
-    summary_ = summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)
-    run = summary_["worst"][0]["run"]
+    return spec, {"summary": summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE), "runs": table.to_pydict()}
+
+
+def measure_campaign(case: Case, cache: StageCache, envelope: dict) -> dict:
+    """The campaign of the case's ``[dispersion]`` (:mod:`dvfc.analysis.campaign`, :func:`_campaign`),
+    judged by the margins criterion (the tracking bound of ``envelope``, ``bound``); then the worst run
+    made again for its features: ``worst`` its trajectory, ``worst_pixels`` the features its plant's
+    camera saw (:func:`true_pixels`); ``{"reason": ...}`` when the scenario cannot run a campaign."""
+    try:
+        bound = tracking_bound(case, envelope)
+        spec, campaign = _campaign(case, cache, "dispersions", bound, (envelope,))
+    except ScenarioError as exc:
+        return {"reason": str(exc)}
+    run = campaign["summary"]["worst"][0]["run"]
     worst = simulate_run(spec, run)[1]
     pixels = true_pixels(case.loop, worst, spec.run_settings(run)[0].errors)
-    return {"summary": summary_, "runs": table.to_pydict(), "worst": worst, "worst_pixels": pixels}
+    return {**campaign, "bound": bound, "worst": worst, "worst_pixels": pixels}
+
+
+def measure_before(before: Case, cache: StageCache, bound: TrackingBound) -> dict:
+    """The same campaign (the same runs and seeds: common random numbers) of the design the scenario
+    was synthesised from (``before``, :meth:`Case.before`), judged against the same ``bound`` as the
+    scenario's own design: ``summary`` and ``runs`` as :func:`measure_campaign`'s; ``{"reason": ...}``
+    when it cannot run."""
+    try:
+        return _campaign(before, cache, "dispersions_before", bound, (bound,))[1]
+    except ScenarioError as exc:
+        return {"reason": str(exc)}
 
 
 def assemble(
@@ -174,10 +207,18 @@ def assemble(
         measured = stage("margins", case, lambda: measure_margins(case, stage, envelope, implemented),
                          (envelope, implemented))  # fmt: skip
     progress(STEPS[4])
+    controller = None
+    if settings.implementation is not None:
+        controller = stage("controller", case, lambda: measure_controller(case))
+    progress(STEPS[5])
     dispersion = None
     if spec.dispersion:
         dispersion = stage("dispersions", case, lambda: measure_campaign(case, stage, envelope), (envelope,))
-    progress(STEPS[5])
+        if (before := case.before()) is not None and "summary" in dispersion:
+            bound = dispersion.get("bound") or tracking_bound(case, envelope)  # a stage kept before it had one
+            dispersion = {**dispersion, "before": stage("dispersions_before", before,
+                                                        lambda: measure_before(before, stage, bound), (bound,))}
+    progress(STEPS[6])
     point = case.point
     axes = spec.grid.axes() if spec.grid is not None else None
     gamma_certified = certificate["points"][0]["gamma"]
@@ -191,7 +232,7 @@ def assemble(
             own = GridSpec.around(point, spec.reference.se3(), itself, None, context)
             design[quantity] = float(certify_batch(own, 0, 1)[quantity][0])
         design |= {name: axis_value(point, name) for name in (gmap.x_axis, gmap.y_axis) if name is not None}
-    progress(STEPS[6])
+    progress(STEPS[7])
     gamma = verification["gamma"]
     drawn = {
         "paths": figures.paths(trajectory),
@@ -214,7 +255,8 @@ def assemble(
     }
     return ReportData(
         spec, loop, trajectory, summary(trajectory), certificate, verification, gmap, design, drawn, provenance,
-        as_built, measured, dispersion, s0[: loop.robot.n].copy(), plant_errors_record(settings, loop.camera),
+        as_built, controller, measured, dispersion, s0[: loop.robot.n].copy(),
+        plant_errors_record(settings, loop.camera),
     )  # fmt: skip
 
 
@@ -236,11 +278,12 @@ def _dispersion_figures(dispersion: dict | None, loop: ClosedLoop) -> dict[str, 
     """The campaign's figures (:func:`figures.campaign_ecdf`, :func:`figures.sensitivity_bars`,
     :func:`figures.drivers_scatter`, the worst run's features in the image), None each when
     there is no campaign."""
-    names = ("campaign_ecdf", "campaign_sensitivity", "campaign_drivers", "campaign_worst")
+    names = ("campaign_ecdf", "campaign_sensitivity", "campaign_drivers", "campaign_worst", "campaign_before")
     if dispersion is None or "summary" not in dispersion:
         return dict.fromkeys(names)
     summary_, runs, camera = dispersion["summary"], dispersion["runs"], loop.camera
     worst = summary_["worst"][0]
+    before = dispersion.get("before") or {}
     return dict(zip(names, (
         figures.campaign_ecdf(runs, summary_["tolerance"]),
         figures.sensitivity_bars(summary_["sensitivity"], summary_["sensitivity_floor"]["pawn"]),
@@ -249,6 +292,7 @@ def _dispersion_figures(dispersion: dict | None, loop: ClosedLoop) -> dict[str, 
                                   f"Features of run {worst['run']} (the worst) in the true image",
                                   dispersion["worst_pixels"])
         if camera.has_image else None,
+        figures.campaigns_ecdf({"before synthesis": before["runs"], "this design": runs}) if "runs" in before else None,
     ), strict=True))  # fmt: skip
 
 
@@ -372,6 +416,7 @@ def render(data: ReportData) -> str:
         lemma2=supply_facts(data.trajectory),
         implemented=data.implemented,
         margins=data.margins,
+        controller=data.controller,
         dispersion=data.dispersion,
         linear_margin=linear_margin_text(data.margins) if data.margins and "margins" in data.margins else None,
         mode=data.loop.mode,
@@ -381,7 +426,10 @@ def render(data: ReportData) -> str:
         disturbances=disturbances_text(spec, data.plant_errors),
         plant_acting=plant_text(data.plant_errors),
         provenance=data.provenance,
-    )
+        gains=data.loop.gains,
+        before_gains=None if (origin := spec.synthesized_from) is None else gain_point(
+            spec, data.loop.robot.n, origin.gains, "synthesized_from.gains"),
+    )  # fmt: skip
 
 
 def write(data: ReportData, directory: Path) -> tuple[Path, Path]:

@@ -288,6 +288,27 @@ def campaign_ecdf(runs: dict, tolerance: dict) -> str:
     return svg(fig)
 
 
+def campaigns_ecdf(designs: dict[str, dict]) -> str:
+    """The empirical distributions of the closeness to failing (the largest of the tracking ratio
+    and the peak limit ratios; above 1 a run fails) of campaigns of several designs, by label, on
+    the same runs (the same seeds: common random numbers); runs that did not complete sit beyond
+    the right edge."""
+    fig, ax = plt.subplots(figsize=(6.4, 3.4))
+    for (label, runs), colour in zip(designs.items(), (BOUNDED, CONTROL, ESTIMATE, BOUND), strict=False):
+        closeness = np.asarray(runs["closeness"], dtype=float)
+        done = np.isfinite(closeness) & (np.asarray(runs["status"]) == "ok")
+        failed = int((~np.asarray(runs["holds"], dtype=bool)).sum())
+        x = np.sort(closeness[done])
+        ax.step(x, np.arange(1, len(x) + 1) / len(closeness), where="post", color=colour,
+                label=f"{label}: {failed} of {len(closeness)} fail")  # fmt: skip
+    ax.axvline(1.0, color="black", lw=1.0, ls="--", label="fails beyond 1")
+    ax.set_xlabel("closeness to failing (max of tracking / bound and peak / limit ratios)")
+    ax.set_ylabel("fraction of runs")
+    ax.set_ylim(0, 1.02)
+    ax.legend(loc="lower right")
+    return svg(fig)
+
+
 def sensitivity_bars(sensitivity: list[dict], floor: float | None) -> str:
     """Each drawn quantity's PAWN score (its strongest entry; the closeness to failing), strongest
     on top, with the floor of the independent reference inputs."""

@@ -29,9 +29,10 @@ CACHE = ".dvfc-report"
 TIMINGS = "timings.txt"
 """The file (in :data:`CACHE`) a report writes its table of step times to (:class:`StepTimes`)."""
 
-DISPLAY = ("name", "grid", "synthesize", "report.map")
+DISPLAY = ("name", "grid", "synthesize", "synthesized_from", "report.map")
 """Fields no kept stage reads: the name shown, the gain map's (drawn anew by every report), the
-synthesis' (no report stage synthesises)."""
+synthesis' (no report stage synthesises), the design before synthesis (its campaign's stage is keyed on
+that design's own case, :meth:`dvfc.analysis.case.Case.before`, where it is the ``[gains]``)."""
 
 RUNS = (*DISPLAY, "certify", "envelope", "dispersion", "report")
 """Fields the runs of the scenario (the paper's loop, the loop as implemented) do not read."""
@@ -43,7 +44,9 @@ IGNORES: dict[str, tuple[str, ...]] = {
     "certificate": (*DISPLAY, "dispersion", "report"),
     "verification": (*DISPLAY, "dispersion", "report", "certify.gamma"),  # its gamma: P >= 0 without the bound
     "margins": (*DISPLAY, "dispersion", "report", "certify"),
+    "controller": RUNS,  # the export, its replay over the run as implemented, its step times
     "dispersions": (*DISPLAY, "certify"),
+    "dispersions_before": (*DISPLAY, "certify"),  # of the design before synthesis; takes the criterion's bound
 }
 """Per kept stage, the dotted scenario fields it does not read (every other field is part of its
 key: a section added to the schema counts until it is listed here). The results a stage takes

@@ -31,7 +31,7 @@ def cell_with_default_design() -> tuple[Scenario, Path]:
     docs/math.md, facts 18-21, measured it). Returns ``(scenario, base folder)``."""
     data = tomllib.loads(CELL.read_text())
     data["gains"] = {"k_xi": [20.0, 20.0, 20.0, 5.0, 5.0, 1.5], "k_c": [3.0] * 6, "k_e": 10.0}
-    for section in ("start", "criterion"):
+    for section in ("start", "criterion", "synthesized_from"):
         data.pop(section, None)
     return Scenario.model_validate(data), CELL.parent
 

@@ -3,6 +3,7 @@ step bit for bit (replayed and in closed loop), safe on bad input, and the comma
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 import shutil
@@ -20,12 +21,15 @@ from dvfc.analysis.cli import app
 from dvfc.analysis.controller import Controller
 from dvfc.analysis.export import (
     CLOSED_LOOP_TOLERANCE,
+    NO_COMPILER,
     TORQUE_TOLERANCE,
     build,
     check,
     compiled_controller,
     generate,
+    program_digest,
     replay,
+    running_controller,
 )
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.analysis.sil import software_in_the_loop
@@ -221,6 +225,7 @@ def test_export_json_lists_the_files_api_and_state(tmp_path):
     assert len(record["files"]) == 9 and all(Path(f).is_file() for f in record["files"])
     assert record["state_size"] == Controller(dvfc.load(DEFAULT_SCENARIO)).layout.size
     assert record["check"] is None and record["timing"] is None
+    assert record["sha256"] == program_digest(generate(dvfc.load(DEFAULT_SCENARIO), tmp_path / "again"))
 
 
 @pytest.mark.parametrize(
@@ -276,3 +281,32 @@ def test_check_replays_the_integral_and_friction_compensated_program_bit_for_bit
     result, _ = check(integral, generate(integral, tmp_path / "c"), 0.1)
     assert result.samples == 50 and result.max_abs_torque_difference == 0.0
     assert result.closed_loop_max_state_difference == 0.0
+
+
+def test_the_program_digest_names_the_program_and_nothing_beside_it(case, exported, tmp_path):
+    """:func:`program_digest`: the SHA-256 of the program's four files (name, NUL, bytes); the same
+    scenario exported again gives the same digest, other gains or one byte of the step another, the
+    README not part of it."""
+    expected = hashlib.sha256()
+    for name in ("dvfc_controller.h", "dvfc_controller.c", "dvfc_program.h", "dvfc_program.c"):
+        expected.update(name.encode() + b"\0" + (exported.directory / name).read_bytes())
+    assert program_digest(exported) == expected.hexdigest()
+    again = generate(case, tmp_path / "again")
+    assert program_digest(again) == program_digest(exported)
+    (again.directory / "README.md").write_text("edited")
+    assert program_digest(again) == program_digest(exported)
+    step = again.directory / "dvfc_program.c"
+    step.write_bytes(step.read_bytes() + b"\n")
+    assert program_digest(again) != program_digest(exported)
+    other = generate(case.with_gains(k_c=2.0), tmp_path / "other")
+    assert program_digest(other) != program_digest(exported)
+
+
+def test_the_running_controller_says_why_when_there_is_no_compiler_or_no_program(case, tmp_path, monkeypatch):
+    """:func:`running_controller` (the report's section) states a reason instead of a result: no C
+    compiler on the PATH, or a scenario without ``[implementation]``; nothing is written."""
+    without = dvfc.load(EXAMPLES / "ur5_paper_ideal.toml")
+    assert running_controller(without, tmp_path / "a")["reason"].startswith("implementation:")
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    assert running_controller(case, tmp_path / "b") == {"reason": NO_COMPILER}
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

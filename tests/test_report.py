@@ -20,6 +20,7 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
+import dvfc
 from dvfc.analysis.margins import PARAMETERS
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
@@ -356,6 +357,41 @@ def test_dispersions_section_states_the_campaigns_statement(tmp_path):
     assert row and row.group(1) == statement
 
 
+def test_dispersions_section_sets_the_design_before_the_synthesis_beside_this_one(tmp_path):
+    """The cell example (2 s, 6 runs) names the design it was synthesised from ([synthesized_from]): the
+    section "Dispersions" has both columns, each equal to ``dvfc campaign`` on that design's scenario with
+    the same runs and seed (common random numbers: failures, P(fail) bound, worst closeness and its
+    run), and the figure of both distributions."""
+    data = tomllib.loads((EXAMPLES / "ur5_cell.toml").read_text())
+    data["simulation"]["duration"] = 2.0
+    data["report"] = {"campaign_runs": 6}
+    scenario, before = tmp_path / "cell.toml", tmp_path / "before.toml"
+    scenario.write_text(tomli_w.dumps(data))
+    before_data = {**data, "gains": data["synthesized_from"]["gains"]}
+    del before_data["synthesized_from"]
+    before.write_text(tomli_w.dumps(before_data))
+    made = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(scenario), "--out", str(tmp_path / "r")],
+                          capture_output=True, text=True)  # fmt: skip
+    assert made.returncode in (0, 1), made.stderr
+    html = unescape((tmp_path / "r" / "report.html").read_text())
+    table = re.search(r'<table id="campaign-before-after">(.*?)</table>', html, re.S).group(1)
+    cells = {row[0]: row[1:] for row in (re.findall(r"<t[hd][^>]*>(.*?)</t[hd]>", r) for r in table.split("</tr>"))
+             if row}  # fmt: skip
+    assert cells[""] == ["before the synthesis", "this design"]
+    for column, path in enumerate((before, scenario)):
+        out = tmp_path / f"c{column}"
+        campaign = CliRunner().invoke(app, ["campaign", str(path), "--runs", "6", "--out", str(out)])
+        assert campaign.exit_code in (0, 1), campaign.output
+        summary = json.loads((out / "summary.json").read_text())
+        worst = summary["worst"][0]
+        assert cells["failures"][column] == f"{summary['failures']} of {summary['runs']}"
+        assert cells["P(fail) upper bound at 95% confidence (clopper-pearson, one-sided)"][column] == (
+            f"{summary['p_fail_upper']:.3g}")
+        assert cells["worst closeness to failing (run)"][column] == f"{worst['closeness']:.4g} (run {worst['run']})"
+    assert cells["worst closeness to failing (run)"][0] != cells["worst closeness to failing (run)"][1]
+    assert re.search(r'<figure id="fig-campaign-before"><svg', html)
+
+
 def test_scenario_table_describes_the_loop_that_was_run(report):
     """The scenario table's simulation row of the default example names the loop as implemented
     (500 Hz, 60 Hz camera, 20 ms, e_e from the image, RK4) and the paper's continuous loop of
@@ -446,3 +482,35 @@ def test_what_acts_on_the_plant_is_listed_among_the_disturbances(solved):
 def test_the_observer_row_says_where_its_start_came_from(solved):
     """With ``[start] observer = "image"`` the [observer] error is unused: the row says so."""
     assert "gbar(0) from the first image" in cell(solved[0], "observer")
+
+
+def test_the_controller_section_states_the_exports_digest_replay_step_times_and_coverage(report, tmp_path):
+    """Section 7 of the default report: the program's SHA-256 equal to ``dvfc export``'s for the same
+    scenario, the replay over its 10 s (5000 samples at 500 Hz) identical to the bit, the compiled
+    step timed over 1e4 calls without and with an image in wall and thread CPU time (min <= median <=
+    p99.9 <= max), and what fact 14 for the program's loop (facts 14, 22) says of it."""
+    html = unescape(report[0].read_text())
+    section = section_of(html, '<h2 id="controller">7. The controller that runs</h2>')
+    exported = CliRunner().invoke(app, ["export", str(DEFAULT_SCENARIO), "--out", str(tmp_path / "c"), "--json", "-"])
+    assert exported.exit_code == 0, exported.output
+    digest = json.loads(exported.stdout)["sha256"]
+    assert re.search(r'<code id="controller-sha256">([0-9a-f]{64})</code>', section).group(1) == digest
+    paragraph = section[section.index('id="controller-replay"') :].split("</p>")[0]
+    replay = " ".join(re.sub(r"<[^>]+>", "", paragraph).split())
+    assert "5000 samples" in replay and "largest torque difference 0 N m" in replay
+    assert "joints within 0 of the Python step's" in replay and replay.rstrip().endswith("PASS.")
+    table = section[section.index('<table id="controller-timing">') :].split("</table>")[0]
+    rows = [re.findall(r"<td[^>]*>(.*?)</td>", r) for r in table.split("</tr>")[1:] if "<td" in r]
+    assert [r[0] for r in rows] == [f"{clock}, {image}" for clock in ("wall time", "thread CPU time")
+                                    for image in ("no image", "an image at every call")]  # fmt: skip
+    for row in rows:
+        calls, *times = row[1:]
+        assert calls == "10000"
+        values = [float(t) for t in times]
+        assert 0 < values[0] <= values[1] <= values[2] <= values[3]
+    coverage = " ".join(section[section.index('id="controller-coverage"') :].split("</p>")[0].split())
+    assert "Fact 14 for the program's loop (docs/math.md, facts 14 and 22)" in coverage
+    implemented = dvfc.certify(dvfc.load(DEFAULT_SCENARIO), lower_bounds=False)["points"][0]["implemented"]
+    assert f"rho = {implemented['program_rho']:.6g} (below 1: local exponential stability of the loop the program" in (
+        coverage)
+    assert f"observer integrates (12) continuously, rho = {implemented['rho']:.6g}" in coverage

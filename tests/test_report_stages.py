@@ -9,8 +9,14 @@ from types import SimpleNamespace
 
 import pytest
 
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, design_before
 from dvfc.reports.stages import IGNORES, StageCache
+
+CELL = Path(__file__).parent.parent / "examples" / "ur5_cell.toml"
+BOUND = {"position": 0.05, "angle_deg": 6.0}
+"""A stand-in for the criterion's tracking bound, which the campaign before the synthesis takes."""
+STAGES = [name for name in IGNORES if name != "dispersions_before"]
+"""The stages of a scenario without a design before a synthesis (the default's)."""
 
 ENVELOPE = {"rate": 0.5, "level": 1.0}
 """A stand-in for the certificate's envelope, which later stages take."""
@@ -33,7 +39,11 @@ def made(directory: Path, case, *, resume: bool = True, envelope: dict = ENVELOP
     stage("certificate", ("rest",))
     stage("verification", (envelope, "run", "rest"))
     stage("margins", (envelope, "run"))
+    stage("controller")
     stage("dispersions", (envelope,))
+    if (before := design_before(case.scenario)) is not None:  # the report's Case.before()
+        cache("dispersions_before", case_of(before.model_dump(), case.base),
+              lambda: computed.append("dispersions_before") or "dispersions_before", (BOUND,))  # fmt: skip
     assert {name for name, (_, reused) in cache.timings.items() if not reused} == set(computed)
     return computed
 
@@ -56,7 +66,7 @@ def edited(data: dict, path: str, value) -> dict:
 def test_every_stage_is_kept_when_nothing_it_reads_changes(tmp_path, default):
     """A second report of the same scenario (with ``--resume``) makes no stage again, nor after an
     edit of a display field (the name) or of the gain map's quantity, which no kept stage reads."""
-    assert len(made(tmp_path, case_of(default, tmp_path))) == len(IGNORES)
+    assert len(made(tmp_path, case_of(default, tmp_path))) == len(STAGES)
     assert made(tmp_path, case_of(default, tmp_path)) == []
     assert made(tmp_path, case_of(edited(default, "name", "renamed"), tmp_path)) == []
     assert made(tmp_path, case_of(edited(default, "synthesize.k_c", [0.5, 5.0]), tmp_path)) == []
@@ -69,8 +79,8 @@ def test_every_stage_is_kept_when_nothing_it_reads_changes(tmp_path, default):
         ("dispersion", {"plant.mount.rpy": {"dist": "normal", "sigma": 0.01}}, ["dispersions"]),
         ("certify.gamma", 50.0, ["certificate"]),
         ("certify.theta_max_deg", 90.0, ["certificate", "verification"]),
-        ("gains.k_e", 11.0, list(IGNORES)),
-        ("simulation.duration", 5.0, [name for name in IGNORES if name != "from_rest"]),
+        ("gains.k_e", 11.0, STAGES),
+        ("simulation.duration", 5.0, [name for name in STAGES if name != "from_rest"]),
     ],
 )
 def test_an_edit_remakes_exactly_the_stages_that_read_it(tmp_path, default, path, value, remade):
@@ -78,6 +88,24 @@ def test_an_edit_remakes_exactly_the_stages_that_read_it(tmp_path, default, path
     unchanged: the envelope later stages take is the same)."""
     made(tmp_path, case_of(default, tmp_path))
     assert made(tmp_path, case_of(edited(default, path, value), tmp_path)) == remade
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "remade"),
+    [
+        ("synthesized_from.gains.k_c", 4.0, ["dispersions_before"]),
+        ("synthesized_from.name", "renamed", []),
+        ("gains.k_e", 11.0, STAGES),
+        ("report.campaign_runs", 7, ["dispersions", "dispersions_before"]),
+    ],
+)
+def test_the_campaign_before_the_synthesis_is_remade_exactly_when_its_design_changes(tmp_path, path, value, remade):
+    """The cell's campaign of the design it was synthesised from reads that design (``[synthesized_from]``
+    gains) and the campaign's settings, not the synthesised ``[gains]``; the other stages never read the
+    table."""
+    cell = tomllib.loads(CELL.read_text())
+    assert len(made(tmp_path, case_of(cell, tmp_path))) == len(IGNORES)
+    assert made(tmp_path, case_of(edited(cell, path, value), tmp_path)) == remade
 
 
 def test_a_changed_result_remakes_the_stages_that_take_it(tmp_path, default):
@@ -96,9 +124,9 @@ def test_a_changed_calibration_file_remakes_every_stage(tmp_path, default):
     made(tmp_path, case_of(edited(default, "camera", camera), tmp_path))
     assert made(tmp_path, case_of(edited(default, "camera", camera), tmp_path)) == []
     (tmp_path / "camera.yaml").write_text("image_width: 640\n")
-    assert made(tmp_path, case_of(edited(default, "camera", camera), tmp_path)) == list(IGNORES)
+    assert made(tmp_path, case_of(edited(default, "camera", camera), tmp_path)) == STAGES
 
 
 def test_without_resume_every_stage_is_made(tmp_path, default):
     made(tmp_path, case_of(default, tmp_path))
-    assert made(tmp_path, case_of(default, tmp_path), resume=False) == list(IGNORES)
+    assert made(tmp_path, case_of(default, tmp_path), resume=False) == STAGES

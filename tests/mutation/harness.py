@@ -505,8 +505,36 @@ MUTATIONS = (
         "report-campaign-own-confidence",
         "the report's campaign stated at 90% confidence, not the campaign's default",
         "reports/document.py",
-        (("    summary_ = summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)\n", "    summary_ = summarize_campaign(spec, table, 0.9, P_FAIL, QUANTILE)\n"),),  # noqa: E501
+        (('{"summary": summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE)', '{"summary": summarize_campaign(spec, table, 0.9, P_FAIL, QUANTILE)'),),  # noqa: E501
         ("tests/test_report.py::test_dispersions_section_states_the_campaigns_statement",),
+    ),
+    Mutation(
+        "report-before-campaign-of-this-design",
+        "the report's campaign before the synthesis runs the synthesised design again",
+        "reports/document.py",
+        (("lambda: measure_before(before, stage, bound)", "lambda: measure_before(case, stage, bound)"),),
+        ("tests/test_report.py::test_dispersions_section_sets_the_design_before_the_synthesis_beside_this_one",),
+    ),
+    Mutation(
+        "stage-keys-read-synthesized-from",
+        "every kept stage keyed on [synthesized_from] too (an edit of the design before remakes them all)",
+        "reports/stages.py",
+        (('DISPLAY = ("name", "grid", "synthesize", "synthesized_from", "report.map")', 'DISPLAY = ("name", "grid", "synthesize", "report.map")'),),  # noqa: E501
+        ("tests/test_report_stages.py::test_the_campaign_before_the_synthesis_is_remade_exactly_when_its_design_changes",),
+    ),
+    Mutation(
+        "program-digest-without-the-step",
+        "the exported program's SHA-256 leaves out the generated step (dvfc_program.c)",
+        "analysis/export.py",
+        (('PROGRAM = ("dvfc_controller.h", "dvfc_controller.c", "dvfc_program.h", "dvfc_program.c")', 'PROGRAM = ("dvfc_controller.h", "dvfc_controller.c", "dvfc_program.h")'),),  # noqa: E501
+        ("tests/test_export.py::test_the_program_digest_names_the_program_and_nothing_beside_it",),
+    ),
+    Mutation(
+        "report-controller-coverage-simulator-rho",
+        "the report's controller section states the sampled simulator's rho as the program's (fact 22)",
+        "reports/templates/report.html.j2",
+        (("rho = {{ imp_point.program_rho | num(6) }}", "rho = {{ imp_point.rho | num(6) }}"),),
+        ("tests/test_report.py::test_the_controller_section_states_the_exports_digest_replay_step_times_and_coverage",),
     ),
     Mutation(
         "true-pixels-nominal-centre",
