@@ -485,13 +485,14 @@ def test_the_observer_row_says_where_its_start_came_from(solved):
 
 
 def test_the_controller_section_states_the_exports_digest_replay_step_times_and_coverage(report, tmp_path):
-    """Section 7 of the default report: the program's SHA-256 equal to ``dvfc export``'s for the same
+    """Section 7 of the report: the program's SHA-256 equal to ``dvfc export``'s for the same
     scenario, the replay over its 10 s (5000 samples at 500 Hz) identical to the bit, the compiled
     step timed over 1e4 calls without and with an image in wall and thread CPU time (min <= median <=
     p99.9 <= max), and what fact 14 for the program's loop (facts 14, 22) says of it."""
     html = unescape(report[0].read_text())
     section = section_of(html, '<h2 id="controller">7. The controller that runs</h2>')
-    exported = CliRunner().invoke(app, ["export", str(DEFAULT_SCENARIO), "--out", str(tmp_path / "c"), "--json", "-"])
+    scenario = report[0].parent / "ur5_circle.toml"  # the report's own scenario
+    exported = CliRunner().invoke(app, ["export", str(scenario), "--out", str(tmp_path / "c"), "--json", "-"])
     assert exported.exit_code == 0, exported.output
     digest = json.loads(exported.stdout)["sha256"]
     assert re.search(r'<code id="controller-sha256">([0-9a-f]{64})</code>', section).group(1) == digest
@@ -510,7 +511,7 @@ def test_the_controller_section_states_the_exports_digest_replay_step_times_and_
         assert 0 < values[0] <= values[1] <= values[2] <= values[3]
     coverage = " ".join(section[section.index('id="controller-coverage"') :].split("</p>")[0].split())
     assert "Fact 14 for the program's loop (docs/math.md, facts 14 and 22)" in coverage
-    implemented = dvfc.certify(dvfc.load(DEFAULT_SCENARIO), lower_bounds=False)["points"][0]["implemented"]
+    implemented = dvfc.certify(dvfc.load(scenario), lower_bounds=False)["points"][0]["implemented"]
     assert f"rho = {implemented['program_rho']:.6g} (below 1: local exponential stability of the loop the program" in (
         coverage)
     assert f"observer integrates (12) continuously, rho = {implemented['rho']:.6g}" in coverage
