@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import dvfc
+from dvfc.analysis.controller import Status
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.sil import compare_with_sampled, software_in_the_loop
 
@@ -45,3 +46,24 @@ def test_sil_hands_the_program_the_images_of_the_schedule():
     arrived = np.flatnonzero(run.captures >= 0)
     assert arrived.tolist() == [10, 19, 27] and run.captures[arrived].tolist() == [0, 9, 17]
     assert run.status == "ok" and len(run.q) == len(run.tau) + 1 == 31
+
+
+@pytest.mark.slow
+def test_an_implausible_image_is_dropped_by_the_simulator_as_by_the_program():
+    """Wrong detections 10,000 px off (each point of each image with probability 0.3) give an ``e_e`` (21)
+    beyond the standoff: the program drops such an image as a lost frame (status 1), and the sampled
+    simulator, reading images as the program does, drops the same ones: over 0.3 s of the default the two
+    loops are the same to the bit, some images dropped and some used."""
+    case = by_the_virtual_machine(DEFAULT_SCENARIO)
+    data = case.scenario.model_dump()
+    data["implementation"]["outliers"] = {"probability": 0.3, "size": 1e4}
+    case = case.with_scenario(Scenario.model_validate(data))
+    run = software_in_the_loop(case, duration=0.3)
+    comparison = compare_with_sampled(case, run)
+    assert comparison.max_position_difference == comparison.max_torque_difference == 0.0
+    controller = dvfc.controller(case)
+    arrivals = np.flatnonzero(run.captures >= 0)
+    statuses = [controller.evaluate(run.states[k], run.t[k], run.q[k], run.qd[k], run.features[k],
+                                    int(run.captures[k])).status for k in arrivals]  # fmt: skip
+    dropped = sum(status is Status.IMAGE_REJECTED for status in statuses)
+    assert 0 < dropped < len(statuses), statuses
