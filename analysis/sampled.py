@@ -1,33 +1,38 @@
 """The loop as a digital controller runs it: sampled torques, a camera with its own rate and
-latency, pixel noise and quantisation, actuator saturation, joint-speed limits.
+latency, pixel noise and quantisation, actuator saturation, joint-speed limits; the controller is
+the program's (:mod:`dvfc.analysis.controller`).
 
-Between two control samples ``t_k = k h`` the torque is held (zero-order hold) and the
-plant, the observer and the quadratures are integrated over exactly ``[t_k, t_k + h]``:
-the sample-and-hold is not approximated by a fast continuous loop. Over one period the
-held-torque dynamics are smooth and not stiff (no feedback acts inside it), so the
-default integrator is the classical Runge-Kutta method (RK4, error ``O(h^4)``, four
-right-hand sides per step), in the fewest steps a period that meet a local error target
-(``substeps = "auto"``, :meth:`SampledSimulator.choose_substeps`) or in a given number;
-CVODES restarted at every sample, error-controlled at the run's tolerances, is the
-reference (``integrator = "cvodes"``). At each sample the controller
+At each sample ``t_k = k h`` the controller is :func:`~dvfc.analysis.controller.sample_update`,
+the one definition the exported program runs too (docs/math.md, fact 22). It
 
 1. takes the image captured ``latency`` earlier, if one arrives now: the actual features
    ``f`` (11) plus Gaussian pixel noise, rounded to the pixel grid, turned into ``e_e`` by
-   (21) with the estimate ``gbar`` of the capture time (``e_e = "image"``), or the exact
-   ``e_e`` (15) of the capture time (``e_e = "ideal"``);
+   (21) with the estimate ``gbar`` of the capture time and dropped, as the program drops it,
+   when that ``e_e`` is not finite or not a possible estimation error
+   (:func:`~dvfc.analysis.controller.image_update`; ``e_e = "image"``), or the exact ``e_e``
+   (15) of the capture time (``e_e = "ideal"``);
 2. evaluates the law (35), (42) with the latest ``e_e`` (held until the next image) and
    clips it at the URDF's effort limits when ``saturate`` is on;
-3. with integral action (docs/math.md, fact 20), updates ``z_I <- z_I + h xi_k`` with the
+3. steps the observer by the exact flow of (12) over the period with its inputs held, ``V_k =
+   J_b(q_k) qd_k`` (34) and ``U_k = u_e(t_k)`` (42): ``gbar_(k+1) = exp(-h hat(V_k)) gbar_k
+   exp(h hat(U_k))`` (22.1); before the first image arrives ``e_e = 0``;
+4. with integral action (docs/math.md, fact 20), updates ``z_I <- z_I + h xi_k`` with the
    sample's ``xi`` (from ``integral_start`` on), ``z_I`` held over the period like the torque;
    anti-windup by conditional integration: joint ``i`` is not integrated at a sample whose
    commanded torque exceeds its effort limit when the update ``-K_I,i h xi_i`` would push the
    command further beyond it (``tau_i > effort_i`` and ``xi_i < 0``, or ``tau_i < -effort_i`` and
    ``xi_i > 0``).
 
-The observer (12) runs between images on the joint velocities (``V_wc = J_b qd``, (34)),
-integrated exactly, with ``u_e`` built from the latest ``e_e``. Images are captured at the
-first control sample at or after each camera tick ``j / camera_rate``; before the first
-image arrives the observer runs on the joints alone (``e_e = 0``).
+Between two samples the torque and the observer's inputs are held (zero-order hold) and the plant,
+the observer along its held flow (whose end is step 3's) and the quadratures are integrated over
+exactly ``[t_k, t_k + h]``: the sample-and-hold is not approximated by a fast continuous loop.
+Over one period the held dynamics are smooth and not stiff (no feedback acts inside it), so the
+default integrator is the classical Runge-Kutta method (RK4, error ``O(h^4)``, four right-hand
+sides per step), in the fewest steps a period that meet a local error target (``substeps =
+"auto"``, :meth:`SampledSimulator.choose_substeps`) or in a given number; CVODES restarted at
+every sample, error-controlled at the run's tolerances, is the reference (``integrator =
+"cvodes"``). Images are captured at the first control sample at or after each camera tick
+``j / camera_rate``.
 
 The samples between two image arrivals share one held ``e_e``, so they are integrated in
 one call (the period's map accumulated over them, :meth:`casadi.Function.mapaccum`); a
