@@ -8,7 +8,7 @@ scale each) and the integral gain ``K_I = k_i_factor K_xi`` (docs/math.md, fact 
   hold margin) and Theorem 2 certifies the gains (the ideal continuous loop; fact 20.2: the
   integral state leaves gamma unchanged);
 - the loop as implemented is certified locally with the integral state (facts 14, 21):
-  ``rho(Pi) <= RHO_MAX`` and the a posteriori Lyapunov check;
+  ``rho(Pi) <= RHO_MAX`` (on a redundant arm across the self-motion) and the a posteriori Lyapunov check;
 - the campaign holds: CMA-ES (the ``cma`` package, within a box of the log-scales) minimises a
   surrogate of the campaign, the mean of the largest quarter of the runs' closeness to failing
   by what the gains move (the largest of the tracking ratio, the peak torque and the peak joint
@@ -98,6 +98,11 @@ class Design:
     def as_dict(self) -> dict:
         return {"k_xi": self.k_xi.tolist(), "k_c": self.k_c.tolist(), "k_e": self.k_e.tolist(),
                 "k_i_factor": self.k_i_factor}  # fmt: skip
+
+    @staticmethod
+    def of(data: dict) -> Design:
+        """The design of its :meth:`as_dict`."""
+        return Design(*(np.asarray(data[k], dtype=float) for k in ("k_xi", "k_c", "k_e")), float(data["k_i_factor"]))
 
 
 @dataclass(frozen=True)
@@ -195,14 +200,16 @@ def checks(case: Case, design: Design) -> Checks:
     loop = replace(case.loop, gains=Gains(design.k_xi, design.k_c, design.k_e, design.k_i_factor * design.k_xi))
     imp = case.settings.implementation
     try:
+        system = multirate_loop(loop, case.s0[: loop.robot.n], imp)
         with np.errstate(over="ignore", invalid="ignore"):
-            pi = multirate_loop(loop, case.s0[: loop.robot.n], imp).monodromy(imp)[0]
+            pi = system.monodromy(imp)[0]
     except ValueError:
         return Checks(outside, gamma, None, None, False)
     if not np.isfinite(pi).all():
         return Checks(outside, gamma, math.inf, None, False)
-    check = lyapunov_check(pi)
-    return Checks(outside, gamma, spectral_radius(pi), check.margin, check.certified)
+    across = system.transverse(pi)  # on a redundant arm, across the self-motion (fact 14)
+    check = lyapunov_check(across.pi)
+    return Checks(outside, gamma, spectral_radius(across.pi), check.margin, across.certified(check))
 
 
 def replace_gains(case: Case, design: Design) -> Case:

@@ -36,6 +36,7 @@ from dvfc.analysis.campaign import (
 )
 from dvfc.analysis.campaign import row as campaign_row
 from dvfc.analysis.case import Case
+from dvfc.analysis.cell import Design as CellDesign
 from dvfc.analysis.cell import Search as CellSearch
 from dvfc.analysis.cell import design_text, synthesize_for_campaign
 from dvfc.analysis.cell import record as cell_record
@@ -46,8 +47,19 @@ from dvfc.analysis.certify import (
 )
 from dvfc.analysis.export import ExportError, ExportResult, Timing, export_controller, exportable
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
+from dvfc.analysis.hardware import what_would_pass
 from dvfc.analysis.implementation import SubstepChoice
-from dvfc.analysis.margins import MarginError, linear_margin_text, margins, planned_runs, runs_done, tracking_bound
+from dvfc.analysis.margins import (
+    PARAMETERS,
+    MarginError,
+    TrackingBound,
+    linear_margin_text,
+    log_path,
+    margins,
+    planned_runs,
+    runs_done,
+    tracking_bound,
+)
 from dvfc.analysis.multirate import implemented_text
 from dvfc.analysis.output import (
     atomic_write,
@@ -213,6 +225,10 @@ ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (default: 
 OutOpt = Annotated[Path | None, typer.Option("--out", help="Output directory (default: out/<scenario name>).")]
 JsonOpt = Annotated[str | None, typer.Option("--json", help="Write the JSON summary to FILE, or '-' for stdout.")]
 SchedulerOpt = Annotated[str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")]
+WhatWouldPassOpt = Annotated[bool, typer.Option(
+    "--what-would-pass",
+    help="Search the least change of the control rate, camera rate or latency at which synthesize --for-campaign "
+         "succeeds (a bisection on each, measured; resumable with --resume).")]  # fmt: skip
 
 
 @app.command()
@@ -515,6 +531,9 @@ def show_envelope(e: dict) -> None:
     """Human output of the operating envelope (docs/math.md, facts 7-9)."""
     if e.get("rate") is None:
         out.print(f"Operating envelope: not certified: {e['reason']}", markup=False)
+        if (start := e.get("start") or {}).get("until_s") is not None:  # docs/math.md, fact 20.6
+            told = f"CERTIFIED: {start['statement']}" if start["inside"] else f"not certified: {start.get('reason')}"
+            out.print(f"START (until integral action engages): {told}", markup=False)
         if e.get("friction") is not None:
             out.print(f"ENVELOPE: {e['friction']['statement']}.", markup=False)
         return
@@ -631,7 +650,7 @@ def synthesize_command(
     ] = None,
     json_target: JsonOpt = None,
     resume: Annotated[
-        bool, typer.Option(help="Reuse the runs of an interrupted limits search.")
+        bool, typer.Option(help="Reuse the runs of an interrupted limits search (or --what-would-pass search).")
     ] = False,
     for_campaign: Annotated[
         bool, typer.Option("--for-campaign", help="Gains and integral action that hold on the [dispersion] campaign.")
@@ -639,6 +658,7 @@ def synthesize_command(
     p_fail: Annotated[float, typer.Option(help="--for-campaign: P(fail) the confirmation bounds, in (0, 1).")] = P_FAIL,
     confidence: Annotated[float, typer.Option(help="--for-campaign: its confidence, in (0, 1).")] = CONFIDENCE,
     workers: Annotated[int, typer.Option(min=1, help="--for-campaign: local worker processes.")] = 1,
+    what: WhatWouldPassOpt = False,
 ) -> None:
     """Choose diagonal gains within the [synthesize] bounds that minimise the certified gamma
     (fact 6), reach [synthesize] gamma with the smallest gains, or (objective = "target_speed")
@@ -648,6 +668,8 @@ def synthesize_command(
     for name, value in (("--p-fail", p_fail), ("--confidence", confidence)):
         if for_campaign and not 0 < value < 1:
             raise fail(f"{name}: {value:g} is not in (0, 1)")
+    if what and not for_campaign:
+        raise fail("--what-would-pass: searches the hardware for the synthesis --for-campaign; give --for-campaign")
     case = load_case(scenario)
     spec, n = case.scenario, case.loop.robot.n
     if spec.loop != "paper" or n < 6:
@@ -655,7 +677,7 @@ def synthesize_command(
     check_json_target(json_target)
     target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
     if for_campaign:
-        campaign_design(case, scenario, target, json_target, p_fail, confidence, workers)
+        campaign_design(case, scenario, target, json_target, (p_fail, confidence, workers), what, resume)
         return
     prepare_out_dir(target.parent)
     try:
@@ -669,12 +691,8 @@ def synthesize_command(
         resumable(f"dvfc synthesize {scenario} --out {target} --resume"),
         err.status("synthesising the gains") as status,
     ):
-        def show(text: str) -> None:
-            status.update(text)
-            if not err.is_terminal:
-                err.print(text, markup=False, soft_wrap=True)
-
-        done = synthesize_case(case, target, runs=lambda run: logged_runs(run, log, resume=resume), progress=show)
+        done = synthesize_case(case, target, runs=lambda run: logged_runs(run, log, resume=resume),
+                               progress=announcer(status))  # fmt: skip
     log.unlink(missing_ok=True)  # the search is done: its runs are in the result
     if done.accepted:
         atomic_write(target, lambda h: h.write(done.text.encode()))
@@ -685,43 +703,133 @@ def synthesize_command(
         raise typer.Exit(1)
 
 
-def campaign_design(case: Case, scenario: Path, target: Path, json_target: str | None, p_fail: float,
-                    confidence: float, workers: int) -> None:
-    """``synthesize --for-campaign`` (:mod:`dvfc.analysis.cell`): exit 0 written, 1 refused, 2 bad input."""
-    if not case.scenario.dispersion:
-        raise fail("dispersion: --for-campaign needs a [dispersion] section")
-    if case.planar or case.settings.implementation is None:
-        raise fail("implementation: --for-campaign designs the loop as implemented; add an [implementation]")
+def campaign_design(case: Case, scenario: Path, target: Path, json_target: str | None, how: tuple[float, float, int],
+                    what: bool, resume: bool) -> None:  # fmt: skip
+    """``synthesize --for-campaign`` (:mod:`dvfc.analysis.cell`), ``how = (p_fail, confidence,
+    workers)``; with ``what``, the synthesis is the first check of ``--what-would-pass``
+    (:mod:`dvfc.analysis.hardware`): exit 0 written, 1 refused, 2 bad input."""
+    p_fail, confidence, workers = how
+    bound = campaign_of(case, "--for-campaign")
     start = time.perf_counter()
-    try:
-        CampaignSpec.of(case, tracking_bound(case))
-    except ScenarioError as exc:
-        raise fail(str(exc)) from exc
     prepare_out_dir(target.parent)
-    with err.status("searching gains that hold on the campaign") as status:
-        def say(text: str) -> None:
-            status.update(text)
-            if not err.is_terminal:
-                err.print(text, markup=False, soft_wrap=True)
-
-        result = synthesize_for_campaign(case, p_fail=p_fail, confidence=confidence,
-                                         search=CellSearch(workers=workers), progress=say)  # fmt: skip
-    record = {"scenario": case.name, **cell_record(result), "scenario_file": None}
-    if result.holds:
-        text = design_text(Path(scenario).read_text(), case, result.design, result.bound,
-                           name=f"{case.name}-synthesized", source=Path(scenario), target=target)  # fmt: skip
+    log = target.with_name(target.name + ".what_would_pass.jsonl")
+    found = None
+    if what:
+        again = (f"dvfc synthesize {scenario} --for-campaign --what-would-pass --p-fail {p_fail:g} --confidence "
+                 f"{confidence:g} --out {target} --resume")  # fmt: skip
+        found = hardware_search(case, log, resume, how, again)
+        synthesis = found["today"]["synthesis"]  # the synthesis at the scenario's own hardware
+        design = CellDesign.of(synthesis["design"]) if synthesis["holds"] else None
+    else:
+        with err.status("searching gains that hold on the campaign") as status:
+            search = CellSearch(workers=workers)
+            result = synthesize_for_campaign(case, p_fail=p_fail, confidence=confidence, search=search,
+                                             progress=announcer(status))  # fmt: skip
+        synthesis, design = cell_record(result), result.design if result.holds else None
+    record = {"scenario": case.name, **synthesis, "scenario_file": None}
+    if design is not None:
+        text = design_text(Path(scenario).read_text(), case, design, bound, name=f"{case.name}-synthesized",
+                           source=Path(scenario), target=target)  # fmt: skip
         atomic_write(target, lambda h: h.write(text.encode()))
         record["scenario_file"] = str(target)
+    if found is not None:
+        record["what_would_pass"] = found
     record |= {"seconds": time.perf_counter() - start, "provenance": command_provenance(scenario)}
     emit(record, None, json_target, show_campaign_design)
-    if not result.holds:
+    if design is None:
+        if found is None:
+            hint(f"dvfc synthesize {scenario} --for-campaign --what-would-pass")
         raise typer.Exit(1)
+
+
+def campaign_of(case: Case, option: str) -> TrackingBound:
+    """Refuse ``option`` (exit 2, one line) unless ``case``'s campaign can run (a ``[dispersion]``, an
+    ``[implementation]``, the paper's loop); the campaign's criterion."""
+    if not case.scenario.dispersion:
+        raise fail(f"dispersion: {option} needs a [dispersion] section")
+    if case.planar or case.settings.implementation is None:
+        raise fail(f"implementation: {option} designs the loop as implemented; add an [implementation]")
+    try:
+        bound = tracking_bound(case)
+        CampaignSpec.of(case, bound)
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    return bound
+
+
+def announcer(status) -> Callable[[str], None]:
+    """Progress text to a rich ``status`` line, and also a line of its own when standard error is not a
+    terminal (CI logs, nohup)."""
+
+    def say(text: str) -> None:
+        status.update(text)
+        if not err.is_terminal:
+            err.print(text, markup=False, soft_wrap=True)
+
+    return say
+
+
+def hardware_search(case: Case, log: Path, resume: bool, how: tuple[float, float, int], again: str) -> dict:
+    """``--what-would-pass`` (:func:`dvfc.analysis.hardware.what_would_pass`) with the full budget of
+    ``how = (p_fail, confidence, workers)``, its evaluations in ``log``; progress on standard error;
+    Ctrl-C: exit 130 with the command ``again`` that resumes."""
+    p_fail, confidence, workers = how
+    if resume and not log.exists():
+        raise fail(f"--resume: no --what-would-pass search to resume ({log} not found)")
+    with resumable(again), err.status("what would pass: the synthesis at the scenario's hardware") as status:
+        return what_would_pass(case, p_fail=p_fail, confidence=confidence, search=CellSearch(workers=workers),
+                               log=log, resume=resume, progress=announcer(status))  # fmt: skip
+
+
+def hardware_value(value: float | None, unit: str) -> str:
+    """A value of ``--what-would-pass`` with its unit (a latency in ms)."""
+    if value is None:
+        return "-"
+    return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.5g} {unit}"
+
+
+def hint(command: str) -> None:
+    """The line pointing at ``--what-would-pass`` when nothing passes (standard error)."""
+    err.print(f"what would pass: {command} searches the least change of the control rate, camera rate or latency "
+              "at which the synthesis for the campaign succeeds", markup=False, soft_wrap=True)  # fmt: skip
+
+
+def show_what_would_pass(found: dict) -> None:
+    """Human output of ``--what-would-pass``: per parameter today's value, the value needed, the bracket
+    the bisection ended on and the full-size confirmation; how it was measured."""
+    today = found["today"]
+    if today["holds"]:
+        out.print("what would pass: nothing to change (the synthesis passes at the scenario's hardware)", markup=False)
+        return
+    table = Table(title=f"What would pass: {found['scenario']} (measured)")
+    columns = ("parameter", "today", "needed", "bracket (full size)", "confirmation (full size)", "why it fails below")
+    for col in columns:
+        table.add_column(col)
+    for name, p in found["parameters"].items():
+        value = lambda v, u=p["unit"]: hardware_value(v, u)  # noqa: E731
+        if p["needed"] is None:
+            needed, bracket = "none in range", f"fails at {value(p['fails_at'])}"
+        else:
+            needed = value(p["needed"])
+            bracket = f"fails at {value(p['fails_at'])}, passes at {value(p['passes_at'])}"
+        c = p["confirmation"]
+        confirmation = "-" if c is None else (f"{c['failures']} of {c['runs']} fail, P(fail) <= "
+                                              f"{c['p_fail_upper']:.3g} at {c['confidence']:.0%}")  # fmt: skip
+        table.add_row(name, value(p["today"]), needed, bracket, confirmation, p["fails_because"] or "")
+    out.print(table)
+    out.print(f"as it is: {today['limits']}", markup=False, soft_wrap=True)
+    for key in ("method", "held", "assumption"):
+        out.print(f"{key}: {found[key]}", markup=False, soft_wrap=True)
+    out.print(f"{found['evaluations']} syntheses ({found['made']} made now, {found['evaluations'] - found['made']} "
+              f"from the log), {found['seconds']:.0f} s", markup=False, soft_wrap=True)  # fmt: skip
 
 
 def show_campaign_design(record: dict) -> None:
     """Human output of ``synthesize --for-campaign``: the design, its checks, the confirmation, the file."""
     if record["scenario_file"] is None:
         out.print(f"NOT SYNTHESIZED: {record['limits']}", markup=False, soft_wrap=True)
+        if record.get("what_would_pass") is not None:
+            show_what_would_pass(record["what_would_pass"])
         return
     d, c, s, f = record["design"], record["checks"], record["search"], record["confirmation"]
     out.print(
@@ -736,6 +844,8 @@ def show_campaign_design(record: dict) -> None:
         markup=False,
         soft_wrap=True,
     )
+    if record.get("what_would_pass") is not None:
+        show_what_would_pass(record["what_would_pass"])
 
 
 @app.command("margins")
@@ -746,6 +856,7 @@ def margins_command(
     workers: Annotated[int, typer.Option(min=1, help="Local worker processes (one search per parameter).")] = 1,
     scheduler: SchedulerOpt = None,
     resume: Annotated[bool, typer.Option(help="Reuse the runs of an interrupted search in --out.")] = False,
+    what: WhatWouldPassOpt = False,
 ) -> None:
     """Measure where the loop as implemented stops holding: latency, camera rate, payload
     mass, pixel noise and torque-limit scale, each by bisection on the nonlinear loop; and
@@ -757,9 +868,14 @@ def margins_command(
         raise fail("implementation: margins are of the loop as implemented; add an [implementation] section")
     require_six(case, "margins")
     check_json_target(json_target)
+    if what:
+        campaign_of(case, "--what-would-pass")
     directory = prepare_out_dir(out_dir or Path("out") / f"{spec.name}-margins")
-    if resume and not any(directory.glob("*.jsonl")):
+    log = directory / "what_would_pass.jsonl"
+    logged = [log_path(directory, n) for n in PARAMETERS] + ([log] if what else [])
+    if resume and not any(p.exists() for p in logged):
         raise fail(f"--resume: no margin search to resume in {directory}")
+    again = f"dvfc margins {scenario} --out {directory} --resume --what-would-pass"
     columns = (TextColumn("[bold]margins[/]"), BarColumn(), MofNCompleteColumn(), TextColumn("runs"),
                TimeElapsedColumn())  # fmt: skip
     try:
@@ -785,8 +901,17 @@ def margins_command(
             )
     except MarginError as exc:
         err.print(f"no margins: {exc}", markup=False, soft_wrap=True)
-        raise typer.Exit(1) from None
+        result = {"scenario": spec.name, "margins": None, "no_margins": str(exc)}
+    if what:
+        result["what_would_pass"] = hardware_search(case, log, resume and log.exists(), (P_FAIL, CONFIDENCE, workers),
+                                                    again)  # fmt: skip
     result["provenance"] = command_provenance(scenario)
+    if result["margins"] is None:
+        if what:
+            emit(result, directory / "margins.json", json_target, lambda r: show_what_would_pass(r["what_would_pass"]))
+        elif spec.dispersion:
+            hint(again.replace(" --resume", ""))
+        raise typer.Exit(1)
     emit(result, directory / "margins.json", json_target, show_margins)
 
 
@@ -813,6 +938,8 @@ def show_margins(result: dict) -> None:
     own = result["scenario_run"]
     out.print(f"the scenario's own run ({horizon_text(own)}): {own['detail']}", markup=False, soft_wrap=True)
     out.print(linear_margin_text(result), markup=False, soft_wrap=True)
+    if result.get("what_would_pass") is not None:
+        show_what_would_pass(result["what_would_pass"])
 
 
 def linear_text(margin: dict) -> str:
@@ -993,6 +1120,7 @@ def campaign_command(
     resume: Annotated[bool, typer.Option(help="Continue an interrupted campaign in --out.")] = False,
     out_dir: OutOpt = None,
     json_target: JsonOpt = None,
+    what: WhatWouldPassOpt = False,
 ) -> None:
     """Run the scenario's [dispersion] as a campaign of independent runs of the loop as implemented,
     each judged by the margins criterion; state the failure probability with its confidence.
@@ -1018,6 +1146,8 @@ def campaign_command(
     columns = (TextColumn("[bold]campaign[/]"), BarColumn(), MofNCompleteColumn(), TextColumn("runs"),
                TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
     again = f"dvfc campaign {scenario} --runs {runs} --seed {seed} --out {directory} --resume"
+    log = directory / "what_would_pass.jsonl"
+    searched = f"{again} --p {p_fail:g} --confidence {confidence:g} --what-would-pass"
     try:
         with (
             resumable(again),
@@ -1042,8 +1172,14 @@ def campaign_command(
     except ValueError as exc:
         raise fail(str(exc)) from exc
     result |= {"scenario": case.name, "dataset": str(directory / "runs"), "provenance": command_provenance(scenario)}
+    if what:  # the search, before the JSON is written (one document); a campaign without failures: none
+        how = (p_fail, confidence, workers)
+        result["what_would_pass"] = hardware_search(case, log, resume and log.exists(), how, searched) if (
+            result["failures"]) else None  # fmt: skip
     emit(result, directory / "summary.json", json_target, show_campaign)
     if result["failures"]:
+        if not what:
+            hint(searched)
         raise typer.Exit(1)
 
 
@@ -1078,6 +1214,10 @@ def show_campaign(result: dict) -> None:
     if (found := result.get("worst_case_search")) is not None:
         out.print(f"worst case found ({found['statement']}): closeness to failure {found['worst_closeness']:.4g}; "
                   f"replay: {found['replay']}", markup=False, soft_wrap=True)  # fmt: skip
+    if result.get("what_would_pass") is not None:
+        show_what_would_pass(result["what_would_pass"])
+    elif result["failures"] == 0 and "what_would_pass" in result:
+        out.print("what would pass: no run fails, nothing to change", markup=False)
 
 
 @app.command("export")

@@ -532,9 +532,15 @@ def run_summary(record: dict) -> dict:
     return {key: record[key] for key in ("value", "holds", "horizon", "horizons", "growth", "linear")}
 
 
+def log_path(directory: Path, name: str) -> Path:
+    """The log of parameter ``name``'s search in ``directory``."""
+    return directory / f"{name}.jsonl"
+
+
 def runs_done(directory: Path) -> int:
     """Runs recorded so far in the searches' logs (for progress)."""
-    return sum(len(p.read_text().splitlines()) for p in directory.glob("*.jsonl"))
+    logs = (log_path(directory, n) for n in PARAMETERS)
+    return sum(len(p.read_text().splitlines()) for p in logs if p.exists())
 
 
 def planned_runs() -> int:
@@ -585,7 +591,7 @@ def margins(
     if not own["holds"]:
         raise MarginError(f"the scenario's own run does not hold ({own['detail']}): no margin to measure")
     names = [n for n in PARAMETERS if applicable(n, settings, loop) is None]
-    logs = {n: directory / f"{n}.jsonl" for n in names}
+    logs = {n: log_path(directory, n) for n in names}
     if not resume:
         for log in logs.values():
             log.unlink(missing_ok=True)

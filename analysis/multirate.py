@@ -24,6 +24,13 @@ periods, the control/camera ratio rational) the product of the step maps is the 
 exponentially stable with every rate below ``-ln(rho) / (P h)``; the certificate is the
 strict discrete Lyapunov inequality for ``P_L = dlyap(Pi^T, I)``, checked a posteriori.
 
+On a redundant arm (``n > 6``) the equilibria at rest are a manifold ``E`` of dimension ``n - 6``
+(the self-motion: every ``q`` with the camera at the reference, ``J_b(q_eq)`` of full row rank), so
+its tangent ``T = [null(J_b(q_eq)); 0]`` is fixed by ``Pi`` and ``rho(Pi) = 1``. The statement is
+then about ``Pi_T = Q^T Pi Q`` (``Q`` an orthonormal basis of ``T``'s complement: ``Pi`` is
+block-triangular in ``[T, Q]``): ``rho(Pi_T) < 1`` makes ``E`` locally exponentially attracting,
+every nearby run converging to one of its equilibria (:func:`transverse`; docs/math.md, fact 14).
+
 With integral action (docs/math.md, fact 21) ``z`` ends with ``z_I``, held over the period
 (no rate) and updated at each sample, ``z_I <- z_I + h (X z_k + X_e e_k)`` (``xi = X z + X_e e``
 linearised), the law reading ``-K_I z_I``: ``6 + n`` more states (36 on a 6-joint arm). The
@@ -36,7 +43,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from fractions import Fraction
 
 import casadi as cs
@@ -75,6 +82,12 @@ SCOPE = (
     "linearisations at the equilibrium coincide (gap {gap:.2g}); every rate below -ln(rho)/period"
 )
 
+SELF_MOTION_SCOPE = (
+    "; on the redundant arm, of the manifold of equilibria (the self-motion, dimension {m}: every q with the camera "
+    "at the reference near q_eq, tangent null(J_b(q_eq)) fixed by Pi): rho is that of Pi across it, Q^T Pi Q, and a "
+    "run starting near converges to one of its equilibria (the posture it settles in is not controlled)"
+)
+
 
 @dataclass(frozen=True)
 class HeldLinearization:
@@ -97,6 +110,9 @@ class HeldLinearization:
     xi, xi_e
         With integral action: ``xi = xi z + xi_e e`` at the sample, whose ``h`` multiple is the
         update of ``z_I``, the last ``n`` entries of ``z`` (None: no integral state).
+    self_motion
+        An orthonormal basis (``n x (n - 6)``) of ``null(J_b(q_eq))``: the tangent of the
+        equilibria's manifold in ``dq`` (no columns on a 6-joint arm).
     """
 
     a: np.ndarray
@@ -113,6 +129,7 @@ class HeldLinearization:
     tau_eq: np.ndarray
     xi: np.ndarray | None = None
     xi_e: np.ndarray | None = None
+    self_motion: np.ndarray = field(default_factory=lambda: np.zeros((6, 0)))
 
     def flow(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(Phi, G_tau, G_e, G_o)``: the held flow over ``h``, the first block row of
@@ -205,8 +222,10 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray) -> HeldLinearization:
         raise ValueError(f"the linearisation point is not an equilibrium (|dz/dt| = {residual:.2e})")
     a, b_tau, b_e, b_o, f, f_e, o, o_e, c, c_image = values[2:12]
     integral = values[12:] if loop.integral else [None, None]
+    jacobian = np.asarray(cs.Function("body_jacobian", [loop.robot.q], [loop.robot.body_jacobian])(q_eq))
     return HeldLinearization(a, b_tau, b_e, b_o, f, f_e, o, o_e, c, c_image, q_eq=q_eq, tau_eq=tau_eq,
-                             xi=integral[0], xi_e=integral[1])  # fmt: skip
+                             xi=integral[0], xi_e=integral[1],
+                             self_motion=scipy.linalg.null_space(jacobian))  # fmt: skip
 
 
 class NotApplicableError(ValueError):
@@ -314,6 +333,38 @@ def spectral_radius(pi: np.ndarray) -> float:
     return float(np.abs(np.linalg.eigvals(pi)).max())
 
 
+@dataclass(frozen=True)
+class Transverse:
+    """The monodromy across the self-motion (docs/math.md, fact 14, redundant arms).
+
+    ``pi`` is ``Q^T Pi Q`` with ``Q`` an orthonormal basis of the complement of the tangent ``T``
+    (``dimension`` columns, the self-motion in ``dq``, zero elsewhere); ``residual`` is
+    ``||Pi T - T||_2``, how far the computed ``Pi`` is from fixing ``T``. With ``T`` fixed, ``Pi`` is
+    ``[[I, *], [0, pi]]`` in ``[T, Q]``: its spectrum is ``dimension`` ones and ``pi``'s. On a 6-joint
+    arm ``T`` is empty: ``pi`` is the monodromy itself and ``residual`` 0."""
+
+    pi: np.ndarray
+    dimension: int
+    residual: float
+
+    def certified(self, check: LyapunovCheck) -> bool:
+        """Whether the Lyapunov ``check`` of :attr:`pi` certifies and the computed ``Pi`` fixes the tangent
+        within that check's tolerance on ``Pi`` (a tangent it does not fix is not the self-motion's)."""
+        return check.certified and self.residual < check.tolerance
+
+
+def transverse(pi: np.ndarray, self_motion: np.ndarray) -> Transverse:
+    """:class:`Transverse` of the monodromy ``pi`` whose first rows and columns are ``dq`` (``self_motion``:
+    :attr:`HeldLinearization.self_motion`)."""
+    m = self_motion.shape[1]
+    if m == 0:
+        return Transverse(pi, 0, 0.0)
+    tangent = np.zeros((pi.shape[0], m))
+    tangent[: self_motion.shape[0]] = self_motion
+    q = scipy.linalg.null_space(tangent.T)
+    return Transverse(q.T @ pi @ q, m, float(np.linalg.norm(pi @ tangent - tangent, 2)))
+
+
 @dataclass
 class MultirateLoop:
     """The linearised sampled loop of one scenario and its schedules (rates and latency
@@ -336,12 +387,17 @@ class MultirateLoop:
             self._maps[imp.period] = self.lin.period_map(imp.period)
         return monodromy(*self._maps[imp.period], self.output, sched), sched
 
+    def transverse(self, pi: np.ndarray) -> Transverse:
+        """``pi`` across the self-motion (:func:`transverse`; ``pi`` itself on a 6-joint arm)."""
+        return transverse(pi, self.lin.self_motion)
+
     def rho(self, **change: float) -> float:
-        """``rho(Pi)`` with the implementation's fields changed by ``change``; ``inf`` when the
-        product of the step maps overflows (never counted stable)."""
+        """``rho`` of the monodromy across the self-motion (:meth:`transverse`) with the
+        implementation's fields changed by ``change``; ``inf`` when the product of the step maps
+        overflows (never counted stable)."""
         with np.errstate(over="ignore", invalid="ignore"):
             pi = self.monodromy(replace(self.implementation, **change))[0]
-        return spectral_radius(pi) if np.isfinite(pi).all() else math.inf
+        return spectral_radius(self.transverse(pi).pi) if np.isfinite(pi).all() else math.inf
 
 
 def multirate_loop(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> MultirateLoop:
@@ -351,17 +407,17 @@ def multirate_loop(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> Mul
 
 def applicability(loop: ClosedLoop, settings: Settings) -> str | None:
     """Why the statement does not apply to the scenario's loop as implemented, or None:
-    it needs an isolated equilibrium (``n = 6``), which exists only with zero quantization
-    and the plant equal to the model (the latency and the rates are checked by
-    :func:`schedule`, saturation by :func:`implemented_record`)."""
+    it needs an equilibrium (isolated for ``n = 6``, the self-motion's manifold for ``n > 6``;
+    ``n < 6`` has none with ``J_b`` invertible), which exists only with zero quantization and the
+    plant equal to the model (the latency and the rates are checked by :func:`schedule`,
+    saturation by :func:`implemented_record`)."""
     imp = settings.implementation
     if imp is None:
         return "the scenario has no [implementation]: the loop is the paper's continuous one"
     if isinstance(loop, PlanarLoop):
         return "the reduced planar loop: the statement is derived for the paper's loop (36)"
-    if loop.robot.n != 6:
-        return (f"the arm has {loop.robot.n} joints: the equilibrium is isolated only for n = 6 (with n > 6 the "
-                "self-motion gives rho = 1, with n < 6 J_b is not invertible)")  # fmt: skip
+    if loop.robot.n < 6:
+        return f"the arm has {loop.robot.n} joints: with n < 6 J_b is not invertible (no equilibrium of the law)"
     if imp.quantization > 0:
         return f"quantization {imp.quantization:g} px: the image estimate is not 0 at the equilibrium (no fixed point)"
     if settings.plant is not None:
@@ -436,21 +492,25 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
         return not_applicable("saturation is active at the equilibrium (|g(q_eq)| not strictly inside the efforts)")
     if not np.isfinite(pi).all():
         return {**not_applicable(""), "applies": True, "reason": "the period map overflows: far from stable"}
-    rho = spectral_radius(pi)
-    check = lyapunov_check(pi)
+    across = system.transverse(pi)
+    rho = spectral_radius(across.pi)
+    check = lyapunov_check(across.pi)
     period = sched.steps * imp.period
-    certified = rho < 1 - RHO_MARGIN and check.certified
+    certified = rho < 1 - RHO_MARGIN and across.certified(check)
+    reason = (f"rho = {rho:.6g}, the Lyapunov check (margin {check.margin:.3g}) or the self-motion's residual "
+              f"({across.residual:.2g}) fails")  # fmt: skip
     gap = float(np.abs(lin.c_image - lin.c).max())
     return {
         **_integral_and_friction(loop, settings, system),
         "applies": True,
         "certified": certified,
-        "reason": None if certified else f"rho = {rho:.6g} or the Lyapunov check (margin {check.margin:.3g}) fails",
+        "reason": None if certified else reason,
         "rho": rho,
         "rate": -math.log(rho) / period if rho < 1 else None,
         "period": period,
         "steps": sched.steps,
         "states": pi.shape[0],
+        "self_motion": self_motion_record(across),
         "lyapunov_margin": check.margin,
         "lyapunov_p_min": check.p_min,
         "lyapunov_p_norm": check.p_norm,
@@ -461,11 +521,20 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
         ),
         "image_linearisation_gap": gap,
         "q_eq": lin.q_eq.tolist(),
-        "scope": SCOPE.format(gap=gap),
+        "scope": SCOPE.format(gap=gap) + (SELF_MOTION_SCOPE.format(m=across.dimension) if across.dimension else ""),
         "margins": linear_margins(system),
         **program_record(loop, s0, imp),
         "seconds": time.perf_counter() - start,
     }
+
+
+def self_motion_record(across: Transverse) -> dict | None:
+    """The record's ``self_motion`` (None on a 6-joint arm): the manifold's dimension, the tangent's
+    residual ``||Pi T - T||_2`` and the size of the monodromy across it."""
+    if not across.dimension:
+        return None
+    return {"dimension": across.dimension, "tangent_residual": across.residual, "states": across.pi.shape[0],
+            "statement": SELF_MOTION_SCOPE.format(m=across.dimension).removeprefix("; ")}  # fmt: skip
 
 
 def _integral_and_friction(loop: ClosedLoop, settings: Settings, system: MultirateLoop) -> dict:
@@ -519,7 +588,8 @@ class ProgramMonodromy:
 
     ``pi`` acts on ``[dq; dqd; dpbar; dthetabar; e held; z_I (with integral action); the ring's
     estimates by age 1..B (6 each); the features of the images in flight (schedule.pending, 2m each)]``
-    over one common period of the schedules; ``rho`` its spectral radius."""
+    over one common period of the schedules; ``rho`` its spectral radius (across the self-motion on a
+    redundant arm: :func:`transverse`, whose ``dq`` are the first ``n`` coordinates here too)."""
 
     pi: np.ndarray
     rho: float
@@ -617,7 +687,7 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> 
         state = projection(first + k + 1) @ out[n:]
         plant = phi @ plant + g_tau @ out[:n]
     pi = np.vstack([plant, state, *(flight.pop(p + sched.steps) for p in sched.pending)])
-    return ProgramMonodromy(pi, spectral_radius(pi), sched, ring)
+    return ProgramMonodromy(pi, spectral_radius(transverse(pi, lin.self_motion).pi), sched, ring)
 
 
 PROGRAM_LOOP = (

@@ -47,7 +47,7 @@ from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.sampled import limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import Settings, Trajectory, summary
-from dvfc.analysis.start import planned_start, ramp_start
+from dvfc.analysis.start import planned_start, ramp_start, until_integral
 from dvfc.analysis.verify import Claim, verify
 from dvfc.models.camera import Camera
 from dvfc.models.errors import PlantErrors
@@ -217,9 +217,11 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
         record["statement"] = f"for the plant without friction: {record['statement']}; {with_friction}"
     if loop.integral:  # docs/math.md, fact 20.4: the law without K_I has this envelope, this design none
         without = {**record, "statement": f"the same design without integral action: {record['statement']}"}
+        start = until_integral(record["start"], loop.integral_start)  # fact 20.6: until z_I moves
+        until = f"; {start['statement']}" if start["inside"] else ""
         record = {key: None for key in record} | {
-            "rate": None, "reason": INTEGRAL_RATE, "statement": f"no envelope certified: {INTEGRAL_RATE}",
-            "start": {**record["start"], "inside": False}, "disturbance": record["disturbance"],
+            "rate": None, "reason": INTEGRAL_RATE, "statement": f"no envelope certified: {INTEGRAL_RATE}{until}",
+            "start": start, "disturbance": record["disturbance"],
             "wbar": record["wbar"], "without_integral": without, "friction": record.get("friction"),
         }  # fmt: skip
     return {
@@ -384,6 +386,11 @@ def statements(
     if env.get("rate") is None:
         out.append({"statement": "operating envelope (facts 7-10)", "loop": "ideal continuous loop",
                     "status": "NOT CERTIFIED", "detail": str(env.get("reason", "not computed"))})  # fmt: skip
+        if (start := env.get("start") or {}).get("until_s") is not None:  # fact 20.6
+            out.append({"statement": "the start, until integral action engages (fact 20.6)",
+                        "loop": f"ideal continuous loop, 0 <= t <= {start['until_s']:.4g} s",
+                        "status": "CERTIFIED" if start["inside"] else "NOT CERTIFIED",
+                        "detail": start["statement"] if start["inside"] else str(start.get("reason"))})  # fmt: skip
     else:
         speed, own = env.get("max_target_speed"), env["disturbance"]["target_speed"]
         out += [

@@ -233,9 +233,16 @@ def run_regions(loop: ClosedLoop, t: np.ndarray, level: float) -> tuple[np.ndarr
             scale * np.stack([ends[0][1], ends[1][1]], axis=-1) + centre)  # fmt: skip
 
 
+def _span(record: dict) -> str:
+    """Over which times a start statement holds: every ``t >= 0``, or up to ``until_s``
+    (:func:`until_integral`)."""
+    until = record.get("until_s")
+    return "for all t >= 0" if until is None else f"for 0 <= t <= {until:.4g} s"
+
+
 def _statement(record: dict) -> str:
     """One sentence: what the planned start certifies, for which loop, from when."""
-    when = (f"for all t >= 0 (ideal continuous loop with the planned reference over {record['duration']:g} s: "
+    when = (f"{_span(record)} (ideal continuous loop with the planned reference over {record['duration']:g} s: "
             f"V(t) <= {record['level']:.4g}, V(0) = {record['V0']:.3g})")  # fmt: skip
     if record["visible"] is True:
         tube = record["tube"]
@@ -376,6 +383,31 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
     return record
 
 
+def until_integral(start: dict, t_i: float) -> dict:
+    """The start record of a design without ``K_I`` as the statement of the same design with it,
+    up to ``t_i`` (``integral_start``; docs/math.md, fact 20.6): ``z_I`` stays 0 until then, so the
+    two loops are one ODE from one state and every bound of the start holds for ``0 <= t <= t_i``.
+    ``inside`` false (with the reason) when the start is not certified or ``t_i = 0``."""
+    record = {**start, "until_s": t_i}
+    if t_i <= 0:
+        reason = ("integral action from t = 0 (integral_start = 0): no time before z_I moves, so the start of the "
+                  "design without K_I says nothing of this one")  # fmt: skip
+        return {**record, "inside": False, "level": None, "reason": reason}
+    if not start["inside"]:
+        return record
+    method = start.get("method", "constant")
+    if method == "planned":
+        told = _statement(record)
+    elif method == "ramp":
+        told = _ramp_statement(record)
+    else:
+        told = (f"errors bounded {_span(record)} (ideal continuous loop, fact 7 from a start inside the certified "
+                f"set: V(t) <= {start['level']:.4g}, V(0) = {start['V0']:.3g})")  # fmt: skip
+    record["statement"] = (f"until integral action engages at t = {t_i:.4g} s (z_I = 0 before, so the run is the "
+                           f"design's without K_I, fact 20.6): {told}")  # fmt: skip
+    return record
+
+
 def _settled(v: float, b: float, k: float, y: float) -> bool:
     """Whether a recursion can stop at ``Vbar = v`` with the rate ``k > 0``, ``b = wbar^2 / (4 s)``,
     valid on ``{V <= y}``: ``v`` within 1% of its limit ``b / k``, both below ``y``. Fact 7's first
@@ -385,7 +417,7 @@ def _settled(v: float, b: float, k: float, y: float) -> bool:
 
 def _ramp_statement(record: dict) -> str:
     """One sentence: what the ramp certifies, for which loop, from when."""
-    when = (f"for all t >= 0 (ideal continuous loop with a {record['ramp']:g} s ramp of u_d: V(t) <= "
+    when = (f"{_span(record)} (ideal continuous loop with a {record['ramp']:g} s ramp of u_d: V(t) <= "
             f"{record['level']:.4g}, V(0) = {record['V0']:.3g})")  # fmt: skip
     if record["visible"] is True:
         return f"every feature stays in the image {when}"

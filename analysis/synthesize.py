@@ -536,6 +536,15 @@ def search_within_limits(
     return done(lo, good, bad)
 
 
+def designed_gains(case: Case, point: GainPoint) -> Gains:
+    """The gains of (42) of a design ``point`` on ``case``, with the case's integral action
+    (docs/math.md, fact 20): ``K_I = k_i_factor K_xi`` at the design's ``K_xi`` when the scenario
+    gives a factor, its fixed ``k_i`` otherwise, none without."""
+    factor = case.scenario.gains.k_i_factor
+    k_i = case.point.k_i if factor is None else factor * np.asarray(point.k_xi, dtype=float)
+    return Gains(point.k_xi, point.k_c, point.k_e, k_i)
+
+
 def design_runner(case: Case) -> Callable[[GainPoint], dict]:
     """Runs of designs (gains and weights) of one case as implemented (its controller,
     plant and image; each design runs once, so without compiling): for a design, the run's
@@ -544,7 +553,7 @@ def design_runner(case: Case) -> Callable[[GainPoint], dict]:
     limits = robot_limits(loop, settings)
 
     def run(point: GainPoint) -> dict:
-        designed = replace(loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
+        designed = replace(loop, gains=designed_gains(case, point), weights=point.weights)
         traj = as_implemented(designed, settings).run(case.s0)
         return {"status": traj.status, "message": traj.message, **limit_record(traj, limits)}
 
@@ -667,7 +676,7 @@ def design_checker(case: Case, run: Callable[[GainPoint], dict]) -> Callable[[Ga
         record = dict(run(point))
         implemented = None
         if case.settings.implementation is not None:
-            designed = replace(case.loop, gains=Gains(point.k_xi, point.k_c, point.k_e), weights=point.weights)
+            designed = replace(case.loop, gains=designed_gains(case, point), weights=point.weights)
             implemented = implemented_record(designed, case.s0, case.settings)
         windows = None if spec is None else spec.of(point.k_xi)
         return {**record, "implemented": implemented, "sampled": sampled_shortfall(windows, implemented)}

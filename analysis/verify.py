@@ -451,8 +451,13 @@ def envelope_claims(
       with the ratio to the certified ultimate bound (the envelope's tightness) reported.
     """
     if env.get("rate") is None:
-        return [Claim("operating envelope", "MATH facts 7-8", float("nan"), "an envelope", None,
-                      f"not certified: {env.get('reason')}")]  # fmt: skip
+        claims = [Claim("operating envelope", "docs/math.md, facts 7-8", float("nan"), "an envelope", None,
+                        f"not certified: {env.get('reason')}")]  # fmt: skip
+        start = env.get("start") or {}
+        if start.get("until_s") is None or not start["inside"]:
+            return claims
+        traj = Simulator(replace(loop, mode="ideal"), settings).run(s0) if run is None else run
+        return [*claims, *_until_integral_claims(loop, traj, env)]
     traj = Simulator(replace(loop, mode="ideal"), settings).run(s0) if run is None else run
     t, v = traj.t, traj["V"][:, 0]
     w2 = np.sum(traj["w"] ** 2, axis=1)
@@ -529,10 +534,25 @@ def _start_level_claim(traj: Trajectory, start: dict, tol: float, fact: str, how
                   excess <= tol, f"V(0) = {v[0]:.4g}, max V = {v.max():.4g}")
 
 
-def _planned_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -> list[Claim]:
+def _until_integral_claims(loop: ClosedLoop, traj: Trajectory, env: dict) -> list[Claim]:
+    """Fact 20.6 on the run of the design with ``K_I``: its start statement (that of the design
+    without it) on the steps ``t <= integral_start``, where ``z_I = 0`` and the two loops are one."""
+    start = env["start"]
+    keep = traj.t <= start["until_s"] + 1e-12
+    cut = replace(traj, t=traj.t[keep], signals={k: v[keep] for k, v in traj.signals.items()},
+                  integrals={k: v[keep] for k, v in traj.integrals.items()})  # fmt: skip
+    tol = 1e-9 * max(1.0, float(cut["V"][0, 0]))
+    if start.get("method") == "planned":
+        return _planned_claims(loop, cut, env, tol, ultimate=False)
+    if start.get("method") == "ramp":
+        return _ramp_claims(loop, cut, env, tol)
+    return [_start_level_claim(cut, start, tol, "fact 20.6", "until integral action engages")]
+
+
+def _planned_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float, *, ultimate: bool = True) -> list[Claim]:
     """Fact 16b's start statement on the run with the planned reference: ``V(t) <= c`` at every
     step, fact 7's bound with the path's rate from ``t = 0``, every feature in its region (16.0)
-    about ``g_d(t) p_oi`` at every step, and the errors over the last quarter."""
+    about ``g_d(t) p_oi`` at every step, and (``ultimate``) the errors over the last quarter."""
     start = env["start"]
     claims = [_start_level_claim(traj, start, tol, "fact 16b", "planned reference")]
     if not start["inside"]:
@@ -551,7 +571,8 @@ def _planned_claims(loop: ClosedLoop, traj: Trajectory, env: dict, tol: float) -
         claims.append(on_run("every feature inside its region about g_d(t) at every step", "fact 16b, 16.0", traj,
                              out, f"<= {px_tol:.1e} px (outside the region; round-off)", out <= px_tol,
                              f"regions of the balls B(g_d(t) p_oi, rho_i(c)), c = {level:.4g}"))  # fmt: skip
-    claims.extend(_ultimate_errors(loop, traj, env, bound, 0))
+    if ultimate:
+        claims.extend(_ultimate_errors(loop, traj, env, bound, 0))
     return claims
 
 

@@ -36,6 +36,30 @@ def cell_with_default_design() -> tuple[Scenario, Path]:
     return Scenario.model_validate(data), CELL.parent
 
 
+def default_dict_without_integral() -> dict:
+    """The default example's TOML dictionary with the paper's law (42): its integral action dropped
+    (docs/math.md, fact 20), for the statements made of the law without ``K_I`` (the envelope, the
+    start, fact 14 without ``z_I``)."""
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    del data["gains"]["k_i_factor"]
+    return data
+
+
+def default_without_integral() -> tuple[Scenario, Path]:
+    """:func:`default_dict_without_integral` validated; returns ``(scenario, base folder)``."""
+    return Scenario.model_validate(default_dict_without_integral()), DEFAULT_SCENARIO.parent
+
+
+def default_from_the_papers_start(duration: float) -> tuple[ClosedLoop, np.ndarray, Settings]:
+    """:func:`default_without_integral` from the paper's start (constant reference, the ``[observer]``
+    error) over ``duration`` by the virtual machine: the fast transient the planned start removes."""
+    spec, base = default_without_integral()
+    data = spec.model_dump()
+    data["start"] = {"reference": "constant", "duration": 2.0, "observer": "scenario"}
+    loop, s0, settings = build(Scenario.model_validate(data), base)
+    return loop, s0, replace(settings, duration=duration, dt=0.01, jit=False)
+
+
 def scenario_dict(edit: Callable[[dict], None] | None = None) -> dict:
     data = copy.deepcopy(DEFAULT)
     data["simulation"]["jit"] = False

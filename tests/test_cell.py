@@ -1,6 +1,7 @@
 """A design that holds on the cell (``dvfc synthesize --for-campaign``, :mod:`dvfc.analysis.cell`):
 the surrogate's common random numbers, the synthesis inside the windows and fact 14, the refusal's
-wording, the pinned criterion, and the shipped cell's campaign runs."""
+wording, the pinned criterion, and the shipped cells (the UR5's and the 7-joint xArm's): their criteria,
+their designs' certificates and their campaign runs."""
 
 from __future__ import annotations
 
@@ -18,17 +19,24 @@ from typer.testing import CliRunner
 from dvfc.analysis import cell
 from dvfc.analysis.campaign import CampaignSpec, campaign_batch
 from dvfc.analysis.case import Case
-from dvfc.analysis.margins import tracking_bound
+from dvfc.analysis.margins import envelope_bound, tracking_bound
 from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.scenario import Scenario, ScenarioError, load
 from dvfc.analysis.windows import case_windows
 from dvfc.models.loop import Gains
 from dvfc.reports.cli import app
 
-CELL = Path(__file__).parent.parent / "examples" / "ur5_cell.toml"
+EXAMPLES = Path(__file__).parent.parent / "examples"
+CELL = EXAMPLES / "ur5_cell.toml"
 TODAY = (0.051838905489147956, 5.940966332926753)
 """The cell's criterion before integral action: the frictionless envelope's ``|p_ec| + |p_ee|`` (m)
 and ``theta_ec + theta_ee`` (deg) of the default gains (docs/math.md, fact 7)."""
+
+CELLS = {"ur5_cell.toml": "ur5_circle.toml", "xarm7_cell.toml": "xarm7_circle.toml"}
+"""Each shipped cell and the nominal example whose design its campaign was first measured with."""
+
+STATED = {"ur5_cell.toml": (0.584, 0.904), "xarm7_cell.toml": (1.086, 0.961)}
+"""Theorem 2's gamma and fact 14's rho (with the integral state) each cell's comments state for its design."""
 
 runner = CliRunner()
 
@@ -48,6 +56,46 @@ def short_cell(duration: float, friction: float = 1.0) -> Case:
     f["viscous"] = (friction * np.asarray(f["viscous"])).tolist()
     f["coulomb"] = (friction * np.asarray(f["coulomb"])).tolist()
     return case.with_scenario(Scenario.model_validate(data))
+
+
+@pytest.fixture(scope="module", params=sorted(CELLS))
+def each_cell(request) -> tuple[str, Case]:
+    """Each shipped cell's file name and case, loaded once."""
+    return request.param, Case.load(EXAMPLES / request.param)
+
+
+def nominal_design(case: Case, nominal: str) -> Case:
+    """``case`` with the nominal example's gains, no integral action and no pinned criterion."""
+    data = case.scenario.model_dump()
+    data["gains"] = tomllib.loads((EXAMPLES / nominal).read_text())["gains"]
+    data["criterion"] = None
+    return case.with_scenario(Scenario.model_validate(data))
+
+
+def test_each_shipped_cell_pins_the_envelope_of_its_nominal_design(each_cell):
+    """The pinned ``[criterion]`` is the frictionless operating envelope's tracking bound (fact 7) of the
+    nominal example's design on the cell, recomputed: the bound the campaign held that design to."""
+    name, case = each_cell
+    bound = envelope_bound(nominal_design(case, CELLS[name]))
+    pinned = tracking_bound(case)
+    assert pinned.source == "scenario" and bound.source == "envelope"
+    assert (pinned.position, pinned.angle_deg) == pytest.approx((bound.position, bound.angle_deg), rel=1e-9)
+
+
+def test_each_shipped_design_is_inside_its_windows_and_certified_as_its_comments_state(each_cell):
+    """The shipped gains (the synthesis's output) lie inside every gain window with the windows' margins,
+    Theorem 2 certifies them and fact 14 with the integral state certifies the loop as implemented locally
+    with the synthesis's margin (``rho <= 0.99``; on the 7-joint arm across its self-motion), at the gamma
+    and rho the file's comments state (to their three figures)."""
+    name, case = each_cell
+    g = case.point
+    checks = cell.checks(case, cell.Design(g.k_xi, g.k_c, g.k_e, case.scenario.gains.k_i_factor))
+    assert checks.outside == () and checks.passes
+    record = implemented_record(case.loop, case.s0, case.settings)  # certify's record, on its own route
+    assert record["applies"] and record["certified"] and record["integral_state"]
+    assert record["rho"] <= cell.RHO_MAX and abs(record["rho"] - checks.rho) < 1e-12
+    assert (record["self_motion"] is None) == (case.loop.robot.n == 6)
+    assert (round(checks.gamma, 3), round(record["rho"], 3)) == STATED[name]
 
 
 def test_the_shipped_cell_pins_todays_criterion_and_the_bound_follows_the_pin(shipped):
@@ -140,12 +188,12 @@ def test_synthesis_on_a_short_cell_with_more_friction_is_inside_the_windows_and_
 
 
 @pytest.mark.slow
-def test_the_shipped_cells_first_campaign_runs_all_hold():
-    case = Case.load(CELL)
-    spec = CampaignSpec.of(case, tracking_bound(case), 0)
-    rows = campaign_batch(spec, 0, 20)
+def test_the_shipped_cells_first_campaign_runs_all_hold(each_cell):
+    case = each_cell[1]
+    bound = tracking_bound(case)
+    rows = campaign_batch(CampaignSpec.of(case, bound, 0), 0, 20)
     assert all(rows["holds"]), json.dumps([r for r, h in zip(rows["reason"], rows["holds"], strict=True) if not h])
-    assert max(rows["tracking_angle_deg"]) < TODAY[1]
+    assert max(rows["tracking_angle_deg"]) < bound.angle_deg
 
 
 def test_a_criterion_that_is_not_positive_is_refused_naming_the_field(tmp_path):

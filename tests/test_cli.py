@@ -528,7 +528,9 @@ def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_pat
     before, after = original.splitlines(), target.read_text().splitlines()
     changed = [(a, b) for a, b in zip(before, after, strict=True) if a != b]
     assert [b.split(" = ")[0] for _, b in changed] == ["name", "k_xi", "k_c", "k_e"], changed
-    written = tomllib.loads(target.read_text())["gains"]
+    gains = tomllib.loads(target.read_text())["gains"]
+    written = {key: gains[key] for key in ("k_xi", "k_c", "k_e")}
+    assert gains["k_i_factor"] == 10.0  # the integral action kept: K_I = 10 K_xi at the written K_xi
     assert all(float(f"{v:.8g}") == v and len(repr(v)) <= 10 for key in written for v in written[key])
     record = json.loads(result.stdout)
     assert record["point"]["gains"] == written

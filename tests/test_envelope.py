@@ -429,13 +429,14 @@ def test_a_design_whose_regions_reach_zero_depth_is_not_visible(default_loop):
 
 
 def test_certify_reports_the_inertia_matrices_of_the_rate():
-    """``points[0].envelope.inertia`` of the default example: ``upper`` is ``diag(D_M)`` at the
-    optimum, ``lower`` is ``m_lo I``, both n x n; ``D_M = rho (K_xi - s)`` (the Perron vector's
-    equal ratios, 1e-9 relative) and bounds ``M`` at the start configuration."""
+    """``points[0].envelope.without_integral.inertia`` of the default example (its design without
+    ``K_I``: the envelope of the law (42), fact 20.4): ``upper`` is ``diag(D_M)`` at the optimum,
+    ``lower`` is ``m_lo I``, both n x n; ``D_M = rho (K_xi - s)`` (the Perron vector's equal ratios,
+    1e-9 relative) and bounds ``M`` at the start configuration."""
     result = CliRunner().invoke(app, ["certify", str(EXAMPLES / "ur5_circle.toml"), "--no-lower-bounds",
                                       "--json", "-"])  # fmt: skip
     assert result.exit_code == 0, result.output
-    env = json.loads(result.stdout)["points"][0]["envelope"]
+    env = json.loads(result.stdout)["points"][0]["envelope"]["without_integral"]
     upper, lower = np.array(env["inertia"]["upper"]), np.array(env["inertia"]["lower"])
     assert upper.shape == lower.shape == (6, 6) and "fact 10" in env["inertia"]["method"]
     assert np.allclose(lower, env["m_lo"] * np.eye(6), rtol=1e-12, atol=0)

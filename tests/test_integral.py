@@ -25,7 +25,15 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, ScenarioError, bu
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.models.loop import Gains
 
-from conftest import build_loop, cell_with_default_design, run, scenario_dict, static_target
+from conftest import (
+    build_loop,
+    cell_with_default_design,
+    default_from_the_papers_start,
+    default_without_integral,
+    run,
+    scenario_dict,
+    static_target,
+)
 from loop_reference import held_period, linearised_run
 
 WRIST_3_TWO_SIGMA = 0.56 * np.exp(0.6)
@@ -74,7 +82,7 @@ def test_fact_20_1_the_augmented_storage_keeps_the_supply_of_43(friction_run):
 @pytest.fixture(scope="module")
 def default_multirate():
     """The default example's linearised sampled loop, without and with ``K_I = 10 K_xi``."""
-    spec, base = load(DEFAULT_SCENARIO)
+    spec, base = default_without_integral()
     loop, s0, settings = build(spec, base)
     imp, q0 = settings.implementation, s0[: loop.robot.n]
     return multirate_loop(loop, q0, imp), multirate_loop(with_integral(loop), q0, imp), imp
@@ -174,12 +182,8 @@ def test_fact_21_rho_of_the_cell_with_the_integral_and_its_friction_slope():
 @pytest.fixture(scope="module")
 def as_built():
     """The default example from the paper's start (constant reference, ``[observer]`` error) over 0.1 s,
-    by the virtual machine."""
-    spec, base = load(DEFAULT_SCENARIO)
-    data = spec.model_dump()
-    data["start"] = {"reference": "constant", "duration": 2.0, "observer": "scenario"}
-    loop, s0, settings = build(Scenario.model_validate(data), base)
-    return loop, s0, replace(settings, duration=0.1, dt=0.01, jit=False)
+    by the virtual machine, without its own integral action (each test adds the ``K_I`` it checks)."""
+    return default_from_the_papers_start(0.1)
 
 
 def test_sampled_integral_law_equals_a_sample_by_sample_loop(as_built):
@@ -229,9 +233,8 @@ def test_without_integral_action_the_default_run_is_unchanged(as_built):
     """``K_I`` absent (every existing scenario): the state, the parameter vector and the run are those of
     the law (35), (42): 19 states, 35 parameters, and the default example's sampled run over 0.2 s has
     the recorded SHA-256 of its states. With ``K_I = 0`` the sampled loop carries ``z_I`` but moves the arm
-    bit for bit as without it."""
-    spec, base = load(DEFAULT_SCENARIO)
-    loop, s0, settings = build(spec, base)
+    bit for bit as without it (the default example without its ``k_i_factor``)."""
+    loop, s0, settings = build(*default_without_integral())
     assert loop.n_state == 19 and len(parameter_vector(loop)) == 35
     traj = as_implemented(loop, replace(settings, duration=0.2, jit=False)).run(s0)
     digest = hashlib.sha256(np.ascontiguousarray(traj["state"]).tobytes()).hexdigest()
@@ -304,3 +307,45 @@ def test_fact_20_2_the_integral_loop_keeps_gamma_and_its_linearised_gain_stays_b
     assert lin.system.nstates == 30 and lin.hinf <= gamma
     env = envelope_record(integral, search=False)
     assert env["rate"] is None and "fact 20.4" in env["reason"] and env["without_integral"]["rate"] is not None
+
+
+@pytest.fixture(scope="module")
+def default_case() -> Case:
+    """The default example: integral action ``k_i_factor = 10`` engaging where the planned start ends."""
+    case = Case.load(DEFAULT_SCENARIO)
+    assert case.loop.integral and case.loop.integral_start > 0
+    return case
+
+
+def test_fact_20_6_until_integral_start_the_run_is_the_design_without_k_i(default_case):
+    """Fact 20.6: before ``integral_start`` the loop with ``K_I`` and the one without are one ODE from
+    one state, so their CVODES runs (rtol = atol = 1e-10) agree to the solver's tolerance up to it
+    (1e-7 on every state but ``z_I``, which stays 0 but for CVODES's interpolation across ``integral_start``,
+    1e-12) and part once ``z_I`` moves."""
+    loop, s0, settings = default_case.loop, default_case.s0, default_case.settings
+    n, t_i = loop.robot.n, loop.integral_start
+    g = loop.gains
+    ideal = replace(loop, mode="ideal")
+    with_k = run(ideal, s0, settings, duration=t_i + 0.6)
+    without = run(replace(ideal, gains=Gains(g.k_xi, g.k_c, g.k_e)), s0[:-n], settings, duration=t_i + 0.6)
+    before, after = with_k.t < t_i, with_k.t >= t_i + 0.3
+    assert np.abs(with_k["z_I"][before]).max() <= 1e-12
+    gap = np.abs(with_k["state"][:, :-n] - without["state"])
+    assert gap[before].max() <= 1e-7
+    assert gap[after].max() >= 1e-4  # the integral acts after it: the comparison can fail
+
+
+def test_fact_20_6_the_start_is_certified_until_integral_action_engages(default_case):
+    """The envelope of a design with ``K_I`` is not certified (fact 20.4), but its start is, up to
+    ``integral_start``: the planned start's statement of the same design without ``K_I``, said for
+    ``0 <= t <= integral_start``; from ``t = 0`` (``integral_start = 0``) it is not certified."""
+    record = envelope_record(default_case, search=False)
+    start, t_i = record["start"], default_case.loop.integral_start
+    assert record["rate"] is None and start["inside"] and start["until_s"] == t_i
+    assert f"for 0 <= t <= {t_i:.4g} s" in start["statement"] and "for all t >= 0" not in start["statement"]
+    assert start["level"] == record["without_integral"]["start"]["level"]
+    sc = default_case.scenario
+    at_once = default_case.with_scenario(
+        sc.model_copy(update={"gains": sc.gains.model_copy(update={"integral_start": 0.0})})
+    )
+    assert not envelope_record(at_once, search=False)["start"]["inside"]

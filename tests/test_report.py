@@ -25,6 +25,8 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
 from dvfc.reports.stages import CACHE
 
+from conftest import default_dict_without_integral
+
 pytestmark = pytest.mark.slow  # every test here reads the whole review of the default scenario (about a minute)
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
@@ -38,9 +40,12 @@ FIGURES = (
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory) -> tuple[Path, Path, str]:
-    """The report of the default scenario, made by the installed command line."""
+    """The report of the default scenario with the paper's law (without its integral action, so that
+    every section has its certificate to show), made by the installed command line."""
     out = tmp_path_factory.mktemp("report")
-    proc = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(DEFAULT_SCENARIO), "--out", str(out)],
+    scenario = out / "ur5_circle.toml"
+    scenario.write_text(tomli_w.dumps(default_dict_without_integral()))
+    proc = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(scenario), "--out", str(out)],
                           capture_output=True, text=True)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     return out / "report.html", out / "report.pdf", proc.stdout
@@ -105,7 +110,7 @@ def test_banner_carries_the_failed_checks(report, tmp_path):
     claim.update(status="FAIL", detail="measured 3e-3, required <= 1e-06")
     payload["value"]["summary"]["failed"] = 1
     stored.write_bytes(pickle.dumps(payload))
-    result = CliRunner().invoke(app, ["report", str(DEFAULT_SCENARIO), "--out", str(out), "--resume"])
+    result = CliRunner().invoke(app, ["report", str(out / "ur5_circle.toml"), "--out", str(out), "--resume"])
     assert result.exit_code == 1, result.output
     html = (out / "report.html").read_text()
     banner = html[html.index('id="verdict"') : html.index("</div>", html.index('id="verdict"'))]

@@ -14,12 +14,11 @@ from scipy.integrate import solve_ivp
 
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.sampled import SampledSimulator, as_implemented
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
 from dvfc.analysis.simulate import Simulator, identity_residuals
 from dvfc.analysis.verify import IMPLEMENTED_TOL, implemented, implemented_storage
 from dvfc.models.robot import Payload, Robot
 
-from conftest import build_loop
+from conftest import build_loop, default_from_the_papers_start
 from loop_reference import held_period
 
 HORIZON = 0.1
@@ -120,12 +119,9 @@ def test_sampled_simulator_needs_the_sampled_loop(default):
 def as_built():
     """The default scenario (a real UR5: 500 Hz, 60 Hz camera, 20 ms latency, 0.5 px noise)
     over 0.2 s, by the virtual machine, from the paper's start (constant reference, the
-    ``[observer]`` error): the tests need its fast transient, which the planned start removes."""
-    spec, base = load(DEFAULT_SCENARIO)
-    data = spec.model_dump()
-    data["start"] = {"reference": "constant", "duration": 2.0, "observer": "scenario"}
-    loop, s0, settings = build(Scenario.model_validate(data), base)
-    return loop, s0, replace(settings, duration=0.2, dt=0.01, jit=False)
+    ``[observer]`` error), the paper's law (no integral action, which tests/test_integral.py checks):
+    the tests need its fast transient, which the planned start removes."""
+    return default_from_the_papers_start(0.2)
 
 
 def as_built_run(as_built, **implementation):

@@ -4,7 +4,6 @@ the observer from the first image, and the start statement checked on runs from 
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import replace
 
 import casadi as cs
@@ -17,11 +16,11 @@ from dvfc.analysis.case import Case
 from dvfc.analysis.cli import app
 from dvfc.analysis.results import envelope_record, statements
 from dvfc.analysis.sampled import as_implemented
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, load
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.start import run_regions
 from dvfc.analysis.verify import envelope_claims
 
-from conftest import build_loop, run, scenario_dict
+from conftest import build_loop, default_dict_without_integral, default_without_integral, run, scenario_dict
 
 
 def planned(duration: float = 2.0, observer: str = "scenario"):
@@ -143,8 +142,9 @@ def test_planned_start_is_certified_and_holds_on_runs_from_rest(duration, observ
 def test_the_papers_start_from_rest_is_not_covered_on_the_default():
     """The same check with the paper's constant reference, from rest, on the default example:
     ``V(0)`` (mostly kinetic, ``xi(0) = -qd_d(0)``) lies above every certified level, so the start
-    statement does not cover the run, and ``V(t)`` is not below it at every step."""
-    scenario, base = load(DEFAULT_SCENARIO)
+    statement does not cover the run, and ``V(t)`` is not below it at every step (the paper's law:
+    without the default's integral action, whose start statement is fact 20.6's)."""
+    scenario, base = default_without_integral()
     data = scenario.model_dump()
     data["start"] = {"reference": "constant", "duration": 2.0, "observer": "scenario"}
     data["robot"]["qd0"] = [0.0] * 6
@@ -182,8 +182,9 @@ def test_a_start_the_planned_reference_does_not_certify_is_inside_in_no_output(t
     ``K_c`` (``(3, 3, 3, 3, 3, 2.9)``) on the default example, the planned reference's rate along the
     path is not derived, so its start record is not certified, though ``V(0) = 5.5e-5`` lies inside
     the fixed-reference set ``V <= c_max`` that the envelope's own test reads. The envelope's
-    statement, the statements table and the human output read the start record: none says inside."""
-    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    statement, the statements table and the human output read the start record: none says inside
+    (the paper's law: without the default's integral action)."""
+    data = default_dict_without_integral()
     data["simulation"].update(duration=0.05, jit=False)
     data["gains"]["k_c"] = [3.0, 3.0, 3.0, 3.0, 3.0, 2.9]
     path = tmp_path / "aniso.toml"
