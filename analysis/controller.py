@@ -188,20 +188,23 @@ def sample_update(loop: ClosedLoop, h: float) -> cs.Function:
     step = cs.Function("dvfc_observer", [loop.state, v, u], [loop.held_estimate(v, u, h)])
     estimate = step(s, v_wc, u_e)
     z_next = integral_update(s[loop.integral_slice], xi, tau, effort, h) if loop.integral else cs.SX(0, 1)
+    # Called, never inlined: a caller's constants (the program's design) are not folded into its
+    # operations, which are the simulator's to the bit.
     return cs.Function(
         "dvfc_sample",
         [t, s, e, effort, *design],
         [tau, cs.vertcat(v_wc, u_e), estimate, z_next],
         ["t", "s", "e_e", "effort", *(["p"] if design else [])],
         ["tau", "observer", "estimate", "z_I"],
+        {"never_inline": True},
     )
 
 
 def program_function(loop: ClosedLoop, imp: Implementation, ring: int) -> cs.Function:
     """:func:`step_function` for a loop in its sampled form (:func:`program_loop`), an
     implementation (its period, effort limits) and a ring of ``ring`` estimates. The sample's update
-    is :func:`sample_update` of the loop's symbolic model (the sampled simulator's), its design ``p``
-    an input given the loop's numbers: the simulator's operations (docs/math.md, fact 22)."""
+    is a call of :func:`sample_update` of the loop's symbolic model (the sampled simulator's) with the
+    loop's design: the simulator's operations (docs/math.md, fact 22)."""
     n, m, h = loop.robot.n, loop.camera.m, imp.period
     layout = Layout(n, ring)
     t, q, qd = cs.SX.sym("t"), cs.SX.sym("q", n), cs.SX.sym("qd", n)
@@ -218,12 +221,12 @@ def program_function(loop: ClosedLoop, imp: Implementation, ring: int) -> cs.Fun
     z_i = x[layout.integral]
     state = cs.vertcat(q, qd, gbar, z_i) if loop.integral else cs.vertcat(q, qd, gbar)
     effort = imp.limits(loop.robot.limits).effort if imp.saturate else np.full(n, np.inf)
-    model, design = symbolic(loop), parameter_vector(loop)
-    p = [] if design is None else [cs.SX.sym("p", len(design))]
+    design = parameter_vector(loop)
     # An infinite effort never holds z_I; as the largest double it holds only an infinite torque, which
     # the status replaces by gravity compensation (and the generated C needs no infinity).
     limit = np.where(np.isfinite(effort), effort, LARGEST)
-    tau, _, gbar_next, z_next = sample_update(model, h)(t, state, e_e, limit, *p)
+    update = sample_update(symbolic(loop), h)
+    tau, _, gbar_next, z_next = update(t, state, e_e, limit, *([] if design is None else [design]))
     joints = cs.logic_and(_finite(q), _finite(qd))
     working = cs.logic_and(_finite(tau), _finite(gbar_next))
     if loop.integral:
@@ -248,15 +251,13 @@ def program_function(loop: ClosedLoop, imp: Implementation, ring: int) -> cs.Fun
         q_safe,
         cs.if_else(fine, z_next, z_i) if loop.integral else z_i,
     )
-    names = ["t", "q", "qd", "features", "capture", "x"], ["tau", "x_next", "status"]
-    outputs = [cs.if_else(fine, tau, gravity), x_next, status]
-    if not p:
-        return cs.Function("dvfc_program", [t, q, qd, features, capture, x], outputs, *names)
-    # The design enters as an input of the step, given as constants by a call: evaluated with the
-    # sampled simulator's operations to the bit (constants substituted into the graph would be folded).
-    step = cs.Function("dvfc_program_design", [t, q, qd, features, capture, x, *p], outputs)
-    inputs = [cs.MX.sym(name, *step.size_in(i)) for i, name in enumerate(names[0])]
-    return cs.Function("dvfc_program", inputs, step(*inputs, cs.DM(design)), *names)
+    return cs.Function(
+        "dvfc_program",
+        [t, q, qd, features, capture, x],
+        [cs.if_else(fine, tau, gravity), x_next, status],
+        ["t", "q", "qd", "features", "capture", "x"],
+        ["tau", "x_next", "status"],
+    )
 
 
 @dataclass(frozen=True)

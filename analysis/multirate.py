@@ -622,7 +622,7 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> 
     ring = imp.latency_steps + imp.latency_jitter + 1
     program = program_function(replace(loop, sampled=True, plant=None), imp, ring)
     layout = Layout(n, ring)
-    t, q, qd, f, c, x = (cs.MX.sym(name, *program.size_in(i)) for i, name in enumerate(program.name_in()))
+    t, q, qd, f, c, x = (cs.SX.sym(name, *program.size_in(i)) for i, name in enumerate(program.name_in()))
     tau, x_next, _ = program(t, q, qd, f, c, x)
     jacobian = cs.Function("program_jacobian", [t, q, qd, f, c, x],
                            [tau, x_next, cs.jacobian(cs.vertcat(tau, x_next), cs.vertcat(q, qd, f, x))])  # fmt: skip
