@@ -16,6 +16,9 @@ and generated as C (:mod:`dvfc.analysis.export`). One step at ``t_k``:
    velocity ``V_wc = J_b(q_k) qd_k`` and ``u_e`` held: ``gbar_(k+1) = exp(-h hat(V_wc)) gbar_k
    exp(h hat(u_e))`` (docs/math.md, fact 22: local error ``O(h^2)``).
 
+Steps 3-4 and the integral update are :func:`sample_update`, the one definition of the controller at a
+sample that the sampled simulator (:mod:`dvfc.analysis.sampled`) runs too.
+
 State (flat, :class:`Layout`): ``gbar = [pbar; quat]`` (7), the held ``e_e`` (6), the ring of the
 last ``B = latency + jitter + 1`` estimates (``7 B``), the sample counter ``k``, the last finite
 ``q`` (``n``), and the integral state ``z_I`` (``n``; zero, and passed through, when the law has no
@@ -50,7 +53,7 @@ import numpy as np
 from dvfc.analysis.case import Case
 from dvfc.analysis.compile import Buffered
 from dvfc.analysis.implementation import Implementation
-from dvfc.models.lie import SE3, SO3, quaternion_to_matrix
+from dvfc.analysis.parametric import parameter_vector, symbolic
 from dvfc.models.loop import ClosedLoop
 
 LARGEST = float(np.finfo(float).max)
@@ -111,42 +114,28 @@ def _finite(x: cs.SX) -> cs.SX:
     return cs.logic_all(cs.fabs(x) <= LARGEST)
 
 
-def _quaternion_exp(w: cs.SX) -> cs.SX:
-    """The unit quaternion of ``exp(hat(w))``: ``[cos(theta/2); sin(theta/2) w / theta]``, with the
-    series of ``cos(theta/2)`` and ``sin(theta/2)/theta`` below ``theta = 1e-4`` (errors below ``1e-18``;
-    differentiable at ``w = 0``, where ``theta = |w|`` is not: the program's Jacobian, fact 22)."""
-    theta2 = w.T @ w
-    theta = cs.sqrt(theta2)
-    small = theta2 < 1e-8
-    half = cs.if_else(small, 0.5 - theta2 / 48, cs.sin(theta / 2) / theta)
-    return cs.vertcat(cs.if_else(small, 1 - theta2 / 8 + theta2**2 / 384, cs.cos(theta / 2)), half * w)
-
-
-def _quaternion_product(a: cs.SX, b: cs.SX) -> cs.SX:
-    """``a (x) b`` for quaternions ``[w, x, y, z]`` (rotation ``R_a R_b``)."""
-    return cs.vertcat(a[0] * b[0] - a[1:4].T @ b[1:4], a[0] * b[1:4] + b[0] * a[1:4] + cs.cross(a[1:4], b[1:4]))
-
-
 def plausible(e_e: cs.SX, loop: ClosedLoop) -> cs.SX:
     """1 when an image's ``e_e`` (21) is finite and could be an estimation error: its rotational part
     no longer than 1 (``e_R = sin(theta) axis`` of any rotation), its translational part no longer than
     the designed standoff ``|p_d|`` (an image whose error exceeds the whole camera-to-target distance
-    is not of this target where the estimate expects it)."""
+    is not of this target where the estimate expects it); the reduced planar loop's ``e_e`` is a
+    translation alone. ``loop`` has numbers (its ``p_d``)."""
     standoff = float(np.linalg.norm(np.asarray(cs.DM(loop.reference.translation)).ravel()))
+    if loop.task_dim != 6:
+        return cs.logic_and(_finite(e_e), cs.norm_2(e_e) <= standoff)
     return cs.logic_and(_finite(e_e), cs.logic_and(cs.norm_2(e_e[3:6]) <= 1, cs.norm_2(e_e[0:3]) <= standoff))
 
 
-def observer_step(pbar: cs.SX, quat: cs.SX, v_wc: cs.SX, u_e: cs.SX, h: float) -> cs.SX:
-    """``[pbar; quat]`` after the exact flow of (12) over ``h`` with ``V_wc`` and ``u_e`` constant:
-    ``gbar(h) = exp(-h hat(V_wc)) gbar exp(h hat(u_e))`` (docs/math.md, fact 22), the quaternion
-    renormalised."""
-    before, after = SE3.exp(-h * v_wc), SE3.exp(h * u_e)
-    gbar = SE3(pbar, SO3(quaternion_to_matrix(quat)))
-    p = (before @ gbar @ after).translation
-    turned = _quaternion_product(
-        _quaternion_product(_quaternion_exp(-h * v_wc[3:6]), quat), _quaternion_exp(h * u_e[3:6])
-    )
-    return cs.vertcat(p, turned / cs.norm_2(turned))
+def image_update(loop: ClosedLoop) -> cs.Function:
+    """``dvfc_image(estimate, features) -> (e_e, usable)``: (21) from the ``features`` read with the
+    ``estimate`` (the state's ``[pbar; quat]``) of the image's capture time, and whether to use it (finite
+    features, :func:`plausible`; otherwise the held ``e_e`` stays, as for a lost frame): the program's
+    reading of an image, and the sampled simulator's (``loop`` with numbers)."""
+    estimate = loop.state[loop.estimate_slice]
+    features = cs.SX.sym("features", loop.features.numel())
+    e_e = loop.image_estimate(features)
+    usable = cs.logic_and(_finite(features), plausible(e_e, loop))
+    return cs.Function("dvfc_image", [estimate, features], [e_e, usable], ["estimate", "features"], ["e_e", "usable"])
 
 
 def program_loop(case: Case) -> ClosedLoop:
@@ -167,23 +156,55 @@ def step_function(case: Case) -> cs.Function:
     return program_function(program_loop(case), case.settings.implementation, ring_size(case))
 
 
-def integral_update(loop: ClosedLoop, z: cs.SX, xi: cs.SX, tau: cs.SX, effort: np.ndarray, h: float) -> cs.SX:
+def integral_update(z: cs.SX, xi: cs.SX, tau: cs.SX, effort: cs.SX, h: float) -> cs.SX:
     """``z_I`` after one sample (facts 20-21): ``z + h xi`` (``xi`` the law's integrand, 0 before
-    ``integral_start``), joint ``i`` held when its commanded ``tau_i`` is beyond a finite
-    ``effort_i`` and ``-K_I,i h xi_i`` would push it further (conditional integration, the sampled
-    simulator's rule)."""
-    held = [
-        cs.logic_or(cs.logic_and(tau[i] > e, xi[i] < 0), cs.logic_and(tau[i] < -e, xi[i] > 0))
-        if np.isfinite(e)
-        else cs.SX(0)
-        for i, e in enumerate(effort)
-    ]
-    return z + cs.if_else(cs.vertcat(*held), cs.DM.zeros(loop.robot.n), h * xi)
+    ``integral_start``), joint ``i`` held when its commanded ``tau_i`` is beyond ``effort_i`` and
+    ``-K_I,i h xi_i`` would push it further (conditional integration; an infinite effort never holds)."""
+    windup = cs.logic_or(cs.logic_and(tau > effort, xi < 0), cs.logic_and(tau < -effort, xi > 0))
+    return z + cs.if_else(windup, cs.DM.zeros(z.numel()), h * xi)
+
+
+def sample_update(loop: ClosedLoop, h: float) -> cs.Function:
+    """The controller at one control sample, shared by the program (:func:`program_function`) and the
+    sampled simulator: ``dvfc_sample(t, s, e_e, effort[, p]) -> (tau, observer, estimate, z_I)`` for the
+    loop in its sampled form (numbers, or :attr:`~dvfc.models.loop.ClosedLoop.parameters` ``p``), ``s``
+    its state at the sample, ``e_e`` the estimate held (after any image of the sample):
+
+    - ``tau``: the law (35), (42) (with ``-K_I z_I`` and a friction compensation when the law has them),
+      commanded, not clipped;
+    - ``observer``: ``[V_k; U_k] = [J_b(q_k) qd_k; u_e(t_k)]``, the observer's inputs held over the period;
+    - ``estimate``: ``gbar_(k+1)``, the exact flow of (12) over ``h`` with them held (docs/math.md, fact 22,
+      (22.1): :meth:`~dvfc.models.loop.ClosedLoop.held_estimate`);
+    - ``z_I``: ``z_(k+1)`` by :func:`integral_update` at ``effort`` (empty without integral action)."""
+    n, task = loop.robot.n, loop.task_dim
+    arguments, _ = loop.arguments
+    t, s, e, effort = cs.SX.sym("t"), cs.SX.sym("s", loop.n_state), cs.SX.sym("e_e", task), cs.SX.sym("effort", n)
+    p = arguments[3:]
+    design = [cs.SX.sym("p", v.numel()) for v in p]
+    law = cs.Function("dvfc_law", arguments, [loop.tau, loop.camera_velocity, loop.u[n + task : n + 2 * task],
+                                               loop.integrand])  # fmt: skip
+    tau, v_wc, u_e, xi = law(t, s, cs.vertcat(cs.DM.zeros(n), e, cs.DM.zeros(2 * task)), *design)
+    v, u = cs.SX.sym("V", task), cs.SX.sym("U", task)
+    step = cs.Function("dvfc_observer", [loop.state, v, u], [loop.held_estimate(v, u, h)])
+    estimate = step(s, v_wc, u_e)
+    z_next = integral_update(s[loop.integral_slice], xi, tau, effort, h) if loop.integral else cs.SX(0, 1)
+    # Called, never inlined: a caller's constants (the program's design) are not folded into its
+    # operations, which are the simulator's to the bit.
+    return cs.Function(
+        "dvfc_sample",
+        [t, s, e, effort, *design],
+        [tau, cs.vertcat(v_wc, u_e), estimate, z_next],
+        ["t", "s", "e_e", "effort", *(["p"] if design else [])],
+        ["tau", "observer", "estimate", "z_I"],
+        {"never_inline": True},
+    )
 
 
 def program_function(loop: ClosedLoop, imp: Implementation, ring: int) -> cs.Function:
     """:func:`step_function` for a loop in its sampled form (:func:`program_loop`), an
-    implementation (its period, effort limits) and a ring of ``ring`` estimates."""
+    implementation (its period, effort limits) and a ring of ``ring`` estimates. The sample's update
+    is a call of :func:`sample_update` of the loop's symbolic model (the sampled simulator's) with the
+    loop's design: the simulator's operations (docs/math.md, fact 22)."""
     n, m, h = loop.robot.n, loop.camera.m, imp.period
     layout = Layout(n, ring)
     t, q, qd = cs.SX.sym("t"), cs.SX.sym("q", n), cs.SX.sym("qd", n)
@@ -192,20 +213,20 @@ def program_function(loop: ClosedLoop, imp: Implementation, ring: int) -> cs.Fun
     slots = [cs.if_else(cs.fmod(k, layout.ring) == j, gbar, x[layout.slot(j)]) for j in range(layout.ring)]
     chosen = cs.fmod(capture, layout.ring)
     at_capture = sum(cs.if_else(chosen == j, slot, cs.DM.zeros(7)) for j, slot in enumerate(slots))
-    image = cs.Function("image_estimate", [loop.pbar, loop.quat, features], [loop.image_estimate(features)])
-    e_new = image(at_capture[:3], at_capture[3:], features)
+    e_new, readable = image_update(loop)(at_capture, features)
     given = capture >= 0
     in_ring = cs.logic_and(cs.logic_and(capture <= k, capture > k - layout.ring), cs.floor(capture) == capture)
-    usable = cs.logic_and(cs.logic_and(given, in_ring), cs.logic_and(_finite(features), plausible(e_new, loop)))
+    usable = cs.logic_and(cs.logic_and(given, in_ring), readable)
     e_e = cs.if_else(usable, e_new, e_held)
     z_i = x[layout.integral]
-    arguments = [loop.t, loop.state, loop.hold]
-    law = cs.Function("law", arguments, [loop.tau, loop.camera_velocity, loop.u[n + 6 : n + 12], loop.integrand])
     state = cs.vertcat(q, qd, gbar, z_i) if loop.integral else cs.vertcat(q, qd, gbar)
-    tau, v_wc, u_e, xi = law(t, state, cs.vertcat(cs.DM.zeros(n), e_e))
-    gbar_next = observer_step(gbar[:3], gbar[3:], v_wc, u_e, h)
     effort = imp.limits(loop.robot.limits).effort if imp.saturate else np.full(n, np.inf)
-    z_next = integral_update(loop, z_i, xi, tau, effort, h) if loop.integral else z_i
+    design = parameter_vector(loop)
+    # An infinite effort never holds z_I; as the largest double it holds only an infinite torque, which
+    # the status replaces by gravity compensation (and the generated C needs no infinity).
+    limit = np.where(np.isfinite(effort), effort, LARGEST)
+    update = sample_update(symbolic(loop), h)
+    tau, _, gbar_next, z_next = update(t, state, e_e, limit, *([] if design is None else [design]))
     joints = cs.logic_and(_finite(q), _finite(qd))
     working = cs.logic_and(_finite(tau), _finite(gbar_next))
     if loop.integral:

@@ -1,20 +1,23 @@
 """A local certificate of the loop as implemented (docs/math.md, fact 14): the exact
 discretisation of the sampled multirate loop, linearised at its static-target equilibrium.
 
-The loop is :class:`dvfc.analysis.sampled.SampledSimulator`'s: the torque computed at each
-control sample and held over the period, the observer integrated continuously from the
-joint velocities between samples, an image captured at the first control sample at or after
-each camera tick and used ``latency`` later, ``e_e`` held from one image to the next. Its
+The loop is :class:`dvfc.analysis.sampled.SampledSimulator`'s, the controller program's
+(:mod:`dvfc.analysis.controller`): the torque computed at each control sample and held over the
+period, the observer stepped at each sample by the exact flow of (12) with its inputs ``V_wc``
+and ``u_e`` held (docs/math.md, fact 22), an image captured at the first control sample at or
+after each camera tick and used ``latency`` later, ``e_e`` held from one image to the next. Its
 exogenous inputs are set to zero: the target at rest at its start pose, no torque
 disturbance, no pixel noise. Linearised at the equilibrium (``q = q_eq``, ``qd = 0``,
 ``gbar = g_d``, ``e = 0``, held torque ``g(q_eq)``) in ``z = [dq; dqd; dpbar; dthetabar]``
-(``Rbar = Rbar* exp(dthetabar)``):
+(``Rbar = Rbar* exp(dthetabar)``), with the observer's held inputs ``o = [V_k; U_k]``:
 
-    dz/dt = A z + B_tau (tau - g(q_eq)) + B_e e,    tau_k = g(q_eq) + F z_k + F_e e_k,    e_e = C z.
+    dz/dt = A z + B_tau (tau - g(q_eq)) + B_e e + B_o o,
+    tau_k = g(q_eq) + F z_k + F_e e_k,    o_k = O z_k + O_e e_k,    e_e = C z.
 
-One control period is ``z_(k+1) = A_z z_k + A_e e_k`` with ``[Phi, G_tau, G_e]`` the first
-block row of ``expm([[A, B_tau, B_e], [0, 0, 0]] h)``, ``A_z = Phi + G_tau F``,
-``A_e = G_tau F_e + G_e`` (exact: no integration error). The images in flight are extra
+One control period is ``z_(k+1) = A_z z_k + A_e e_k`` with ``[Phi, G_tau, G_e, G_o]`` the first
+block row of ``expm([[A, B_tau, B_e, B_o], [0, 0, 0, 0]] h)``, ``A_z = Phi + G_tau F + G_o O``,
+``A_e = G_tau F_e + G_e + G_o O_e`` (exact: no integration error; the observer's rows of ``Phi`` are
+those of the identity, its step the exact flow). The images in flight are extra
 discrete states; over one common period of the control and camera schedules (``P`` control
 periods, the control/camera ratio rational) the product of the step maps is the monodromy
 ``Pi``. If ``rho(Pi) < 1`` the equilibrium of the nonlinear sampled loop is locally
@@ -71,8 +74,9 @@ UNITS = {"latency": "s", "camera_rate": "Hz", "control_rate": "Hz"}
 
 SCOPE = (
     "local exponential stability of the equilibrium of the sampled multirate loop as implemented (torque held at "
-    "the control rate, observer integrated continuously from the joint velocities between samples, images "
-    "captured at the first control sample at or after each camera tick and used the latency later), "
+    "the control rate, the observer stepped at each sample by the exact flow of (12) with the sampled camera "
+    "velocity and u_e held, as the controller program does, images captured at the first control sample at or "
+    "after each camera tick and used the latency later), "
     "linearised: the target at rest at its start pose, no torque disturbance, no pixel noise, near the "
     "equilibrium configuration q_eq (no radius is computed); for e_e exact (15) and from the image (21), whose "
     "linearisations at the equilibrium coincide (gap {gap:.2g}); every rate below -ln(rho)/period"
@@ -92,10 +96,13 @@ class HeldLinearization:
 
     Parameters
     ----------
-    a, b_tau, b_e
-        ``dz/dt = a z + b_tau (tau - tau_eq) + b_e e``.
+    a, b_tau, b_e, b_o
+        ``dz/dt = a z + b_tau (tau - tau_eq) + b_e e + b_o o``, ``o = [V_k; U_k]`` the observer's held
+        inputs (docs/math.md, fact 22).
     f, f_e
         The law (35), (42) evaluated with ``e``: ``tau = tau_eq + f z + f_e e``.
+    o, o_e
+        The observer's inputs at the sample, ``[J_b qd; u_e] = o z + o_e e``.
     c, c_image
         ``e_e`` (15) and its image estimate (21) from the true features: ``c z``, ``c_image z``.
     q_eq, tau_eq
@@ -111,8 +118,11 @@ class HeldLinearization:
     a: np.ndarray
     b_tau: np.ndarray
     b_e: np.ndarray
+    b_o: np.ndarray
     f: np.ndarray
     f_e: np.ndarray
+    o: np.ndarray
+    o_e: np.ndarray
     c: np.ndarray
     c_image: np.ndarray
     q_eq: np.ndarray
@@ -121,21 +131,23 @@ class HeldLinearization:
     xi_e: np.ndarray | None = None
     self_motion: np.ndarray = field(default_factory=lambda: np.zeros((6, 0)))
 
-    def flow(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(Phi, G_tau, G_e)``: the held flow over ``h``, the first block row of
-        ``expm([[A, B_tau, B_e], [0, 0, 0]] h)``."""
+    def flow(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(Phi, G_tau, G_e, G_o)``: the held flow over ``h``, the first block row of
+        ``expm([[A, B_tau, B_e, B_o], [0, 0, 0, 0]] h)``."""
         nz, nt, ne = self.a.shape[0], self.b_tau.shape[1], self.b_e.shape[1]
-        generator = np.zeros((nz + nt + ne, nz + nt + ne))
-        generator[:nz] = np.hstack([self.a, self.b_tau, self.b_e])
+        inputs = np.hstack([self.b_tau, self.b_e, self.b_o])
+        generator = np.zeros((nz + inputs.shape[1], nz + inputs.shape[1]))
+        generator[:nz] = np.hstack([self.a, inputs])
         flow = scipy.linalg.expm(generator * h)[:nz]
-        return flow[:, :nz], flow[:, nz : nz + nt], flow[:, nz + nt :]
+        return flow[:, :nz], flow[:, nz : nz + nt], flow[:, nz + nt : nz + nt + ne], flow[:, nz + nt + ne :]
 
     def period_map(self, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(A_z, A_e)`` of one control period ``h``: the zero-order-hold flow, exactly, and with
-        integral action the sample's update ``z_I <- z_I + h xi_k`` (fact 21)."""
+        """``(A_z, A_e)`` of one control period ``h``: the zero-order-hold flow with the torque and the
+        observer's inputs held, exactly, and with integral action the sample's update
+        ``z_I <- z_I + h xi_k`` (fact 21)."""
         nz, nt = self.a.shape[0], self.b_tau.shape[1]
-        phi, g_tau, g_e = self.flow(h)
-        a_z, a_e = phi + g_tau @ self.f, g_tau @ self.f_e + g_e
+        phi, g_tau, g_e, g_o = self.flow(h)
+        a_z, a_e = phi + g_tau @ self.f + g_o @ self.o, g_tau @ self.f_e + g_e + g_o @ self.o_e
         if self.xi is not None:
             a_z[nz - nt :] += h * self.xi
             a_e[nz - nt :] += h * self.xi_e
@@ -177,9 +189,9 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray) -> HeldLinearization:
     """Linearise the sampled loop at its equilibrium (configuration by Newton from ``q0``),
     by CasADi's automatic differentiation."""
     q_eq = equilibrium_configuration(loop, q0)
-    n = loop.robot.n
+    n, task = loop.robot.n, loop.task_dim
     model = rest_model(loop)
-    tau, e = model.hold[:n], model.hold[n:]
+    tau, e, observer = model.hold[:n], model.hold[n : n + task], model.hold[n + task :]
     dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
     dz_i = cs.SX.sym("dz_I", n if loop.integral else 0)
     z = cs.vertcat(dq, dqd, dp, dth, dz_i)
@@ -191,23 +203,28 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray) -> HeldLinearization:
         dz_i,
     )
     held = cs.DM.zeros(dz_i.shape[0])  # z_I is held over the period
-    rate = cs.vertcat(model.qd, model.qdd, model.estimate_rate[0:3], model.estimate_velocity[3:6], held)
-    law = cs.substitute(model.tau, tau, cs.DM.zeros(n))  # the law does not read the held torque
-    exprs = [rate, law, model.e_e, model.e_e_image, model.xi]
-    rate, law, e_exact, e_image, xi = cs.substitute(exprs, [model.state], [state])
-    jac = cs.Function("held", [z, tau, e, model.t], [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau),
-                                                       cs.jacobian(rate, e), cs.jacobian(law, z), cs.jacobian(law, e),
-                                                       cs.jacobian(e_exact, z), cs.jacobian(e_image, z),
-                                                       cs.jacobian(xi, z), cs.jacobian(xi, e)])  # fmt: skip
-    zero_z, zero_e = np.zeros(z.shape[0]), np.zeros(loop.task_dim)
-    tau_eq = np.asarray(jac(zero_z, np.zeros(n), zero_e, 0.0)[0]).ravel()
-    values = [np.asarray(m) for m in jac(zero_z, tau_eq, zero_e, 0.0)]
+    rate = cs.vertcat(model.qd, model.qdd, model.observer_rate[0:3], model.observer_velocity[3:6], held)
+    # the law and the observer's inputs at the sample read neither the held torque nor those inputs
+    at_sample = cs.substitute([model.tau, cs.vertcat(model.camera_velocity, model.u[n + task : n + 2 * task])],
+                              [model.hold], [cs.vertcat(cs.DM.zeros(n), e, cs.DM.zeros(2 * task))])  # fmt: skip
+    exprs = [rate, *at_sample, model.e_e, model.e_e_image, model.xi]
+    rate, law, inputs, e_exact, e_image, xi = cs.substitute(exprs, [model.state], [state])
+    jac = cs.Function("held", [z, tau, e, observer, model.t],
+                      [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau), cs.jacobian(rate, e),
+                       cs.jacobian(rate, observer), cs.jacobian(law, z), cs.jacobian(law, e), cs.jacobian(inputs, z),
+                       cs.jacobian(inputs, e), cs.jacobian(e_exact, z), cs.jacobian(e_image, z), cs.jacobian(xi, z),
+                       cs.jacobian(xi, e)])  # fmt: skip
+    zero_z, zero_e, zero_o = np.zeros(z.shape[0]), np.zeros(task), np.zeros(2 * task)
+    tau_eq = np.asarray(jac(zero_z, np.zeros(n), zero_e, zero_o, 0.0)[0]).ravel()
+    values = [np.asarray(m) for m in jac(zero_z, tau_eq, zero_e, zero_o, 0.0)]
     residual = np.abs(values[1]).max()
     if residual > 1e-8:
         raise ValueError(f"the linearisation point is not an equilibrium (|dz/dt| = {residual:.2e})")
-    integral = values[9:] if loop.integral else [None, None]
+    a, b_tau, b_e, b_o, f, f_e, o, o_e, c, c_image = values[2:12]
+    integral = values[12:] if loop.integral else [None, None]
     jacobian = np.asarray(cs.Function("body_jacobian", [loop.robot.q], [loop.robot.body_jacobian])(q_eq))
-    return HeldLinearization(*values[2:9], q_eq=q_eq, tau_eq=tau_eq, xi=integral[0], xi_e=integral[1],
+    return HeldLinearization(a, b_tau, b_e, b_o, f, f_e, o, o_e, c, c_image, q_eq=q_eq, tau_eq=tau_eq,
+                             xi=integral[0], xi_e=integral[1],
                              self_motion=scipy.linalg.null_space(jacobian))  # fmt: skip
 
 
@@ -622,7 +639,7 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> 
     for j in range(ring):
         x_eq[layout.slot(j)] = gbar_eq
     x_eq[layout.q_last] = lin.q_eq
-    phi, g_tau, _ = lin.flow(h)
+    phi, g_tau, *_ = lin.flow(h)
     phi, g_tau = phi[: 2 * n, : 2 * n], g_tau[: 2 * n]
     z_i = n if loop.integral else 0
     controller = 12 + z_i + 6 * ring
@@ -674,16 +691,15 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> 
 
 
 PROGRAM_LOOP = (
-    "the loop the controller program closes (dvfc export's step, docs/math.md fact 22: the observer stepped on the "
-    "samples by the exact flow of (12) with V_wc and u_e held, a discrete state of the controller), linearised at "
-    "the same equilibrium over the same common period; rho above is the sampled simulator's loop (observer "
-    "integrated continuously)"
+    "the same loop linearised through the controller program's step (dvfc export's dvfc_program, its Jacobian by "
+    "CasADi; its ring of estimates and the features in flight as states, docs/math.md fact 22) at the same "
+    "equilibrium over the same common period: a check that rho is the program's (equal to rounding)"
 )
 
 
 def program_record(loop: ClosedLoop, s0: np.ndarray, imp: Implementation) -> dict:
-    """``program_rho`` (the spectral radius of :func:`program_monodromy`) and ``program_loop`` (which loop
-    it is), for :func:`implemented_record`; None with the reason when its linearisation fails."""
+    """``program_rho`` (the spectral radius of :func:`program_monodromy`) and ``program_loop`` (what it
+    is), for :func:`implemented_record`; None with the reason when its linearisation fails."""
     try:
         return {"program_rho": program_monodromy(loop, s0[: loop.robot.n], imp).rho, "program_loop": PROGRAM_LOOP}
     except ValueError as exc:

@@ -1,33 +1,38 @@
 """The loop as a digital controller runs it: sampled torques, a camera with its own rate and
-latency, pixel noise and quantisation, actuator saturation, joint-speed limits.
+latency, pixel noise and quantisation, actuator saturation, joint-speed limits; the controller is
+the program's (:mod:`dvfc.analysis.controller`).
 
-Between two control samples ``t_k = k h`` the torque is held (zero-order hold) and the
-plant, the observer and the quadratures are integrated over exactly ``[t_k, t_k + h]``:
-the sample-and-hold is not approximated by a fast continuous loop. Over one period the
-held-torque dynamics are smooth and not stiff (no feedback acts inside it), so the
-default integrator is the classical Runge-Kutta method (RK4, error ``O(h^4)``, four
-right-hand sides per step), in the fewest steps a period that meet a local error target
-(``substeps = "auto"``, :meth:`SampledSimulator.choose_substeps`) or in a given number;
-CVODES restarted at every sample, error-controlled at the run's tolerances, is the
-reference (``integrator = "cvodes"``). At each sample the controller
+At each sample ``t_k = k h`` the controller is :func:`~dvfc.analysis.controller.sample_update`,
+the one definition the exported program runs too (docs/math.md, fact 22). It
 
 1. takes the image captured ``latency`` earlier, if one arrives now: the actual features
    ``f`` (11) plus Gaussian pixel noise, rounded to the pixel grid, turned into ``e_e`` by
-   (21) with the estimate ``gbar`` of the capture time (``e_e = "image"``), or the exact
-   ``e_e`` (15) of the capture time (``e_e = "ideal"``);
+   (21) with the estimate ``gbar`` of the capture time and dropped, as the program drops it,
+   when that ``e_e`` is not finite or not a possible estimation error
+   (:func:`~dvfc.analysis.controller.image_update`; ``e_e = "image"``), or the exact ``e_e``
+   (15) of the capture time (``e_e = "ideal"``);
 2. evaluates the law (35), (42) with the latest ``e_e`` (held until the next image) and
    clips it at the URDF's effort limits when ``saturate`` is on;
-3. with integral action (docs/math.md, fact 20), updates ``z_I <- z_I + h xi_k`` with the
+3. steps the observer by the exact flow of (12) over the period with its inputs held, ``V_k =
+   J_b(q_k) qd_k`` (34) and ``U_k = u_e(t_k)`` (42): ``gbar_(k+1) = exp(-h hat(V_k)) gbar_k
+   exp(h hat(U_k))`` (22.1); before the first image arrives ``e_e = 0``;
+4. with integral action (docs/math.md, fact 20), updates ``z_I <- z_I + h xi_k`` with the
    sample's ``xi`` (from ``integral_start`` on), ``z_I`` held over the period like the torque;
    anti-windup by conditional integration: joint ``i`` is not integrated at a sample whose
    commanded torque exceeds its effort limit when the update ``-K_I,i h xi_i`` would push the
    command further beyond it (``tau_i > effort_i`` and ``xi_i < 0``, or ``tau_i < -effort_i`` and
    ``xi_i > 0``).
 
-The observer (12) runs between images on the joint velocities (``V_wc = J_b qd``, (34)),
-integrated exactly, with ``u_e`` built from the latest ``e_e``. Images are captured at the
-first control sample at or after each camera tick ``j / camera_rate``; before the first
-image arrives the observer runs on the joints alone (``e_e = 0``).
+Between two samples the torque and the observer's inputs are held (zero-order hold) and the plant,
+the observer along its held flow (whose end is step 3's) and the quadratures are integrated over
+exactly ``[t_k, t_k + h]``: the sample-and-hold is not approximated by a fast continuous loop.
+Over one period the held dynamics are smooth and not stiff (no feedback acts inside it), so the
+default integrator is the classical Runge-Kutta method (RK4, error ``O(h^4)``, four right-hand
+sides per step), in the fewest steps a period that meet a local error target (``substeps =
+"auto"``, :meth:`SampledSimulator.choose_substeps`) or in a given number; CVODES restarted at
+every sample, error-controlled at the run's tolerances, is the reference (``integrator =
+"cvodes"``). Images are captured at the first control sample at or after each camera tick
+``j / camera_rate``.
 
 The samples between two image arrivals share one held ``e_e``, so they are integrated in
 one call (the period's map accumulated over them, :meth:`casadi.Function.mapaccum`); a
@@ -47,6 +52,7 @@ import casadi as cs
 import numpy as np
 
 from dvfc.analysis.compile import Buffered, compiled
+from dvfc.analysis.controller import image_update, sample_update
 from dvfc.analysis.implementation import MAX_AUTO_SUBSTEPS, SubstepChoice
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.parametric import parameter_vector
@@ -191,13 +197,14 @@ class SampledSimulator(Simulator):
         self.errors = settings.errors
         self._friction = (self.errors or PlantErrors.none(loop.camera, n)).friction_vector()
         self._effort = limits.effort if implementation.saturate else np.full(n, np.inf)
-        law = cs.Function("dvfc_law", model.arguments[0], [model.tau])
+        update = sample_update(model, implementation.period)  # the program's (analysis/controller.py)
         if settings.jit and implementation.integrator == "cvodes":  # the RK4 period is compiled whole
-            law = compiled(law, jacobian=False)
-        commanded = law(t, s, cs.vertcat(cs.MX.zeros(n), e), *design)
+            update = compiled(update, jacobian=False)
+        commanded, observer, estimate, integral = update(t, s, e, effort, *design)
         applied = cs.if_else(commanded > effort, effort, cs.if_else(commanded < -effort, -effort, commanded))
-        self._symbols = (t, s, e, effort, friction, design, commanded, applied)
-        last = cs.Function("dvfc_last", [t, s, e, effort, *design], [commanded, applied])  # at t = T: the law only
+        self._symbols = (t, s, e, effort, friction, design, commanded, applied, observer, estimate, integral)
+        # at t = T: the sample's law and observer inputs only
+        last = cs.Function("dvfc_last", [t, s, e, effort, *design], [commanded, applied, observer])
         if settings.jit and implementation.integrator == "rk4":
             last = compiled(last, jacobian=False)
         self._last = Buffered(last)
@@ -214,6 +221,7 @@ class SampledSimulator(Simulator):
             camera = cs.Function("dvfc_true_camera", [model.t, model.state, noise, errors, *p], image)
             self._errors = self.errors.camera_vector(loop.camera)
         self._image_function = Buffered(compiled(camera, jacobian=False) if settings.jit else camera)
+        self._read_image = Buffered(image_update(loop))  # the program's (21) and its check, by the VM
         self._window = None  # the image as bounds on f, point by point (when the run checks it)
         if settings.view and loop.camera.has_image:
             self._window = tuple(np.tile(bound, loop.camera.m) for bound in loop.camera.image_window())
@@ -248,19 +256,19 @@ class SampledSimulator(Simulator):
 
     def _period_function(self, substeps: int | None) -> cs.Function:
         """One control period from ``(s, t)`` with ``e``, the effort limits and the friction held:
-        the state after it, the commanded and applied torques, the quadratures' increments, by
-        ``substeps`` RK4 steps (None: CVODES); by CasADi's virtual machine."""
-        t, s, e, effort, friction, design, commanded, applied = self._symbols
-        if substeps is None:
-            result = self._cvodes()(x0=s, p=cs.vertcat(t, applied, e, *design))
-            after, quad = result["xf"], result["qf"]
-        else:
-            after, quad = self._rk4(t, s, applied, e, friction, design, substeps)
-        for q in self.loop.quaternions:
-            after[q] = after[q] / cs.norm_2(after[q])
+        the state after it, the commanded and applied torques, the quadratures' increments and the
+        observer's held inputs ``[V_k; U_k]``; by CasADi's virtual machine. The controller's update at
+        the sample is the program's (:func:`~dvfc.analysis.controller.sample_update`): the estimate and
+        ``z_I`` after the period are its; the plant, with the torque held, and the quadratures, along
+        the observer's flow with its inputs held, are integrated by ``substeps`` RK4 steps (None:
+        CVODES)."""
+        t, s, e, effort, friction, design, commanded, applied, observer, estimate, integral = self._symbols
+        after, quad = self._held_flow(t, s, cs.vertcat(applied, e, observer), friction, design, substeps)
+        after[self.loop.estimate_slice] = estimate  # (22.1), the program's step
         if self.loop.integral:
-            after[self.loop.integral_slice] = self._integral_update(t, s, e, commanded, effort, design)
-        return cs.Function("dvfc_period", [s, t, e, effort, friction, *design], [after, commanded, applied, quad])
+            after[self.loop.integral_slice] = integral
+        return cs.Function("dvfc_period", [s, t, e, effort, friction, *design],
+                           [after, commanded, applied, quad, observer])  # fmt: skip
 
     def _compiled_period(self, substeps: int | None) -> cs.Function:
         """:meth:`_period_function`, compiled whole under ``jit`` when RK4 (CVODES calls the
@@ -268,23 +276,33 @@ class SampledSimulator(Simulator):
         period = self._period_function(substeps)
         return compiled(period, jacobian=False, level="-O2") if self.settings.jit and substeps is not None else period
 
-    def _rk4(
-        self, t: cs.MX, s: cs.MX, applied: cs.MX, e: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int
+    def _held_flow(
+        self, t: cs.MX, s: cs.MX, hold: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int | None
     ) -> tuple[cs.MX, cs.MX]:
-        """The state after one control period from ``(t, s)`` with the torque ``applied`` and
-        ``e`` held, less the plant's friction at each stage's joint speeds, and the
-        quadratures' increments: ``substeps`` classical RK4 steps (the model's functions
+        """The state after one control period from ``(t, s)`` with ``hold`` held and the quadratures'
+        increments: :meth:`_rk4`, or CVODES (``substeps`` None)."""
+        if substeps is not None:
+            return self._rk4(t, s, hold, friction, design, substeps)
+        result = self._cvodes()(x0=s, p=cs.vertcat(t, hold, *design))
+        return result["xf"], result["qf"]
+
+    def _rk4(
+        self, t: cs.MX, s: cs.MX, hold: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int
+    ) -> tuple[cs.MX, cs.MX]:
+        """The state after one control period from ``(t, s)`` with ``hold`` (the torque applied, ``e``,
+        the observer's inputs) held, the torque less the plant's friction at each stage's joint speeds,
+        and the quadratures' increments: ``substeps`` classical RK4 steps (the model's functions
         called with ``design``, :attr:`Simulator.design`)."""
         model, n = self.model, self.loop.robot.n
         held = cs.Function("dvfc_held", model.arguments[0], [model.state_rate, model.quadratures])
-        values = (("t", t), ("x", s), ("tau", applied), ("e", e), ("friction", friction), *(("p", d) for d in design))
+        values = (("t", t), ("x", s), ("hold", hold), ("friction", friction), *(("p", d) for d in design))
         syms = [cs.MX.sym(name, v.numel()) for name, v in values]
-        t_, x, tau, e_, b, *p = syms
-        torque = tau - friction_torque(x[n : 2 * n], b, n)  # no friction: tau - 0, exactly tau
-        stage = cs.Function("dvfc_rate", syms, held(t_, x, cs.vertcat(torque, e_), *p))
+        t_, x, inputs, b, *p = syms
+        torque = inputs[:n] - friction_torque(x[n : 2 * n], b, n)  # no friction: tau - 0, exactly tau
+        stage = cs.Function("dvfc_rate", syms, held(t_, x, cs.vertcat(torque, inputs[n:]), *p))
 
         def rate(time: cs.MX, state: cs.MX) -> list[cs.MX]:
-            return stage(time, state, applied, e, friction, *design)
+            return stage(time, state, hold, friction, *design)
 
         step = self.implementation.period / substeps
         quad = cs.MX.zeros(len(QUADRATURES))
@@ -297,19 +315,6 @@ class SampledSimulator(Simulator):
             s = s + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             quad = quad + step / 6 * (q1 + 2 * q2 + 2 * q3 + q4)
         return s, quad
-
-    def _integral_update(
-        self, t: cs.MX, s: cs.MX, e: cs.MX, commanded: cs.MX, effort: cs.MX, design: list[cs.MX]
-    ) -> cs.MX:
-        """``z_I`` after one control period: ``z_I + h xi_k`` (the sample's ``xi``, 0 before
-        ``integral_start``: :attr:`ClosedLoop.integrand`), but a joint whose ``commanded`` torque is
-        beyond its ``effort`` limit keeps its ``z_I`` when the update would push the command
-        further beyond (conditional integration, see the module's description)."""
-        model, n = self.model, self.loop.robot.n
-        rate = cs.Function("dvfc_integrand", model.arguments[0], [model.integrand])
-        xi = rate(t, s, cs.vertcat(cs.MX.zeros(n), e), *design)
-        windup = cs.logic_or(cs.logic_and(commanded > effort, xi < 0), cs.logic_and(commanded < -effort, xi > 0))
-        return s[self.loop.integral_slice] + cs.if_else(windup, cs.MX.zeros(n), self.implementation.period * xi)
 
     def _cvodes(self) -> cs.Function:
         """CVODES over one control period (the reference integrator)."""
@@ -335,11 +340,11 @@ class SampledSimulator(Simulator):
 
     def _image(self, noise: cs.SX) -> list[cs.SX]:
         """What one image gives: the true features ``f`` (11), the exact ``e_e`` (15), the
-        ``e_e`` of (21) from ``f`` plus ``noise`` rounded (half up) to the pixel grid, and
+        features the controller reads, ``f`` plus ``noise`` rounded (half up) to the pixel grid, and
         the depths of the points."""
         loop = self.model
         measured = self._quantized(loop.features + noise)
-        return [loop.features, loop.e_e, loop.image_estimate(measured), loop.camera.depths(loop.relative_pose)]
+        return [loop.features, loop.e_e, measured, loop.camera.depths(loop.relative_pose)]
 
     def _quantized(self, measured: cs.SX) -> cs.SX:
         """Pixel offsets about the nominal principal point rounded (half up) to the pixel grid."""
@@ -353,12 +358,12 @@ class SampledSimulator(Simulator):
         """What one image gives when the plant's camera differs from the controller's
         (:mod:`dvfc.models.errors`, ``errors`` its :meth:`~dvfc.models.errors.PlantErrors.camera_vector`):
         the true features about the true principal point (for the true image's bounds), the
-        exact ``e_e`` (15) of the nominal model, the ``e_e`` of (21) from the pixels plus
-        ``noise`` read with the nominal intrinsics, and the true depths."""
+        exact ``e_e`` (15) of the nominal model, the features the controller reads from the pixels
+        plus ``noise`` with the nominal intrinsics, and the true depths."""
         loop = self.model
         true, about_nominal, depths = true_features(loop.camera, loop.relative_pose, errors)
         measured = controller_features(loop.camera, self._quantized(about_nominal + noise))
-        return [true, loop.e_e, loop.image_estimate(measured), depths]
+        return [true, loop.e_e, measured, depths]
 
     def true_tracking(self, t: np.ndarray, states: np.ndarray) -> np.ndarray:
         """The tracking error ``g_d^-1 g`` of the true camera (``g`` seen through the mount
@@ -373,23 +378,50 @@ class SampledSimulator(Simulator):
         columns = (np.repeat(v[:, None], len(t), axis=1) for v in (self._errors[:6], *self.design))
         return np.asarray(function(t, states.T, *columns)).T
 
-    def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, str | None]:
-        """The ``e_e`` of an image captured at ``(t, s)``, or the reason there is none."""
-        size = self.model.features.numel()
-        image = self.loop.mode == "image"
-        noise = self.implementation.pixel_noise * rng.standard_normal(size) if image else np.zeros(size)
-        if self.implementation.outlier_probability > 0:
-            noise = noise + self.implementation.outliers(size, self._faults)
-        if self.errors is None:
-            f, e_ideal, e_image, depth = (v.ravel() for v in self._camera(t, s, noise))
-        else:
-            f, e_ideal, e_image, depth = (v.ravel() for v in self._camera(t, s, noise, self._errors))
+    def noise(self, rng: np.random.Generator, faults: np.random.Generator) -> np.ndarray:
+        """The pixel noise of one image (``e_e = "image"``; drawn from ``rng``) and its wrong detections
+        (drawn from ``faults``)."""
+        size, imp = self.model.features.numel(), self.implementation
+        noise = imp.pixel_noise * rng.standard_normal(size) if self.loop.mode == "image" else np.zeros(size)
+        return noise + imp.outliers(size, faults) if imp.outlier_probability > 0 else noise
+
+    def observe(self, t: float, s: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, str | None]:
+        """What an image captured at ``(t, s)`` with pixel ``noise`` gives: the exact ``e_e`` (15), the
+        features the controller reads, and why the image is lost (a point behind the camera or a
+        feature outside the image), or None."""
+        errors = () if self.errors is None else (self._errors,)
+        f, e_ideal, measured, depth = (v.ravel() for v in self._camera(t, s, noise, *errors))
         if np.any(depth <= 0):
-            return e_ideal, f"a feature point is behind the camera at t = {t:.4g} s"
+            return e_ideal, measured, f"a feature point is behind the camera at t = {t:.4g} s"
         if self._window is not None and (np.any(f < self._window[0]) or np.any(f > self._window[1])):
             outside = np.flatnonzero(np.any(((f < self._window[0]) | (f > self._window[1])).reshape(-1, 2), axis=1))
-            return e_ideal, f"feature {int(outside[0])} left the image at t = {t:.4g} s"
-        return (e_image if image else e_ideal), None
+            return e_ideal, measured, f"feature {int(outside[0])} left the image at t = {t:.4g} s"
+        return e_ideal, measured, None
+
+    def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray | None, str | None]:
+        """The ``e_e`` of an image captured at ``(t, s)`` (None: the controller drops it, as the program
+        does an implausible one, :func:`~dvfc.analysis.controller.image_update`), and the reason there
+        is no image (a feature lost), or None."""
+        e_ideal, measured, lost = self.observe(t, s, self.noise(rng, self._faults))
+        if lost is not None or self.loop.mode != "image":
+            return (None if lost else e_ideal), lost
+        e_image, usable = self._read_image(s[self.loop.estimate_slice], measured)
+        return (e_image.ravel() if usable.ravel()[0] else None), None
+
+    def plant_period(self, s0: np.ndarray) -> Callable[[float, np.ndarray, np.ndarray], np.ndarray]:
+        """``(t, s, tau) -> s`` one control period later with ``tau`` held: the plant of the simulator's
+        period (its integrator and substeps, settled from ``s0``; its plant's friction and masses; the
+        observer's inputs zero), for a controller outside it (:mod:`dvfc.analysis.sil`): the joints of
+        the result are the plant's, the rest is not the controller's."""
+        self.settle(s0)
+        t, s, e, _, friction, design, *_ = self._symbols
+        tau = cs.MX.sym("tau", self.loop.robot.n)
+        hold = cs.vertcat(tau, cs.MX.zeros(3 * e.numel()))
+        substeps = self._periods.choice.substeps
+        after, _ = self._held_flow(t, s, hold, friction, design, substeps)
+        period = cs.Function("dvfc_plant_period", [t, s, tau, friction, *design], [after])
+        period = Buffered(compiled(period, jacobian=False, level="-O2") if self.settings.jit and substeps else period)
+        return lambda time, state, torque: period(time, state, torque, self._friction, *self.design)[0].ravel()
 
     @property
     def substeps(self) -> SubstepChoice | None:
@@ -460,7 +492,8 @@ class SampledSimulator(Simulator):
             e_new = None
             while measured < len(captures) and steps_of[measured] <= last:
                 c = int(captures[measured])
-                e_new, lost = self._measure(c * h, kept.pop(c), rng)
+                e_read, lost = self._measure(c * h, kept.pop(c), rng)
+                e_new = e_new if e_read is None else e_read
                 measured += 1
                 if lost is not None:
                     status = "behind_camera" if "behind" in lost else "out_of_view"
@@ -493,7 +526,7 @@ class SampledSimulator(Simulator):
             end = min(int(arrivals[measured]), steps) if measured < len(captures) else steps
             try:
                 held = (np.repeat(v[:, None], end - k, 1) for v in (e_held, self._effort, self._friction, *self.design))
-                after, commanded, applied, quad = self._chunk(end - k)(s, np.arange(k, end) * h, *held)
+                after, commanded, applied, quad, observer = self._chunk(end - k)(s, np.arange(k, end) * h, *held)
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc
@@ -504,7 +537,8 @@ class SampledSimulator(Simulator):
             history["tau_applied"].append(np.abs(applied.T))
             history["quad"].append(quad.T)
             for j in range(-k % self.stride, end - k, self.stride):
-                rows.append((k + j, s if j == 0 else after[:, j - 1], np.concatenate([applied[:, j], e_held])))
+                hold = np.concatenate([applied[:, j], e_held, observer[:, j]])
+                rows.append((k + j, s if j == 0 else after[:, j - 1], hold))
             first, last = np.searchsorted(captures, [k + 1, end + 1])
             for c in captures[first:last]:  # the captures in (k, end]
                 kept[int(c)] = after[:, c - k - 1]
@@ -531,17 +565,18 @@ class SampledSimulator(Simulator):
         # one ends the run there, though its image would arrive later.
         measure_through(min(stops).step if stops else steps, captures)
         if not stops:  # the law at t = T, no integration
-            commanded, applied = (v.ravel() for v in self._last(steps * h, s, e_held, self._effort, *self.design))
+            last = (v.ravel() for v in self._last(steps * h, s, e_held, self._effort, *self.design))
+            commanded, applied, observer = last
             history["tau"].append(np.abs(commanded[None, :]))
             history["tau_applied"].append(np.abs(applied[None, :]))
             if steps % self.stride == 0:
-                rows.append((steps, s, np.concatenate([applied, e_held])))
+                rows.append((steps, s, np.concatenate([applied, e_held, observer])))
             stop = _Stop(steps, 5, "ok", "", steps + 1, steps + 1)
         else:
             stop = min(stops)
         if not rows:  # stopped before the first period: the start is still a row (no torque counted)
-            last = self._last(0.0, s, e_held, self._effort, *self.design)
-            rows.append((0, s, np.concatenate([last[1].ravel(), e_held])))
+            _, applied, observer = self._last(0.0, s, e_held, self._effort, *self.design)
+            rows.append((0, s, np.concatenate([applied.ravel(), e_held, observer.ravel()])))
         rows = [r for r in rows if r[0] < max(stop.tau_end, 1)]  # the start is always a row
         if evaluated < len(rows):
             singular, kept_rows = self._evaluate(rows, evaluated, signal_chunks)

@@ -1,15 +1,16 @@
 """Software in the loop: the controller program (:mod:`dvfc.analysis.controller`) driving the plant.
 
 Between two control samples the plant (33) alone is integrated with the torque the program
-returned held (RK4, the implementation's ``substeps`` per period, the plant's friction as in
-:mod:`dvfc.analysis.sampled`); at each sample the program receives what a robot gives it: the
-sampled ``q_k``, ``qd_k`` and, when one arrives, an image captured earlier. The images follow the
-implementation's schedule and draws exactly as :class:`~dvfc.analysis.sampled.SampledSimulator`
-makes them (the same captures, arrivals, pixel noise, quantisation, outliers and frame drops from
-the same seeds, the same camera model): the features the controller reads, made from the plant's
-state at the capture. The difference from the sampled simulator is the controller itself: there
-the observer (12) is integrated with the plant on the continuous ``qd(t)`` and ``u_e(t)``; here it
-steps on the samples (docs/math.md, fact 22).
+returned held (the sampled simulator's own period: its integrator, substeps, the plant's friction
+and masses); at each sample the program receives what a robot gives it: the sampled ``q_k``,
+``qd_k`` and, when one arrives, an image captured earlier. The images follow the implementation's
+schedule and draws exactly as :class:`~dvfc.analysis.sampled.SampledSimulator` makes them (the same
+captures, arrivals, pixel noise, quantisation, outliers and frame drops from the same seeds, the
+simulator's camera): the features the controller reads, made from the plant's state at the capture.
+The sampled simulator runs the same program's update at each sample
+(:func:`~dvfc.analysis.controller.sample_update`), so with the program's Python step the two are
+one loop: what this adds is the program as it is called (its state, its ring of estimates, its
+checks) and any other step with its signature, the compiled C one (``dvfc export --check``).
 
 A feature behind the camera or outside the image at a capture ends the run there (status
 ``out_of_view``), as in the sampled simulator.
@@ -20,14 +21,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-import casadi as cs
 import numpy as np
 
 from dvfc.analysis.case import Case
-from dvfc.analysis.compile import Buffered, compiled
 from dvfc.analysis.controller import Controller
 from dvfc.analysis.sampled import SampledSimulator, as_implemented
-from dvfc.models.errors import PlantErrors, controller_features, friction_torque, true_features
 
 StepFunction = Callable[
     [np.ndarray, float, np.ndarray, np.ndarray, np.ndarray | None, int], tuple[np.ndarray, np.ndarray]
@@ -55,60 +53,26 @@ class SilRun:
 
 
 class Plant:
-    """The plant of a case's loop as implemented, one control period at a time: ``[q; qd]`` after
-    ``h`` with a torque held (RK4), and the image the camera makes at ``(t, q)``."""
+    """The plant of a case's loop as implemented and its camera, one control period at a time: the
+    sampled simulator's own (:meth:`~dvfc.analysis.sampled.SampledSimulator.plant_period`, its
+    integrator and substeps; :meth:`~dvfc.analysis.sampled.SampledSimulator.observe`), driven by a
+    controller outside it."""
 
     def __init__(self, case: Case, simulator: SampledSimulator) -> None:
-        settings, imp = case.settings, case.settings.implementation
-        loop = replace(case.loop, plant=settings.plant, sampled=True)
-        n = loop.robot.n
-        self.errors = settings.errors or PlantErrors.none(loop.camera, n)
-        joints, held, t = cs.SX.sym("x", 2 * n), cs.SX.sym("tau", n), cs.SX.sym("t")
-        rate = cs.Function(
-            "plant_rate", [loop.t, cs.vertcat(loop.q, loop.qd), loop.hold], [cs.vertcat(loop.qd, loop.qdd)]
-        )
-        friction = cs.DM(self.errors.friction_vector())
-        step = imp.period / imp.substeps
-
-        def f(time: cs.SX, x: cs.SX) -> cs.SX:
-            torque = held - friction_torque(x[n:], friction, n)
-            return rate(time, x, cs.vertcat(torque, cs.DM.zeros(loop.task_dim)))
-
-        x = joints
-        for i in range(imp.substeps):  # the classical RK4, as the sampled simulator's
-            t0 = t + i * step
-            k1 = f(t0, x)
-            k2 = f(t0 + step / 2, x + step / 2 * k1)
-            k3 = f(t0 + step / 2, x + step / 2 * k2)
-            k4 = f(t0 + step, x + step * k3)
-            x = x + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        period = cs.Function("dvfc_plant_period", [t, joints, held], [x])
-        self._period = Buffered(compiled(period, jacobian=False, level="-O2") if settings.jit else period)
-        noise = cs.SX.sym("noise", 2 * loop.camera.m)
-        if settings.errors is None:
-            f_true = loop.features
-            measured = simulator._quantized(f_true + noise)
-            depths = loop.camera.depths(loop.relative_pose)
-        else:
-            vector = cs.DM(self.errors.camera_vector(loop.camera))
-            f_true, about_nominal, depths = true_features(loop.camera, loop.relative_pose, vector)
-            measured = controller_features(loop.camera, simulator._quantized(about_nominal + noise))
-        self.window = simulator._window
-        self._camera = Buffered(cs.Function("dvfc_sil_camera", [loop.t, loop.q, noise], [measured, f_true, depths]))
+        self.n = case.loop.robot.n
+        self.simulator = simulator
+        self._period = simulator.plant_period(case.s0)
+        self._rest = np.array(case.s0[2 * self.n :], dtype=float)  # the state's estimate (and z_I): not the plant's
 
     def advance(self, t: float, joints: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """``[q; qd]`` one control period after ``(t, joints)`` with ``tau`` held."""
-        return self._period(t, joints, tau)[0].ravel()
+        return self._period(t, np.concatenate([joints, self._rest]), tau)[: 2 * self.n]
 
     def image(self, t: float, q: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, str | None]:
         """The features the controller reads from an image at ``(t, q)`` with pixel ``noise``, and
         why the image is lost (a point behind the camera or outside the image), or None."""
-        measured, f, depth = (v.ravel() for v in self._camera(t, q, noise))
-        if np.any(depth <= 0):
-            return measured, f"a feature point is behind the camera at t = {t:.4g} s"
-        if self.window is not None and (np.any(f < self.window[0]) or np.any(f > self.window[1])):
-            return measured, f"a feature left the image at t = {t:.4g} s"
-        return measured, None
+        _, measured, lost = self.simulator.observe(t, np.concatenate([q, np.zeros(self.n), self._rest]), noise)
+        return measured, lost
 
 
 def software_in_the_loop(
@@ -129,7 +93,6 @@ def software_in_the_loop(
     rng = np.random.default_rng(imp.seed)
     faults = np.random.default_rng((imp.seed % 2**64, 1))
     captures, arrivals = imp.arrivals(imp.capture_steps(steps), faults)
-    image_mode = case.loop.mode == "image"
     joints = np.array(case.s0[: 2 * n], dtype=float)
     state = controller.initial_state()
     record = {key: [] for key in ("q", "qd", "tau", "captures", "features", "states")}
@@ -140,10 +103,7 @@ def software_in_the_loop(
         record["q"].append(joints[:n])
         record["qd"].append(joints[n:])
         while j < len(captures) and captures[j] == k:  # the image captured now, drawn in capture order
-            noise = imp.pixel_noise * rng.standard_normal(2 * m) if image_mode else np.zeros(2 * m)
-            if imp.outlier_probability > 0:
-                noise = noise + imp.outliers(2 * m, faults)
-            taken[k], lost = plant.image(t, joints[:n], noise)
+            taken[k], lost = plant.image(t, joints[:n], simulator.noise(rng, faults))
             if lost is not None:
                 status, message = "out_of_view", lost
             j += 1
@@ -182,8 +142,8 @@ class Comparison:
     """A software-in-the-loop run against the sampled simulator's run of the same case (the same
     images, noise and plant), at the simulator's output samples: the largest differences of the joint
     positions (rad), speeds (rad/s) and held torques (N m), and the largest torque of the run. A
-    measurement; docs/math.md, fact 22 says where the difference comes from (the observer stepped
-    on the samples)."""
+    measurement: 0 when the step is the program's Python one (the same operations, docs/math.md,
+    fact 22)."""
 
     samples: int
     max_position_difference: float

@@ -676,15 +676,16 @@ def image_mode(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Trajec
 
 def implemented_storage(traj: Trajectory) -> float:
     """The storage identity of the loop as implemented (docs/math.md, fact 11, (11.1) integrated),
-    as a relative residual: ``max_t |V(t) - V(0) - int (u^T nu + x^T G w) - int xi^T delta|`` over
-    the scale of :func:`dvfc.analysis.simulate.identity_residuals`. ``u`` is the law's input, its
+    as a relative residual: ``max_t |V(t) - V(0) - int (u^T nu + x^T G w) - int xi^T delta - int o|``
+    over the scale of :func:`dvfc.analysis.simulate.identity_residuals`. ``u`` is the law's input, its
     ``u_e`` built from the held image estimate ``e_k``, so the recorded ``u^T nu`` is
     ``-nu^T K nu + nu_e^T K_e W_e eps`` (``eps = e_k - e_e``: the camera channel);
-    ``delta = M qdd + C qd + g - tau - tau_d`` (the hold, saturation and plant error)."""
+    ``delta = M qdd + C qd + g - tau - tau_d`` (the hold, saturation and plant error); ``o`` the
+    observer's hold ((11.2), 0 on a continuous run)."""
     v = traj["V"][:, 0]
     i = traj.integrals
     scale = max(v[0], np.abs(i["supply_u_nu"]).max(), np.abs(i["supply_x_G_w"]).max(), np.finfo(float).tiny)
-    gap = v - v[0] - i["supply_u_nu"] - i["supply_x_G_w"] - i["unmodelled_supply"]
+    gap = v - v[0] - i["supply_u_nu"] - i["supply_x_G_w"] - i["unmodelled_supply"] - i["observer_supply"]
     return float(np.abs(gap).max() / scale)
 
 
@@ -731,8 +732,8 @@ def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Traje
     )
     storage = implemented_storage(traj)
     storage_detail = ("the storage of the loop as implemented: hold, camera and plant errors enter through the "
-                      "channels of u_xi (delta) and u_e (eps, inside u^T nu); exact, measured to the integrator's "
-                      "truncation")  # fmt: skip
+                      "channels of u_xi (delta) and u_e (eps, inside u^T nu), the observer's held inputs through o "
+                      "(11.2); exact, measured to the integrator's truncation")  # fmt: skip
     if settings.implementation is not None:
         storage_detail += f" ({SubstepChoice.of_run(traj.stats).text})"
         if storage > IMPLEMENTED_TOL:
@@ -740,7 +741,7 @@ def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Traje
     return [
         Claim(f"the {how} run completes", "as implemented", traj.t[-1], f"t = {settings.duration:g} s",
               None if traj.status == "ok" else False, traj.message),
-        on_run(f"V(t) - V(0) = int (u^T nu + x^T G w + xi^T delta) on the {how} run", "docs/math.md, fact 11",
+        on_run(f"V(t) - V(0) = int (u^T nu + x^T G w + xi^T delta + o) on the {how} run", "docs/math.md, fact 11",
                traj, storage, f"<= {IMPLEMENTED_TOL:g}", storage <= IMPLEMENTED_TOL, storage_detail),
         Claim("torques within effort limits", "URDF <limit effort>", torque.max(), "max peak |tau| / effort <= 1",
               None if torque.max() <= 1 + ROUNDOFF or clipped else False, torque_detail),

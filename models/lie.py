@@ -117,6 +117,24 @@ def quaternion_rate(quat: ArrayLike, w: ArrayLike) -> Matrix:
     return cs.vertcat(-v.T @ w, s * w + cs.cross(v, w)) / 2
 
 
+def quaternion_product(a: ArrayLike, b: ArrayLike) -> Matrix:
+    """``a (x) b`` for quaternions ``[w, x, y, z]`` (rotation ``R_a R_b``)."""
+    a, b = _as_casadi(a), _as_casadi(b)
+    return cs.vertcat(a[0] * b[0] - a[1:4].T @ b[1:4], a[0] * b[1:4] + b[0] * a[1:4] + cs.cross(a[1:4], b[1:4]))
+
+
+def quaternion_exp(w: ArrayLike) -> Matrix:
+    """The unit quaternion of ``exp(hat(w))``: ``[cos(theta/2); sin(theta/2) w / theta]``, with the
+    series of ``cos(theta/2)`` and ``sin(theta/2)/theta`` below ``theta = 1e-4`` (errors below ``1e-18``;
+    differentiable at ``w = 0``, where ``theta = |w|`` is not: the program's Jacobian, docs/math.md, fact 22)."""
+    w = _as_casadi(w)
+    theta2 = w.T @ w
+    theta = cs.sqrt(theta2)
+    small = theta2 < 1e-8
+    half = cs.if_else(small, 0.5 - theta2 / 48, cs.sin(theta / 2) / theta)
+    return cs.vertcat(cs.if_else(small, 1 - theta2 / 8 + theta2**2 / 384, cs.cos(theta / 2)), half * w)
+
+
 def matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
     """Unit quaternion ``[qw, qx, qy, qz]`` (with ``qw >= 0``) of a numeric rotation."""
     r = np.asarray(r, dtype=float)

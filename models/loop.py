@@ -31,17 +31,34 @@ import numpy as np
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import Disturbance, torque
 from dvfc.models.errors import friction_torque
-from dvfc.models.lie import SE3, SO3, Matrix, quaternion_rate, quaternion_to_matrix
+from dvfc.models.lie import (
+    SE3,
+    SO3,
+    Matrix,
+    quaternion_exp,
+    quaternion_product,
+    quaternion_rate,
+    quaternion_to_matrix,
+)
 from dvfc.models.robot import Robot
 from dvfc.models.target import TargetMotion
 
 Mode = Literal["ideal", "image"]
 
-QUADRATURES = ("supply_u_nu", "supply_x_G_w", "dissipation_nu_K_nu", "z_squared", "d_squared", "unmodelled_supply")
+QUADRATURES = (
+    "supply_u_nu",
+    "supply_x_G_w",
+    "dissipation_nu_K_nu",
+    "z_squared",
+    "d_squared",
+    "unmodelled_supply",
+    "observer_supply",
+)
 """Integrals accumulated by the integrator: ``u^T nu``, ``x^T G w``, ``nu^T K nu``,
 ``|z|^2 = |S x|^2``, ``|d|^2 = |D_w^-1 w|^2`` (the generalized plant's performance output and
-disturbance, :class:`PlantWeights`; ``|x|^2`` and ``|w|^2`` at unit weights) and ``xi^T delta``
-(:attr:`ClosedLoop.unmodelled_torque`)."""
+disturbance, :class:`PlantWeights`; ``|x|^2`` and ``|w|^2`` at unit weights), ``xi^T delta``
+(:attr:`ClosedLoop.unmodelled_torque`) and the observer's hold ``o`` (:attr:`ClosedLoop.observer_supply`:
+0 but in the sampled loop)."""
 
 
 @dataclass(frozen=True)
@@ -169,6 +186,17 @@ def disturbance_weight(weights: Weights, n: int, plant: PlantWeights | None = No
     return cs.diagcat(cs.diag(d[:n] ** 2), cs.DM.zeros(6, 6), w_e @ d_v @ d_v @ w_e)
 
 
+def observer_step(pbar: Matrix, quat: Matrix, v_wc: Matrix, u_e: Matrix, h: Matrix | float) -> Matrix:
+    """``[pbar; quat]`` after the exact flow of (12) over ``h`` with ``V_wc`` and ``u_e`` constant:
+    ``gbar(h) = exp(-h hat(V_wc)) gbar exp(h hat(u_e))`` (docs/math.md, fact 22, (22.1)), the quaternion
+    ``q(-h w_V) (x) quat (x) q(h w_U)`` renormalised, the translation that of the ``SE(3)`` product."""
+    before, after = SE3.exp(-h * v_wc), SE3.exp(h * u_e)
+    gbar = SE3(pbar, SO3(quaternion_to_matrix(quat)))
+    p = (before @ gbar @ after).translation
+    turned = quaternion_product(quaternion_product(quaternion_exp(-h * v_wc[3:6]), quat), quaternion_exp(h * u_e[3:6]))
+    return cs.vertcat(p, turned / cs.norm_2(turned))
+
+
 def pseudo_inverse(j: Matrix) -> Matrix:
     """``pinv(J)`` for a matrix of full rank: ``J^-1`` (square), ``J^T (J J^T)^-1``
     (wide, full row rank) or ``(J^T J)^-1 J^T`` (tall, full column rank)."""
@@ -285,10 +313,11 @@ class ClosedLoop:
         With integral action (``gains.k_i``), the time from which ``z_I`` integrates (held at 0
         before: the start's transient, docs/math.md, fact 20).
     sampled
-        The loop as a digital controller runs it: the torque applied and the ``e_e`` the
-        law and observer use are held inputs (:attr:`hold`), set at the samples by
-        :class:`dvfc.analysis.sampled.SampledSimulator`, instead of (35) and (15)/(21) evaluated
-        continuously.
+        The loop as a digital controller runs it: the torque applied, the ``e_e`` the law uses and
+        the observer's inputs ``V_wc``, ``u_e`` are held inputs (:attr:`hold`), set at the samples by
+        :class:`dvfc.analysis.sampled.SampledSimulator`, instead of (35), (15)/(21) and (34), (42)
+        evaluated continuously: between samples the observer follows (12) with its inputs held, whose
+        flow over a period is the program's step (docs/math.md, fact 22).
     parameters
         The symbols ``reference``, ``weights`` and ``gains`` are expressions of, when they are
         symbolic (:func:`dvfc.analysis.parametric.symbolic`): the last argument of every
@@ -345,6 +374,12 @@ class ClosedLoop:
         """Where the state holds ``z_I`` (empty without integral action)."""
         start = 2 * self.robot.n + 7
         return slice(start, start + (self.robot.n if self.integral else 0))
+
+    @property
+    def estimate_slice(self) -> slice:
+        """Where the state holds the observer's estimate (``[pbar; quat]``; ``pbar`` in the planar loop)."""
+        n = self.robot.n
+        return slice(2 * n, self.n_state - (n if self.integral else 0))
 
     # --- poses and errors -------------------------------------------------------
     @cached_property
@@ -450,16 +485,29 @@ class ClosedLoop:
 
     @cached_property
     def hold(self) -> cs.SX:
-        """Inputs held between samples in the sampled loop: ``[tau applied; e_e measured]``."""
-        return cs.SX.sym("hold", self.robot.n + self.task_dim)
+        """Inputs held between samples in the sampled loop: ``[tau applied; e_e measured; V_k; U_k]``,
+        ``V_k = V_wc(t_k)`` and ``U_k = u_e(t_k)`` the observer's inputs at the sample (docs/math.md,
+        fact 22)."""
+        return cs.SX.sym("hold", self.robot.n + 3 * self.task_dim)
 
     @cached_property
     def e_e_law(self) -> Matrix:
         """The ``e_e`` the law and the observer use: exact (15), from the image (21), or the
         latest measurement held (sampled loop)."""
         if self.sampled:
-            return self.hold[self.robot.n :]
+            return self.hold[self.robot.n : self.robot.n + self.task_dim]
         return self.e_e if self.mode == "ideal" else self.e_e_image
+
+    @cached_property
+    def observer_hold(self) -> tuple[Matrix, Matrix]:
+        """``(V_k, U_k)``: the observer's inputs held over the period in the sampled loop."""
+        n, task = self.robot.n, self.task_dim
+        return self.hold[n + task : n + 2 * task], self.hold[n + 2 * task :]
+
+    def held_estimate(self, v_wc: Matrix, u_e: Matrix, h: Matrix | float) -> Matrix:
+        """The estimate ``[pbar; quat]`` after ``h`` of (12) from the state's with ``V_wc = v_wc`` and
+        ``u_e`` held: (22.1), the program's observer step (:func:`observer_step`)."""
+        return observer_step(self.pbar, self.quat, v_wc, u_e, h)
 
     @cached_property
     def camera_velocity(self) -> Matrix:
@@ -474,8 +522,32 @@ class ClosedLoop:
     @cached_property
     def estimate_rate(self) -> Matrix:
         """``[dpbar/dt; dquat/dt]`` from ``d gbar/dt = gbar hat(Vbar)``."""
-        v = self.estimate_velocity
+        return self._estimate_rate(self.estimate_velocity)
+
+    def _estimate_rate(self, v: Matrix) -> Matrix:
+        """``[dpbar/dt; dquat/dt]`` of ``d gbar/dt = gbar hat(v)``."""
         return cs.vertcat(self.estimate.rotation.matrix @ v[0:3], quaternion_rate(self.quat, v[3:6]))
+
+    @cached_property
+    def observer_velocity(self) -> Matrix:
+        """The body velocity the observer moves with: ``Vbar`` of (12), or in the sampled loop (12)
+        with its inputs held, ``-Ad_{gbar^-1} V_k + U_k`` (docs/math.md, fact 22)."""
+        if not self.sampled:
+            return self.estimate_velocity
+        v, u = self.observer_hold
+        return -self.estimate.inverse().adjoint() @ v + u
+
+    @cached_property
+    def observer_rate(self) -> Matrix:
+        """``[dpbar/dt; dquat/dt]`` of the observer as it runs: :attr:`estimate_rate`, or with its inputs
+        held (sampled loop)."""
+        return self._estimate_rate(self.observer_velocity) if self.sampled else self.estimate_rate
+
+    @cached_property
+    def observer_input_error(self) -> Matrix:
+        """``D``: the observer's velocity less (12)'s at the state, ``-Ad_{gbar^-1} (V_k - V_wc) + U_k - u_e``
+        (docs/math.md, fact 11): ``O(h)`` in the sampled loop, 0 in the continuous one."""
+        return self.observer_velocity - self.estimate_velocity
 
     @cached_property
     def qd_d(self) -> Matrix:
@@ -491,9 +563,14 @@ class ClosedLoop:
     def qdd_d(self) -> Matrix:
         """``d qd_d/dt`` by automatic differentiation along ``(qd, 1, dgbar/dt)``, the explicit
         time derivative included (the target's in the ideal ``e_e``, the plan's ``g_d(t)``):
-        needs no target information beyond what ``u_e`` already uses."""
+        needs no target information beyond what ``u_e`` already uses. ``dgbar/dt`` is (12)'s: the
+        law's (at a sample, the held observer's too)."""
+        return self.reference_acceleration(self.estimate_rate)
+
+    def reference_acceleration(self, estimate_rate: Matrix) -> Matrix:
+        """``d qd_d/dt`` along ``(qd, 1, estimate_rate)``."""
         args = cs.vertcat(self.q, self.t, self.pbar, self.quat)
-        rates = cs.vertcat(self.qd, 1, self.estimate_rate)
+        rates = cs.vertcat(self.qd, 1, estimate_rate)
         return cs.jtimes(self.qd_d, args, rates)
 
     @cached_property
@@ -631,13 +708,26 @@ class ClosedLoop:
         return model - self.paper_torque - self.matched_disturbance
 
     @cached_property
+    def observer_supply(self) -> Matrix:
+        """``o = nu_e^T D + xi^T M (qdd_d - qdd_d^o)`` (docs/math.md, fact 11, (11.2)): what the observer's
+        hold adds to ``dV/dt``, ``nu_e`` the ``u_e`` block of ``nu``, ``D`` the :attr:`observer_input_error`,
+        ``qdd_d^o`` the rate of ``qd_d`` along the observer as it runs (the law's ``qdd_d`` follows (12));
+        0 in the continuous loop."""
+        if not self.sampled:
+            return cs.DM(0.0)
+        n, task = self.robot.n, self.task_dim
+        along = self.reference_acceleration(self.observer_rate)
+        nu_e = self.nu[n + task : n + 2 * task]
+        return nu_e.T @ self.observer_input_error + self.xi.T @ self.robot.mass_matrix @ (self.qdd_d - along)
+
+    @cached_property
     def state_rate(self) -> Matrix:
         """``ds/dt`` for ``s = [q; qd; pbar; quat]`` (and ``z_I``: :attr:`integrand` in the continuous
-        loop, held between samples in the sampled one)."""
+        loop, held between samples in the sampled one); the observer as it runs (:attr:`observer_rate`)."""
         if not self.integral:
-            return cs.vertcat(self.qd, self.qdd, self.estimate_rate)
+            return cs.vertcat(self.qd, self.qdd, self.observer_rate)
         rate = cs.DM.zeros(self.robot.n) if self.sampled else self.integrand
-        return cs.vertcat(self.qd, self.qdd, self.estimate_rate, rate)
+        return cs.vertcat(self.qd, self.qdd, self.observer_rate, rate)
 
     @cached_property
     def conditioning(self) -> dict[str, Matrix]:
@@ -683,6 +773,7 @@ class ClosedLoop:
             self.z.T @ self.z,
             self.d.T @ self.d,
             self.xi.T @ self.unmodelled_torque,
+            self.observer_supply,
         )
 
     @cached_property

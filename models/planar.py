@@ -202,16 +202,36 @@ class PlanarLoop(ClosedLoop):
         """``dpbar/dt = -J_p qd + u_e`` (P2)."""
         return -self.camera_velocity + self._camera_inputs[1]
 
+    def held_estimate(self, v_wc: Matrix, u_e: Matrix, h: Matrix | float) -> Matrix:
+        """``pbar + h (u_e - v_wc)``: (P2) over ``h`` with ``J_p qd = v_wc`` and ``u_e`` held, exactly."""
+        return self.pbar + h * (u_e - v_wc)
+
+    @cached_property
+    def observer_velocity(self) -> Matrix:
+        """``dpbar/dt`` as the observer runs: (P2), or with its inputs held, ``-V_k + U_k`` (sampled loop)."""
+        if not self.sampled:
+            return self.estimate_rate
+        v, u = self.observer_hold
+        return -v + u
+
+    @cached_property
+    def observer_rate(self) -> Matrix:
+        return self.observer_velocity
+
+    @cached_property
+    def observer_input_error(self) -> Matrix:
+        """``D = -(V_k - J_p qd) + U_k - u_e``: the observer's rate less (P2)'s."""
+        return self.observer_velocity - self.estimate_rate
+
     @cached_property
     def qd_d(self) -> Matrix:
         """``qd_d = pinv(J_p) u_d`` (P5)."""
         return pseudo_inverse(self.task_jacobian) @ self._camera_inputs[0]
 
-    @cached_property
-    def qdd_d(self) -> Matrix:
-        """``d qd_d/dt`` along ``(qd, 1, dpbar/dt)`` (P6)."""
+    def reference_acceleration(self, estimate_rate: Matrix) -> Matrix:
+        """``d qd_d/dt`` along ``(qd, 1, estimate_rate)`` (P6: :attr:`qdd_d` along (P2))."""
         args = cs.vertcat(self.q, self.t, self.pbar)
-        return cs.jtimes(self.qd_d, args, cs.vertcat(self.qd, 1, self.estimate_rate))
+        return cs.jtimes(self.qd_d, args, cs.vertcat(self.qd, 1, estimate_rate))
 
     @cached_property
     def w(self) -> Matrix:

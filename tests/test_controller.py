@@ -14,12 +14,15 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import logm
 
 import dvfc
-from dvfc.analysis.controller import Status, observer_step, program_loop
+from dvfc.analysis.controller import Status, program_loop
 from dvfc.analysis.export import ExportError
-from dvfc.analysis.sampled import SampledSimulator
+from dvfc.analysis.sampled import SampledSimulator, as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.sil import software_in_the_loop
 from dvfc.models.lie import SE3, quaternion_to_matrix
+from dvfc.models.loop import observer_step
+
+from loop_reference import twist_hat
 
 
 @pytest.fixture(scope="module")
@@ -30,11 +33,6 @@ def case():
 @pytest.fixture(scope="module")
 def controller(case):
     return dvfc.controller(case)
-
-
-def twist_hat(v: np.ndarray) -> np.ndarray:
-    w = v[3:]
-    return np.array([[0, -w[2], w[1], v[0]], [w[2], 0, -w[0], v[1]], [-w[1], w[0], 0, v[2]], [0, 0, 0, 0.0]])
 
 
 def matrix_of(state: np.ndarray) -> np.ndarray:
@@ -116,22 +114,43 @@ def test_image_is_read_with_the_estimate_of_its_capture_time(case, controller):
     assert np.abs(result.state[controller.layout.e_e]).max() < 1e-12
 
 
-def test_torque_is_the_sampled_loops_law_at_the_sample(case, controller):
-    """The program's torque is the law (35), (42) with the integral term ``-K_I z_I`` (fact 20) of the
-    sampled simulator (its parametric model, another graph) at the same ``(t, q, qd, gbar, e_e, z_I)``,
-    past ``integral_start``, to 1e-10 relative."""
-    n, rng = controller.n, np.random.default_rng(1)
-    assert case.loop.integral
-    simulator = SampledSimulator(replace(case.loop, sampled=True), case.settings)
-    x = controller.initial_state()
-    x[controller.layout.e_e] = 1e-3 * rng.standard_normal(6)
-    x[controller.layout.integral] = 1e-2 * rng.standard_normal(n)
-    t = case.loop.integral_start + 0.5
-    q, qd = case.s0[:n] + 0.01 * rng.standard_normal(n), 0.1 * rng.standard_normal(n)
-    tau, _ = controller.step(x, t, q, qd, None, -1)
-    s = np.concatenate([q, qd, x[:7], x[controller.layout.integral]])
-    law, _ = simulator._last(t, s, x[controller.layout.e_e], np.full(n, np.inf), *simulator.design)
-    assert np.abs(tau - law.ravel()).max() < 1e-10 * np.abs(tau).max()
+def test_the_sampled_simulator_runs_the_programs_step_bit_for_bit():
+    """The sampled simulator's controller is the program (docs/math.md, fact 22): along 0.1 s of its run
+    of the default UR5 with ``K_I = 10 K_xi`` from 0.02 s and efforts at 0.4 % (the anti-windup acting),
+    at every sample the program's step (no image; the sample's ``gbar``, ``z_I`` and a random held
+    ``e_e``) returns the torque, the next ``gbar`` and the next ``z_I`` of the simulator's period at the
+    same inputs, to the bit: one definition (``sample_update``), the program's design its constants. At
+    each sample an image captured ``latency`` earlier (the state there, its features as the simulator
+    makes them) gives the program the ``e_e`` the simulator reads from it, to the bit."""
+    case = changed(DEFAULT_SCENARIO, INTEGRAL, SATURATED)
+    imp = case.settings.implementation
+    simulator = as_implemented(case.loop, replace(case.settings, duration=0.1, dt=imp.period))
+    states = simulator.run(case.s0)["state"]
+    controller = dvfc.controller(case)
+    layout, n, lag, h = controller.layout, controller.n, imp.latency_steps, imp.period
+    period = simulator._period_function(simulator.substeps.substeps)
+    rng = np.random.default_rng(22)
+    held = 0
+    for k, s in enumerate(states[:-1]):
+        e = 1e-3 * rng.standard_normal(6)
+        after, tau, *_ = (np.asarray(v).ravel() for v in period(s, k * h, e, simulator._effort, simulator._friction,
+                                                                 *simulator.design))  # fmt: skip
+        x = controller.initial_state()
+        x[layout.gbar], x[layout.e_e], x[layout.integral] = s[12:19], e, s[19:]
+        x[layout.counter], x[layout.q_last] = k, s[:n]
+        step = controller.evaluate(x, k * h, s[:n], s[n : 2 * n], None, -1)
+        assert np.array_equal(step.tau, tau) and np.array_equal(step.state[layout.gbar], after[12:19]), k
+        assert np.array_equal(step.state[layout.integral], after[19:]), k
+        held += int(np.sum((after[19:] == s[19:]) & (k * h >= 0.02)))
+        if k >= lag:
+            captured = states[k - lag]
+            features = np.asarray(simulator._camera((k - lag) * h, captured, np.zeros(8))[2]).ravel()
+            e_read = np.asarray(simulator._read_image(captured[12:19], features)[0]).ravel()
+            for j in range(layout.ring):
+                x[layout.slot(j)] = captured[12:19]
+            image = controller.evaluate(x, k * h, s[:n], s[n : 2 * n], features, k - lag)
+            assert image.status is Status.OK and np.array_equal(image.state[layout.e_e], e_read), k
+    assert held > 0  # the anti-windup held some joint at some sample
 
 
 def gravity(case, q: np.ndarray) -> np.ndarray:
@@ -233,8 +252,8 @@ limits (-0.6 N m), the base's (up to +0.86 N m) at times, the wrists' both ways:
 
 def law_replay(case, run):
     """Per sample of a software-in-the-loop ``run``: the program's torque and next ``z_I``, and the
-    sampled simulator's law and its ``z_I`` update (:class:`SampledSimulator`, another graph) at the
-    same ``(t, q, qd, gbar, z_I)`` and the same held ``e_e`` (the program's, after its image)."""
+    sampled simulator's law and its ``z_I`` update (:class:`SampledSimulator`) at the same
+    ``(t, q, qd, gbar, z_I)`` and the same held ``e_e`` (the program's, after its image)."""
     controller = dvfc.controller(case)
     simulator = SampledSimulator(replace(case.loop, sampled=True), case.settings)
     layout, n, integral = controller.layout, controller.n, case.loop.integral
@@ -246,7 +265,7 @@ def law_replay(case, run):
         step = controller.evaluate(x, run.t[k], run.q[k], run.qd[k], image, int(run.captures[k]))
         e_e = step.state[layout.e_e]
         s = np.concatenate([run.q[k], run.qd[k], x[:7], x[layout.integral] if integral else []])
-        law, _ = simulator._last(run.t[k], s, e_e, simulator._effort, *simulator.design)
+        law, *_ = simulator._last(run.t[k], s, e_e, simulator._effort, *simulator.design)
         after = period(s, run.t[k], e_e, simulator._effort, simulator._friction, *simulator.design)[0]
         z_sim = np.asarray(after).ravel()[2 * n + 7 :]
         rows.append((step.tau, np.asarray(law).ravel(), x[layout.integral], step.state[layout.integral], z_sim))
@@ -258,14 +277,14 @@ def test_integral_action_of_the_program_is_the_sampled_simulators_rule():
     """Facts 20-21 in the program: over 0.1 s of software in the loop (50 samples) of the default UR5
     with ``K_I = 10 K_xi`` from 0.02 s and saturated efforts, at every sample the torque equals the
     sampled simulator's law (``-K_I z_k`` included) and ``z_(k+1)`` its update (``z_k + h xi_k``, 0
-    before ``integral_start``, the conditional anti-windup), both to 1e-10 relative: the same law in
-    two graphs (the program's SX, the simulator's MX) differs by rounding only. ``z_I`` is held at
-    some samples and integrates at others, and is 0 before 0.02 s."""
+    before ``integral_start``, the conditional anti-windup), bit for bit: the program reads its state
+    (its ring's images, its ``z_I``) into the update the simulator runs (the rule itself is checked
+    against NumPy by ``tests/test_integral.py``). ``z_I`` is held at some samples and integrates at
+    others, and is 0 before 0.02 s."""
     case = changed(DEFAULT_SCENARIO, INTEGRAL, SATURATED)
     run = software_in_the_loop(case, duration=0.1)
     tau, law, z, z_next, z_sim = law_replay(case, run)
-    assert np.abs(tau - law).max() <= 1e-10 * np.abs(law).max()
-    assert np.abs(z_next - z_sim).max() <= 1e-10 * np.abs(z_sim).max()
+    assert np.array_equal(tau, law) and np.array_equal(z_next, z_sim)
     assert np.all(z_next[run.t[: len(tau)] < 0.02 - 1e-9] == 0.0)
     late = run.t[: len(tau)] >= 0.02
     held = (z_next == z) & late[:, None]
@@ -276,13 +295,23 @@ def test_integral_action_of_the_program_is_the_sampled_simulators_rule():
 def test_friction_compensation_of_the_program_is_the_sampled_simulators_law():
     """Fact 19 in the program: the xArm 7 (its URDF's damping and friction) with ``friction_compensation =
     "urdf"``, 0.05 s of software in the loop (100 samples at 2 kHz): every torque the sampled simulator's
-    law to 1e-10 relative, ``fhat(qd_d)`` reaching more than 0.01 N m (so the test sees it)."""
+    law bit for bit, and the paper's law (35) plus ``fhat(qd_d) = bhat qd_d + chat tanh(qd_d / epshat)``
+    evaluated in NumPy on the law's ``qd_d`` to 1e-10 relative, ``fhat`` reaching more than 0.01 N m (so
+    the test sees it)."""
     case = changed(SEVEN_JOINTS, {"friction_compensation": "urdf"})
     run = software_in_the_loop(case, duration=0.05)
     tau, law, *_ = law_replay(case, run)
-    assert np.abs(tau - law).max() <= 1e-10 * np.abs(law).max()
+    assert np.array_equal(tau, law)
     loop = program_loop(case)
-    compensation = cs.Function("fhat", [loop.t, loop.state, loop.hold], [loop.compensation_torque])
-    fhat = [np.asarray(compensation(t, np.concatenate([q, qd, x[:7]]), np.zeros(loop.hold.numel()))).ravel()
-            for t, q, qd, x in zip(run.t[:-1], run.q[:-1], run.qd[:-1], run.states, strict=True)]  # fmt: skip
+    n, e_e = loop.robot.n, dvfc.controller(case).layout.e_e
+    paper = cs.Function("paper", [loop.t, loop.state, loop.hold], [loop.paper_torque, loop.qd_d])
+    bhat, chat, eps = loop.compensation[:n], loop.compensation[n : 2 * n], loop.compensation[2 * n]
+    fhat, own = [], []
+    for k in range(len(run.tau) - 1):  # the e_e held at step k: the program's state after it
+        hold = np.concatenate([np.zeros(n), run.states[k + 1][e_e], np.zeros(12)])
+        state = np.concatenate([run.q[k], run.qd[k], run.states[k][:7]])
+        torque, qd_d = (np.asarray(v).ravel() for v in paper(run.t[k], state, hold))
+        fhat.append(bhat * qd_d + chat * np.tanh(qd_d / eps))
+        own.append(torque + fhat[-1])
+    assert np.abs(np.array(own) - tau[:-1]).max() <= 1e-10 * np.abs(tau).max()
     assert np.abs(fhat).max() > 0.01

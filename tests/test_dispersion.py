@@ -91,7 +91,7 @@ def test_mount_error_features_are_the_true_cameras_and_the_law_keeps_the_nominal
     assert np.allclose(f_true, expected, rtol=0, atol=1e-9)
     true_arm = Robot(loop.robot.urdf, loop.robot.frame, loop.robot.mount @ SE3.from_xyz_rpy(xyz, rpy))
     jb = lambda r: np.asarray(cs.Function("j", [r.q], [r.body_jacobian])(s0[:n]))  # noqa: E731
-    holds = np.zeros((n + 6, 1))
+    holds = np.zeros((sim.model.hold.numel(), 1))  # [tau; e_e; V_k; U_k]
     law = np.asarray(sim.evaluate_signals(np.zeros(1), s0[:, None], holds)["body_jacobian"]).reshape(n, 6).T
     assert np.allclose(law, jb(loop.robot), atol=1e-12)
     assert not np.allclose(law, jb(true_arm), atol=1e-3)
