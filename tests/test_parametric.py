@@ -105,7 +105,8 @@ def test_sampled_run_equals_the_per_design_build(monkeypatch):
 def test_compiled_once_for_two_designs(tmp_path, monkeypatch):
     """Compiled (a fresh cache): the second design of the default scenario compiles nothing and
     its runs use the first's libraries (one for the right-hand side, one for the signals, one
-    for the control period); the sampled runs equal the per-design build's bit for bit; the
+    for the control period); the sampled runs equal the per-design build's to 1e-9 relative (it folds
+    the design, ``K_I`` included, into constants: round-off, 1.0e-10 at most measured); the
     continuous runs to 1e-8 (their right-hand sides are equal bit for bit, the Jacobians CVODES's
     Newton steps use differ by round-off, so each run is within its own 1e-10 tolerance)."""
     monkeypatch.setenv("DVFC_CACHE", str(tmp_path))
@@ -130,5 +131,5 @@ def test_compiled_once_for_two_designs(tmp_path, monkeypatch):
     per_design(monkeypatch)
     for (continuous, sampled), design in zip((first, second), designs, strict=True):
         reference_continuous, reference_sampled = both(design)
-        assert_same_run(sampled, reference_sampled)
+        assert_same_run(sampled, reference_sampled, 1e-9)
         assert np.abs(continuous["state"] - reference_continuous["state"]).max() < 1e-8
