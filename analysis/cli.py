@@ -47,7 +47,7 @@ from dvfc.analysis.certify import (
 )
 from dvfc.analysis.export import ExportError, ExportResult, export_controller, exportable, program_digest
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
-from dvfc.analysis.hardware import what_would_pass
+from dvfc.analysis.hardware import value_text, what_would_pass
 from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.margins import (
     PARAMETERS,
@@ -781,13 +781,6 @@ def hardware_search(case: Case, log: Path, resume: bool, how: tuple[float, float
                                log=log, resume=resume, progress=announcer(status))  # fmt: skip
 
 
-def hardware_value(value: float | None, unit: str) -> str:
-    """A value of ``--what-would-pass`` with its unit (a latency in ms)."""
-    if value is None:
-        return "-"
-    return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.5g} {unit}"
-
-
 def hint(command: str) -> None:
     """The line pointing at ``--what-would-pass`` when nothing passes (standard error)."""
     err.print(f"what would pass: {command} searches the least change of the control rate, camera rate or latency "
@@ -806,7 +799,7 @@ def show_what_would_pass(found: dict) -> None:
     for col in columns:
         table.add_column(col)
     for name, p in found["parameters"].items():
-        value = lambda v, u=p["unit"]: hardware_value(v, u)  # noqa: E731
+        value = lambda v, u=p["unit"]: value_text(v, u)  # noqa: E731
         if p["needed"] is None:
             needed, bracket = "none in range", f"fails at {value(p['fails_at'])}"
         else:

@@ -215,7 +215,7 @@ class Evaluations:
         if key in self.done:
             return self.done[key]
         same = value == hardware(case.scenario)[name]
-        label = f"{'as it is' if same else f'{name} = {_text(value, UNITS[name])}'} ({level})"
+        label = f"{'as it is' if same else f'{name} = {value_text(value, UNITS[name])}'} ({level})"
         self.say(f"{label}: synthesising ({_size(budget)})")
         result = self.evaluate(case, scenario, budget, lambda text: self.say(f"{label}: {text}"))
         raise_if_interrupted()  # the synthesis may be cut short: not logged
@@ -261,10 +261,10 @@ def bisect(case: Case, name: str, bound: TrackingBound, screen: Budget, full: Bu
 
     def nothing(i: int) -> dict:
         return {**record, "fails_at": values[i], "fails_because": full_fail[i]["limits"],
-                "statement": f"no value to {_text(values[i], unit)} passes (the full-size synthesis)"}  # fmt: skip
+                "statement": f"no value to {value_text(values[i], unit)} passes (the full-size synthesis)"}  # fmt: skip
 
     if hi == 0:
-        return {**nothing(0), "statement": f"already at the end of the searched range ({_text(values[0], unit)})"}
+        return {**nothing(0), "statement": f"already at the end of the searched range ({value_text(values[0], unit)})"}
     if not check(hi, SCREEN) and not check(hi, FULL):
         return nothing(hi)
     while True:
@@ -294,8 +294,9 @@ def bisect(case: Case, name: str, bound: TrackingBound, screen: Budget, full: Bu
     passed = _passing(entry(hi))
     return {**record, **passed, "needed": values[hi], "fails_at": values[lo], "fails_because": full_fail[lo]["limits"],
             "passes_at": values[hi],
-            "statement": (f"passes at {_text(values[hi], unit)} (full size: {passed['confirmation']['statement']}); "
-                          f"fails at {_text(values[lo], unit)} (full size)")}  # fmt: skip
+            "statement": (f"passes at {value_text(values[hi], unit)} (full size: "
+                          f"{passed['confirmation']['statement']}); fails at {value_text(values[lo], unit)} "
+                          "(full size)")}  # fmt: skip
 
 
 def _passing(entry: dict) -> dict:
@@ -310,8 +311,10 @@ def _size(budget: Budget) -> str:
             f"{budget.runs}-run confirmation")  # fmt: skip
 
 
-def _text(value: float, unit: str) -> str:
-    """A value with its unit (a latency in ms)."""
+def value_text(value: float | None, unit: str) -> str:
+    """A value with its unit (a latency in ms; ``-`` for none)."""
+    if value is None:
+        return "-"
     return f"{value * 1e3:.4g} ms" if unit == "s" else f"{value:.5g} {unit}"
 
 

@@ -392,20 +392,26 @@ def gain_point(scenario: Scenario, n: int, gains: GainsSection | None = None, wh
     g = scenario.gains if gains is None else gains
     task = TASK if scenario.loop == "planar" else 6
     k_xi = _vector(g.k_xi, n, f"{where}.k_xi")
-    k_i = None
-    if g.k_i is not None or g.k_i_factor is not None:
-        if scenario.loop == "planar":
-            name = "k_i" if g.k_i is not None else "k_i_factor"
-            raise ScenarioError(f"{where}.{name}: integral action is built for the paper's loop, not the planar one")
-        k_i = _vector(g.k_i, n, f"{where}.k_i") if g.k_i is not None else g.k_i_factor * k_xi
+    if scenario.loop == "planar" and (g.k_i is not None or g.k_i_factor is not None):
+        name = "k_i" if g.k_i is not None else "k_i_factor"
+        raise ScenarioError(f"{where}.{name}: integral action is built for the paper's loop, not the planar one")
     return GainPoint(
         k_xi,
         _vector(g.k_c, task, f"{where}.k_c"),
         _vector(g.k_e, task, f"{where}.k_e"),
         Weights(**scenario.weights.model_dump()),
         plant_weights(scenario, n),
-        k_i,
+        integral_gain(g, k_xi, f"{where}.k_i"),
     )
+
+
+def integral_gain(gains: GainsSection, k_xi: np.ndarray, where: str = "gains.k_i") -> np.ndarray | None:
+    """``K_I`` of (42) with integral action (docs/math.md, fact 20) for a design with ``K_xi = k_xi``:
+    ``gains``' fixed ``k_i`` (``len(k_xi)`` entries, named ``where`` in errors) or ``k_i_factor K_xi``;
+    None without integral action."""
+    if gains.k_i is not None:
+        return _vector(gains.k_i, len(k_xi), where)
+    return None if gains.k_i_factor is None else gains.k_i_factor * np.asarray(k_xi, dtype=float)
 
 
 def design_before(scenario: Scenario) -> Scenario | None:

@@ -48,7 +48,7 @@ from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.output import append_log, read_log
 from dvfc.analysis.results import envelope_record, point_record, speed_theta_bar
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.scenario import Scenario, ScenarioError
+from dvfc.analysis.scenario import Scenario, ScenarioError, integral_gain
 from dvfc.analysis.windows import GainWindows, WindowSpec, case_window_spec, case_windows
 from dvfc.models.inertia import MassBounds
 from dvfc.models.lie import SE3
@@ -540,9 +540,7 @@ def designed_gains(case: Case, point: GainPoint) -> Gains:
     """The gains of (42) of a design ``point`` on ``case``, with the case's integral action
     (docs/math.md, fact 20): ``K_I = k_i_factor K_xi`` at the design's ``K_xi`` when the scenario
     gives a factor, its fixed ``k_i`` otherwise, none without."""
-    factor = case.scenario.gains.k_i_factor
-    k_i = case.point.k_i if factor is None else factor * np.asarray(point.k_xi, dtype=float)
-    return Gains(point.k_xi, point.k_c, point.k_e, k_i)
+    return Gains(point.k_xi, point.k_c, point.k_e, integral_gain(case.scenario.gains, point.k_xi))
 
 
 def design_runner(case: Case) -> Callable[[GainPoint], dict]:
