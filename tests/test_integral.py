@@ -132,7 +132,8 @@ def test_fact_20_3_a_run_under_a_constant_torque_settles_at_zero_error_only_with
 def test_fact_21_zero_integral_gain_keeps_todays_monodromy(default_multirate):
     """(21) With ``K_I = 0`` the integral state does not act on the loop: the monodromy on the 36 states
     restricted to the 30 of fact 14 equals today's to 1e-12, and the 6 further eigenvalues are 1 (the
-    idle integrators). Without ``k_i`` (the default) ``rho`` is fact 14's 0.936901257464392 bit for bit (the
+    idle integrators). Without ``k_i`` (the default) ``rho`` is fact 14's 0.936901257464392 to 1e-14 (the last bit of
+    LAPACK's eigenvalues of the 30 x 30 monodromy varies with the machine's BLAS; the
     loop with the program's observer step; 0.9369024199206657 with the observer integrated on ``qd(t)``)."""
     without, _, imp = default_multirate
     loop, s0, _ = build(*load(DEFAULT_SCENARIO))
@@ -142,7 +143,7 @@ def test_fact_21_zero_integral_gain_keeps_todays_monodromy(default_multirate):
     keep = np.r_[0:18, 24:36]  # every state but z_I (after [dq; dqd; dpbar; dthetabar])
     assert np.abs(pi_zero[np.ix_(keep, keep)] - pi).max() <= 1e-12
     assert np.allclose(np.sort(np.abs(np.linalg.eigvals(pi_zero)))[-6:], 1.0, atol=1e-9)
-    assert spectral_radius(pi) == 0.936901257464392
+    assert abs(spectral_radius(pi) - 0.936901257464392) <= 1e-14
 
 
 def test_fact_21_monodromy_with_the_integral_equals_a_sample_by_sample_simulation(default_multirate):
