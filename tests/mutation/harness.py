@@ -551,6 +551,13 @@ MUTATIONS = (
         ("tests/test_report_text.py::test_the_programs_statement_is_the_replays_outcome",),
     ),
     Mutation(
+        "certify-json-key-renamed",
+        "the envelope's re-check margin written under another key in dvfc certify's JSON",
+        "analysis/envelope.py",
+        (('            "recheck_margin": self.margin,', '            "margin": self.margin,'),),
+        ("tests/test_golden.py::test_each_commands_json_is_the_recorded_one[certify]",),
+    ),
+    Mutation(
         "true-pixels-nominal-centre",
         "the worst run's true features drawn about the controller's principal point, not the plant's",
         "analysis/campaign.py",
