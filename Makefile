@@ -33,7 +33,7 @@ lint: install
 	$(BIN)/ruff check .
 
 test: lint system-deps
-	$(BIN)/pytest -q -n 2 --dist loadfile --nbmake tests notebooks
+	$(BIN)/pytest -q -n 2 --dist loadfile --durations=25 --nbmake tests notebooks
 
 check: lint
 	$(BIN)/pytest -q -n 2 --dist loadfile -m "not slow" tests

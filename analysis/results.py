@@ -40,6 +40,7 @@ from dvfc.analysis.envelope import (
     stated,
 )
 from dvfc.analysis.envelope import PLANAR_ASSUMPTIONS as PLANAR_ENVELOPE_ASSUMPTIONS
+from dvfc.analysis.export import NO_COMPILER
 from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import MARGINAL_POLES, FromRest, from_rest
@@ -357,13 +358,16 @@ def best_gamma(point: dict) -> tuple[float | None, str]:
 
 
 def statements(
-    certificate: dict, verification: dict, margins: dict | None = None, dispersion: dict | None = None
+    certificate: dict, verification: dict, margins: dict | None = None, dispersion: dict | None = None,
+    controller: dict | None = None,
 ) -> list[dict]:
     """Every statement a review makes, each with the loop it is about and its own status:
     ``CERTIFIED`` / ``NOT CERTIFIED`` (a certificate, re-checked), ``DOES NOT APPLY`` (its
     assumptions fail here), ``PASS`` / ``FAIL`` / ``INCONCLUSIVE`` (checks on simulated runs),
     ``MEASURED`` (a measurement, not a certificate). ``margins`` and ``dispersion`` (the
-    report's campaign, its ``summary`` the campaign's ``summary.json``): when measured."""
+    report's campaign, its ``summary`` the campaign's ``summary.json``): when measured;
+    ``controller``: the exported program checked against the simulated one
+    (:func:`dvfc.analysis.export.running_controller`), when the scenario has one."""
     point = certificate["points"][0]
     gamma, which = best_gamma(point)
     integral = point.get("integral")
@@ -427,6 +431,8 @@ def statements(
         loop = f"sampled nonlinear loop, simulated: {campaign['runs']} runs drawn from the [dispersion]"
         out.append({"statement": "dispersion campaign", "loop": loop, "status": "MEASURED",
                     "detail": campaign["statement"]})  # fmt: skip
+    if controller is not None:
+        out.append(program_statement(controller))
     summary_ = verification["summary"]
     status = "FAIL" if summary_["failed"] else "INCONCLUSIVE" if summary_["inconclusive"] else "PASS"
     out.append({"statement": "the paper's claims and the limits, checked on runs", "loop": "simulated runs",
@@ -435,11 +441,33 @@ def statements(
     return out
 
 
+PROGRAM_STATEMENT = "the exported program is the simulated controller (dvfc export --check)"
+
+
+def program_statement(controller: dict) -> dict:
+    """The statement that the program that runs is the controller the runs simulate: the compiled C
+    step replayed on the run as implemented, sample by sample, and closing the plant's loop
+    (:func:`dvfc.analysis.export.check`, within its stated tolerances); ``INCONCLUSIVE`` when it
+    could not be compiled, ``DOES NOT APPLY`` when the loop has no program to export."""
+    row = {"statement": PROGRAM_STATEMENT,
+           "loop": "the compiled C step on the loop as implemented's run, sample by sample and in closed loop"}
+    if "check" not in controller:
+        status = "INCONCLUSIVE" if controller["reason"] == NO_COMPILER else "DOES NOT APPLY"
+        return {**row, "status": status, "detail": f"not checked: {controller['reason']}"}
+    check, tolerance = controller["check"], controller["tolerances"]
+    detail = (f"program SHA-256 {controller['sha256'][:16]}: {check['samples']} samples, largest torque difference "
+              f"{check['max_abs_torque_difference']:.3g} N m (relative {check['max_rel_torque_difference']:.3g}, "
+              f"at most {tolerance['torque_relative']:.0e}); closed loop: joints within "
+              f"{check['closed_loop_max_state_difference']:.3g} (at most {tolerance['closed_loop']:.0e})")
+    return {**row, "status": "PASS" if check["passed"] else "FAIL", "detail": detail}
+
+
 def verdict(certificate: dict, verification: dict, statements_: list[dict] | None = None) -> dict:
     """The whole verdict of a review: the certificate AND every check behind it.
 
-    ``passed`` only when the design is certified, no claim fails and no check is
-    inconclusive; ``failed`` and ``inconclusive`` list those claims with their reasons;
+    ``passed`` only when the design is certified, no claim fails, no check is inconclusive and
+    the exported program's replay (:func:`program_statement`, when given) does not fail;
+    ``failed`` and ``inconclusive`` list those claims with their reasons;
     ``not_certified`` the review's statements (:func:`statements`, when given) that are not
     certified or do not apply here, which the headline names too."""
     point = certificate["points"][0]
@@ -450,6 +478,8 @@ def verdict(certificate: dict, verification: dict, statements_: list[dict] | Non
         checks.append(f"{len(failed)} of {verification['summary']['claims']} checked claims FAIL")
     if inconclusive:
         checks.append(f"{len(inconclusive)} check(s) INCONCLUSIVE")
+    if any(s["statement"] == PROGRAM_STATEMENT and s["status"] == "FAIL" for s in statements_ or []):
+        checks.append("the exported program's replay FAILS")
     if point["certified"]:
         headline = "L2 gain CERTIFIED" + (", but " + " and ".join(checks) if checks else ", and every check passes")
     else:

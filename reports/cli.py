@@ -68,8 +68,8 @@ def report(
         times("end")
         atomic_write(directory / CACHE / TIMINGS, lambda h: h.write(times.table(cache).encode()))
     out.print(f"report: {html}\n        {pdf}", markup=False)
-    outcome = verdict(data.certificate, data.verification,
-                      statements(data.certificate, data.verification, data.margins, data.dispersion))  # fmt: skip
+    review = statements(data.certificate, data.verification, data.margins, data.dispersion, data.controller)
+    outcome = verdict(data.certificate, data.verification, review)
     out.print(outcome["headline"], markup=False)
     for claim in outcome["failed"] + outcome["inconclusive"]:
         out.print(f"  {claim['status']} {claim['paper']}: {claim['claim']} ({claim['detail']})", markup=False)

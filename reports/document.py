@@ -391,7 +391,7 @@ def render(data: ReportData) -> str:
     env.filters["vec"] = _vector
     spec = data.spec
     point = data.certificate["points"][0]
-    review = statements(data.certificate, data.verification, data.margins, data.dispersion)
+    review = statements(data.certificate, data.verification, data.margins, data.dispersion, data.controller)
     return env.get_template("report.html.j2").render(
         spec=spec,
         robot=data.loop.robot,

@@ -22,6 +22,7 @@ from typer.testing import CliRunner
 
 import dvfc
 from dvfc.analysis.margins import PARAMETERS
+from dvfc.analysis.results import PROGRAM_STATEMENT
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
 from dvfc.reports.stages import CACHE
@@ -294,9 +295,9 @@ def test_as_implemented_section_embeds_the_measured_margins(report):
 def test_page_one_gives_every_statement_its_own_status(report):
     """Page 1 lists every statement with the loop it is about and its own status (never one word
     for all): the L2 gain, the envelope's rate, visibility, the target's own speed, the start,
-    the loop as implemented (fact 14), the measured margins, the checks; the banner is green
-    exactly when no statement is uncertified, failed or inconclusive (on the default, started
-    with the planned reference, every one is certified or passes)."""
+    the loop as implemented (fact 14), the measured margins, the exported program's replay, the
+    checks; the banner is green exactly when no statement is uncertified, failed or inconclusive
+    (on the default, started with the planned reference, every one is certified or passes)."""
     html = report[0].read_text()
     table = html[html.index('<table id="statements">') : html.index("</table>", html.index('<table id="statements">'))]
     rows = [[unescape(re.sub(r"<[^>]+>", "", cell)) for cell in re.findall(r"<td>(.*?)</td>", row, re.S)]
@@ -305,6 +306,7 @@ def test_page_one_gives_every_statement_its_own_status(report):
     assert names[0] == "L2 gain (Theorem 2)" and "the start" in names and len(names) >= 8
     assert set(statuses) <= {"CERTIFIED", "NOT CERTIFIED", "DOES NOT APPLY", "PASS", "FAIL", "INCONCLUSIVE", "MEASURED"}
     assert statuses[names.index("margins of the loop as implemented")] == "MEASURED"
+    assert statuses[names.index(PROGRAM_STATEMENT)] == "PASS"  # the exported program is the simulated one
     green = not {"NOT CERTIFIED", "FAIL", "INCONCLUSIVE"} & set(statuses)
     assert ('class="verdict pass"' in html) == green and green
 

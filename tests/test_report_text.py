@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from dvfc.analysis.export import NO_COMPILER
 from dvfc.models.camera import Camera
 from dvfc.reports.document import _number, _vector, camera_facts, plant_text
 
@@ -71,3 +73,28 @@ def test_the_verdict_names_every_statement_not_certified_or_not_applying():
     assert [s["statement"] for s in outcome["not_certified"]] == ["every feature", "own speed", "fact 14"]
     assert "3 statement(s) not certified" in outcome["headline"]
     assert verdict(certificate, verification)["headline"] == "L2 gain CERTIFIED, and every check passes"
+
+
+CHECK = {"samples": 5000, "max_abs_torque_difference": 0.0, "max_rel_torque_difference": 0.0,
+         "closed_loop_max_state_difference": 0.0, "passed": True}
+"""A replay of the exported step identical to the Python step's (``dvfc export --check``'s record)."""
+
+
+@pytest.mark.parametrize(("record", "status"), [
+    ({"check": CHECK}, "PASS"),
+    ({"check": CHECK | {"max_rel_torque_difference": 1e-9, "passed": False}}, "FAIL"),
+    ({"reason": NO_COMPILER}, "INCONCLUSIVE"),
+    ({"reason": "loop: the reduced planar loop cannot be exported; export the paper's loop"}, "DOES NOT APPLY"),
+])  # fmt: skip
+def test_the_programs_statement_is_the_replays_outcome(record, status):
+    """Page 1's statement on the program that runs: PASS exactly when the replay of the compiled step
+    stayed within its tolerances, FAIL otherwise, INCONCLUSIVE without a C compiler, DOES NOT APPLY
+    when the loop has no program; a failed replay fails the verdict (the report's exit status)."""
+    from dvfc.analysis.results import PROGRAM_STATEMENT, program_statement, verdict
+
+    record = record | {"sha256": "0" * 64, "tolerances": {"torque_relative": 1e-12, "closed_loop": 1e-9}}
+    row = program_statement(record)
+    assert row["statement"] == PROGRAM_STATEMENT and row["status"] == status
+    certificate = {"points": [{"certified": True}]}
+    verification = {"claims": [{"status": "PASS"}], "summary": {"claims": 1}}
+    assert verdict(certificate, verification, [row])["passed"] == (status != "FAIL")

@@ -537,6 +537,27 @@ MUTATIONS = (
         ("tests/test_report.py::test_the_controller_section_states_the_exports_digest_replay_step_times_and_coverage",),
     ),
     Mutation(
+        "program-statement-always-passes",
+        "page 1 says the exported program is the simulated controller whatever its replay found",
+        "analysis/results.py",
+        (('"status": "PASS" if check["passed"] else "FAIL"', '"status": "PASS"'),),
+        ("tests/test_report_text.py::test_the_programs_statement_is_the_replays_outcome",),
+    ),
+    Mutation(
+        "program-replay-failure-passes-the-verdict",
+        "a failed replay of the exported program leaves the review's verdict passing",
+        "analysis/results.py",
+        (('        checks.append("the exported program\'s replay FAILS")\n', "        pass\n"),),
+        ("tests/test_report_text.py::test_the_programs_statement_is_the_replays_outcome",),
+    ),
+    Mutation(
+        "certify-json-key-renamed",
+        "the envelope's re-check margin written under another key in dvfc certify's JSON",
+        "analysis/envelope.py",
+        (('            "recheck_margin": self.margin,', '            "margin": self.margin,'),),
+        ("tests/test_golden.py::test_each_commands_json_is_the_recorded_one[certify]",),
+    ),
+    Mutation(
         "true-pixels-nominal-centre",
         "the worst run's true features drawn about the controller's principal point, not the plant's",
         "analysis/campaign.py",
