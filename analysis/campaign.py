@@ -34,8 +34,8 @@ from dvfc.analysis import sensitivity
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import INPUTS, MASSES, Dispersion, base_values, with_values
 from dvfc.analysis.grid import batches
-from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_error
-from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
+from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_bound, tracking_error
+from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted, write_json
 from dvfc.analysis.parametric import parametrised
 from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
@@ -224,7 +224,7 @@ def run_campaign(
     if resume and state_path.exists():
         saved = json.loads(state_path.read_text())
         if saved["scenario_sha256"] != scenario_sha256 or saved["seed"] != spec.seed or saved["runs"] != runs:
-            raise ValueError("--resume: the campaign in this directory has another scenario, seed or number of runs")
+            raise ValueError("resume: the campaign in this directory has another scenario, seed or number of runs")
         done = saved["done"]
     for part in folder.glob("part-*.parquet"):  # batches past the recorded runs (or of an old campaign)
         if int(part.stem.removeprefix("part-")) >= done:
@@ -404,3 +404,46 @@ def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] 
         "fixed_columns": len(fixed),
         "statement": "the worst combination found: a lower bound on the worst case over the box, not the worst case",
     }  # fmt: skip
+
+
+def campaign(
+    case: Case,
+    directory: Path,
+    runs: int = 100,
+    *,
+    seed: int = 0,
+    confidence: float = CONFIDENCE,
+    p_fail: float = P_FAIL,
+    quantile: float = QUANTILE,
+    search: int = 0,
+    batch_size: int = 25,
+    workers: int = 1,
+    scheduler: str | None = None,
+    resume: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> dict:
+    """The case's ``[dispersion]`` as a campaign of ``runs`` independent runs of the loop as implemented,
+    each judged by the margins criterion, stored batch by batch in ``directory`` (``resume`` continues
+    an interrupted one); its statistics (:func:`summarize`) at ``confidence``, the zero-failure count
+    for ``p_fail``, the tracking error's ``quantile``; with ``search`` runs, the worst case found
+    (:func:`worst_case`, also written to ``directory / "worst_case.json"``). ``progress`` gets the runs
+    done. Bad arguments raise :class:`ValueError` naming the argument (:class:`ScenarioError` the field)."""
+    if runs < 1:
+        raise ValueError(f"runs: {runs}; give at least 1")
+    for name, value in (("confidence", confidence), ("p_fail", p_fail), ("quantile", quantile)):
+        if not 0 < value < 1:
+            raise ValueError(f"{name}: {value:g} is not in (0, 1)")
+    if not case.scenario.dispersion:
+        raise ScenarioError("dispersion: the scenario has no [dispersion] section")
+    spec = CampaignSpec.of(case, tracking_bound(case), seed)
+    if resume and not (directory / "campaign.json").exists():
+        raise ValueError(f"resume: no campaign to resume in {directory}")
+    directory.mkdir(parents=True, exist_ok=True)
+    run_campaign(spec, directory, runs, batch_size=batch_size, workers=workers, scheduler=scheduler, resume=resume,
+                 progress=progress, scenario_sha256=case.provenance([])["scenario_sha256"])  # fmt: skip
+    result = summarize(spec, read_runs(directory), confidence, p_fail, quantile)
+    if search:
+        found = worst_case(spec, search)
+        write_json(directory / "worst_case.json", found)
+        result["worst_case_search"] = found | {"replay": spec.replay(values=directory / "worst_case.json")}
+    return result | {"scenario": case.name, "dataset": str(directory / RUNS)}

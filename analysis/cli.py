@@ -28,11 +28,10 @@ from dvfc.analysis.campaign import (
     P_FAIL,
     QUANTILE,
     CampaignSpec,
-    read_runs,
-    run_campaign,
     shared_simulator,
-    summarize,
-    worst_case,
+)
+from dvfc.analysis.campaign import (
+    campaign as run_campaign_job,
 )
 from dvfc.analysis.campaign import row as campaign_row
 from dvfc.analysis.case import Case
@@ -1118,55 +1117,21 @@ def campaign_command(
     """Run the scenario's [dispersion] as a campaign of independent runs of the loop as implemented,
     each judged by the margins criterion; state the failure probability with its confidence.
     Exit 0 no failure, 1 some run fails, 2 bad input."""
-    if runs < 1:
-        raise fail(f"--runs: {runs}; give at least 1")
-    for name, value in (("--confidence", confidence), ("--p", p_fail), ("--quantile", quantile)):
-        if not 0 < value < 1:
-            raise fail(f"{name}: {value:g} is not in (0, 1)")
     case = load_case(scenario)
-    if not case.scenario.dispersion:
-        raise fail("dispersion: the scenario has no [dispersion] section")
     check_json_target(json_target)
-    bound = tracking_bound(case)
-    try:
-        spec = CampaignSpec.of(case, bound, seed)
-    except ScenarioError as exc:
-        raise fail(str(exc)) from exc
-    directory = prepare_out_dir(out_dir or Path("out") / f"{case.name}-campaign")
-    if resume and not (directory / "campaign.json").exists():
-        raise fail(f"--resume: no campaign to resume in {directory}")
-    sha = provenance(scenario, [])["scenario_sha256"]
-    columns = (TextColumn("[bold]campaign[/]"), BarColumn(), MofNCompleteColumn(), TextColumn("runs"),
-               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    directory = out_dir or Path("out") / f"{case.name}-campaign"
     again = f"dvfc campaign {scenario} --runs {runs} --seed {seed} --out {directory} --resume"
-    log = directory / "what_would_pass.jsonl"
     searched = f"{again} --p {p_fail:g} --confidence {confidence:g} --what-would-pass"
-    try:
-        with (
-            resumable(again),
-            Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar,
-        ):
-            task = bar.add_task("runs", total=runs)
-            lines = None if err.is_terminal else ProgressLines("campaign", runs, "runs")
-
-            def advance(done: int) -> None:
-                bar.update(task, completed=done)
-                if lines is not None:
-                    lines(done)
-
-            run_campaign(spec, directory, runs, batch_size=batch_size, workers=workers, scheduler=scheduler,
-                         resume=resume, progress=advance, scenario_sha256=sha)  # fmt: skip
-            result = summarize(spec, read_runs(directory), confidence, p_fail, quantile)
-            if search:
-                found = worst_case(spec, search)
-                write_json(directory / "worst_case.json", found)
-                found["replay"] = spec.replay(values=directory / "worst_case.json")
-                result["worst_case_search"] = found
-    except ValueError as exc:
-        raise fail(str(exc)) from exc
-    result |= {"scenario": case.name, "dataset": str(directory / "runs"), "provenance": command_provenance(scenario)}
+    if directory.exists() and not directory.is_dir():
+        raise fail(f"--out: {directory} exists and is not a directory")
+    with resumable(again), run_bar("campaign", runs, "runs") as advance, library_errors(CAMPAIGN_FLAGS, directory):
+        result = run_campaign_job(case, directory, runs, seed=seed, confidence=confidence,
+                                  p_fail=p_fail, quantile=quantile, search=search, batch_size=batch_size,
+                                  workers=workers, scheduler=scheduler, resume=resume, progress=advance)  # fmt: skip
+    result["provenance"] = command_provenance(scenario)
     if what:  # the search, before the JSON is written (one document); a campaign without failures: none
         how = (p_fail, confidence, workers)
+        log = directory / "what_would_pass.jsonl"
         result["what_would_pass"] = hardware_search(case, log, resume and log.exists(), how, searched) if (
             result["failures"]) else None  # fmt: skip
     emit(result, directory / "summary.json", json_target, show_campaign)
@@ -1174,6 +1139,44 @@ def campaign_command(
         if not what:
             hint(searched)
         raise typer.Exit(1)
+
+
+CAMPAIGN_FLAGS = {"runs": "--runs", "confidence": "--confidence", "p_fail": "--p", "quantile": "--quantile",
+                  "resume": "--resume"}
+"""The campaign's library arguments (:func:`dvfc.analysis.campaign.campaign`) as the command line names them."""
+
+
+@contextmanager
+def library_errors(flags: dict[str, str], out: Path) -> Iterator[None]:
+    """Bad input raised by the library (``"argument: why"``): one line, exit 2, the argument named by
+    its option (``flags``), a scenario field as it is, the output folder ``out`` not writable as ``--out``."""
+    try:
+        yield
+    except ScenarioError as exc:
+        raise fail(str(exc)) from exc
+    except PermissionError as exc:
+        raise fail(f"--out: cannot write in {out}: {exc.strerror}") from exc
+    except ValueError as exc:
+        name, _, why = str(exc).partition(": ")
+        raise fail(f"{flags[name]}: {why}" if name in flags else str(exc)) from exc
+
+
+@contextmanager
+def run_bar(name: str, total: int, unit: str) -> Iterator[Callable[[int], None]]:
+    """A progress bar of ``total`` ``unit`` on standard error (plain lines when it is not a terminal);
+    yields the function that reports how many are done."""
+    columns = (TextColumn(f"[bold]{name}[/]"), BarColumn(), MofNCompleteColumn(), TextColumn(unit),
+               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    with Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar:
+        task = bar.add_task(unit, total=total)
+        lines = None if err.is_terminal else ProgressLines(name, total, unit)
+
+        def advance(done: int) -> None:
+            bar.update(task, completed=done)
+            if lines is not None:
+                lines(done)
+
+        yield advance
 
 
 def tolerance_text(tolerance: dict) -> str:

@@ -11,6 +11,7 @@ scenario read, validated and built once)::
     plane = dvfc.gain_map(case)              # Theorem 2 over a plane of gains
     verification = dvfc.verify(case)         # every claim of the paper on simulated runs
     margins = dvfc.margins(case, "out/m")    # where the loop as implemented stops holding (measured)
+    campaign = dvfc.campaign(case, "out/c")  # the [dispersion] as a campaign of runs (measured)
     html, pdf = dvfc.report(case, "out/r")   # the design-review report
     program = dvfc.controller(case)          # the controller as the robot runs it, one step a sample
 
@@ -32,7 +33,7 @@ if TYPE_CHECKING:
     from dvfc.analysis.grid import GainMap
     from dvfc.analysis.simulate import Trajectory
 
-__all__ = ["Case", "certify", "controller", "gain_map", "load", "margins", "report", "simulate", "verify"]
+__all__ = ["Case", "campaign", "certify", "controller", "gain_map", "load", "margins", "report", "simulate", "verify"]
 
 
 def __getattr__(name: str):
@@ -109,6 +110,19 @@ def margins(case: Case, directory: str | Path, *, workers: int = 1, resume: bool
     result = measure(case, directory, map_tasks=lambda f, a: run_tasks(f, a, workers),
                      resume=resume)  # fmt: skip
     return {**result, "provenance": case.provenance(["dvfc.margins"])}
+
+
+def campaign(case: Case, directory: str | Path, runs: int = 100, *, seed: int = 0, workers: int = 1,
+             resume: bool = False, **statistics: float) -> dict:
+    """The case's ``[dispersion]`` as a campaign of ``runs`` runs of the loop as implemented, each judged
+    by the margins criterion, stored in ``directory`` (``resume`` continues one); the failure probability's
+    bound at its confidence and the tracking error's tolerance bound (``statistics``: ``confidence``,
+    ``p_fail``, ``quantile``, ``search``, as :func:`dvfc.analysis.campaign.campaign`); the JSON of
+    ``dvfc campaign``."""
+    from dvfc.analysis.campaign import campaign as run
+
+    result = run(case, Path(directory), runs, seed=seed, workers=workers, resume=resume, **statistics)
+    return result | {"provenance": case.provenance(["dvfc.campaign"])}
 
 
 def report(case: Case, directory: str | Path) -> tuple[Path, Path]:

@@ -75,3 +75,29 @@ def test_the_reports_campaign_interrupted_and_resumed_loses_nothing_and_gives_th
     assert resumed["summary"] == whole["summary"]
     assert resumed["runs"] == whole["runs"]
     assert (resumed["worst"].signals["q"] == whole["worst"].signals["q"]).all()
+
+
+def test_the_python_campaign_is_the_commands(tmp_path):
+    """``dvfc.campaign`` (the curated API) gives the JSON of ``dvfc campaign`` for the same runs and
+    seed, every key and value but the provenance and the wall times; its bad arguments are named as the
+    library's (``p_fail``), the command's as its options (``--p``)."""
+    import json
+
+    import dvfc
+
+    scenario = tmp_path / "scenario.toml"
+    scenario.write_text(tomli_w.dumps(scenario_data(3)))
+    target = tmp_path / "cli.json"
+    result = CliRunner().invoke(app, ["campaign", str(scenario), "--runs", "3", "--out", str(tmp_path / "cli"),
+                                      "--json", str(target)])  # fmt: skip
+    assert result.exit_code in (0, 1), result.output
+    by_command = json.loads(target.read_text())
+    by_python = json.loads(json.dumps(dvfc.campaign(dvfc.load(scenario), tmp_path / "py", 3), default=str))
+    drop = lambda r: {k: v for k, v in r.items() if k not in ("provenance", "wall_time_per_run", "dataset")}  # noqa: E731
+    assert drop(by_python) == drop(by_command)
+    with pytest.raises(ValueError, match=r"^p_fail: 2 is not in \(0, 1\)$"):
+        dvfc.campaign(dvfc.load(scenario), tmp_path / "bad", 3, p_fail=2.0)
+    assert not (tmp_path / "bad").exists()
+    bad = CliRunner().invoke(app, ["campaign", str(scenario), "--p", "2", "--out", str(tmp_path / "bad")])
+    assert bad.exit_code == 2 and bad.output.strip().endswith("--p: 2 is not in (0, 1)")
+    assert not (tmp_path / "bad").exists()
