@@ -80,7 +80,7 @@ from dvfc.analysis.results import (
 )
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, ScenarioError, auto_q0
-from dvfc.analysis.synthesize import logged_runs, synthesis_bounds, synthesis_record, synthesize_case
+from dvfc.analysis.synthesize import refuse_unless_synthesisable, synthesize_scenario
 from dvfc.analysis.tasks import run_tasks
 from dvfc.analysis.windows import case_windows
 
@@ -663,42 +663,30 @@ def synthesize_command(
     (fact 6), reach [synthesize] gamma with the smallest gains, or (objective = "target_speed")
     maximise the envelope's certified target speed (facts 7-8); with --for-campaign, gains and
     integral action that hold on the scenario's campaign; write them as a scenario."""
-    start = time.perf_counter()
     for name, value in (("--p-fail", p_fail), ("--confidence", confidence)):
         if for_campaign and not 0 < value < 1:
             raise fail(f"{name}: {value:g} is not in (0, 1)")
     if what and not for_campaign:
         raise fail("--what-would-pass: searches the hardware for the synthesis --for-campaign; give --for-campaign")
     case = load_case(scenario)
-    spec, n = case.scenario, case.loop.robot.n
-    if spec.loop != "paper" or n < 6:
-        raise fail(f"loop: gain synthesis is for the paper's loop with n >= 6 joints (this is {spec.loop}, n = {n})")
     check_json_target(json_target)
-    target = out_file or Path("out") / f"{spec.name}-synthesized.toml"
+    target = out_file or Path("out") / f"{case.name}-synthesized.toml"
     if for_campaign:
+        with library_errors({}, target.parent):
+            refuse_unless_synthesisable(case)
         campaign_design(case, scenario, target, json_target, (p_fail, confidence, workers), what, resume)
         return
-    prepare_out_dir(target.parent)
-    try:
-        synthesis_bounds(case)
-    except ScenarioError as exc:
-        raise fail(str(exc)) from exc
-    log = target.with_name(target.name + ".runs.jsonl")  # the limits search's runs, for --resume
-    if resume and not log.exists():
-        raise fail(f"--resume: no limits search to resume ({log} not found)")
+    if target.parent.exists() and not target.parent.is_dir():
+        raise fail(f"--out: {target.parent} exists and is not a directory")
     with (
         resumable(f"dvfc synthesize {scenario} --out {target} --resume"),
         err.status("synthesising the gains") as status,
+        library_errors({"resume": "--resume"}, target.parent),
     ):
-        done = synthesize_case(case, target, runs=lambda run: logged_runs(run, log, resume=resume),
-                               progress=announcer(status))  # fmt: skip
-    log.unlink(missing_ok=True)  # the search is done: its runs are in the result
-    if done.accepted:
-        atomic_write(target, lambda h: h.write(done.text.encode()))
-    record = synthesis_record(done, target if done.accepted else None, command_provenance(scenario),
-                              time.perf_counter() - start)  # fmt: skip
+        record = synthesize_scenario(case, target, command_provenance(scenario), resume=resume,
+                                     progress=announcer(status))  # fmt: skip
     emit(record, None, json_target, show_synthesis)
-    if not done.accepted or (done.theta_bar is not None and record["max_target_speed"] is None):
+    if record["scenario_file"] is None or ("max_target_speed" in record and record["max_target_speed"] is None):
         raise typer.Exit(1)
 
 

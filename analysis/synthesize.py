@@ -32,6 +32,7 @@ import itertools
 import json
 import math
 import os
+import time
 import tomllib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -45,7 +46,7 @@ from dvfc.analysis.case import Case
 from dvfc.analysis.certify import Certificate, GainPoint, certify, estimation_scale, output_blocks, solve
 from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, pose_diagonal, s_limit
 from dvfc.analysis.multirate import implemented_record
-from dvfc.analysis.output import append_log, read_log
+from dvfc.analysis.output import append_log, atomic_write, read_log
 from dvfc.analysis.results import envelope_record, point_record, speed_theta_bar
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, ScenarioError, integral_gain
@@ -829,3 +830,34 @@ def synthesis_record(done: CaseSynthesis, written: Path | None, provenance: dict
             why = done.envelope["reason"]
             record["status"] = f"uncertified: no target speed certified for the written design ({why})"
     return record
+
+
+def refuse_unless_synthesisable(case: Case) -> None:
+    """Raise :class:`ScenarioError` unless the case is of the paper's loop with ``n >= 6`` joints, which
+    the gain synthesis is for (fact 6)."""
+    n = case.loop.robot.n
+    if case.scenario.loop != "paper" or n < 6:
+        raise ScenarioError(f"loop: gain synthesis is for the paper's loop with n >= 6 joints "
+                            f"(this is {case.scenario.loop}, n = {n})")  # fmt: skip
+
+
+def synthesize_scenario(
+    case: Case, target: Path, provenance: dict, *, resume: bool = False, progress: Callable[[str], None] | None = None
+) -> dict:
+    """The ``[synthesize]`` workflow (:func:`synthesize_case`) on a case of the paper's loop with
+    ``n >= 6`` joints, its design written as a scenario at ``target`` when accepted, the checked runs
+    logged beside it (``target.runs.jsonl``, reused with ``resume``, removed when done); the JSON of
+    ``dvfc synthesize`` (:func:`synthesis_record`) with ``provenance``. Bad input raises before any work:
+    :class:`ScenarioError` naming the field, :class:`ValueError` naming the argument."""
+    start = time.perf_counter()
+    refuse_unless_synthesisable(case)
+    synthesis_bounds(case)
+    log = target.with_name(target.name + ".runs.jsonl")
+    if resume and not log.exists():
+        raise ValueError(f"resume: no limits search to resume ({log} not found)")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    done = synthesize_case(case, target, runs=lambda run: logged_runs(run, log, resume=resume), progress=progress)
+    log.unlink(missing_ok=True)  # the search is done: its runs are in the result
+    if done.accepted:
+        atomic_write(target, lambda h: h.write(done.text.encode()))
+    return synthesis_record(done, target if done.accepted else None, provenance, time.perf_counter() - start)

@@ -12,6 +12,7 @@ scenario read, validated and built once)::
     verification = dvfc.verify(case)         # every claim of the paper on simulated runs
     margins = dvfc.margins(case, "out/m")    # where the loop as implemented stops holding (measured)
     campaign = dvfc.campaign(case, "out/c")  # the [dispersion] as a campaign of runs (measured)
+    design = dvfc.synthesize(case, "out/s.toml")  # gains of the [synthesize] box, written as a scenario
     html, pdf = dvfc.report(case, "out/r")   # the design-review report
     program = dvfc.controller(case)          # the controller as the robot runs it, one step a sample
 
@@ -33,7 +34,8 @@ if TYPE_CHECKING:
     from dvfc.analysis.grid import GainMap
     from dvfc.analysis.simulate import Trajectory
 
-__all__ = ["Case", "campaign", "certify", "controller", "gain_map", "load", "margins", "report", "simulate", "verify"]
+__all__ = ["Case", "campaign", "certify", "controller", "gain_map", "load", "margins", "report", "simulate",
+           "synthesize", "verify"]
 
 
 def __getattr__(name: str):
@@ -123,6 +125,16 @@ def campaign(case: Case, directory: str | Path, runs: int = 100, *, seed: int = 
 
     result = run(case, Path(directory), runs, seed=seed, workers=workers, resume=resume, **statistics)
     return result | {"provenance": case.provenance(["dvfc.campaign"])}
+
+
+def synthesize(case: Case, target: str | Path, *, resume: bool = False) -> dict:
+    """Gains within the case's ``[synthesize]`` box minimising the certified gamma (fact 6), reaching its
+    gamma with the smallest gains, or maximising the certified target speed (facts 7-8), each design
+    checked on the loop as implemented; the accepted design written as a scenario at ``target`` (the case
+    loaded from a file); the JSON of ``dvfc synthesize``."""
+    from dvfc.analysis.synthesize import synthesize_scenario
+
+    return synthesize_scenario(case, Path(target), case.provenance(["dvfc.synthesize"]), resume=resume)
 
 
 def report(case: Case, directory: str | Path) -> tuple[Path, Path]:

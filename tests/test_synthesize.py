@@ -503,3 +503,20 @@ def test_no_design_of_the_family_passing_fact_14_with_margin_is_refused_in_one_l
     status = record["status"]
     assert "\n" not in status and status.startswith("no design within the limits: the family's smallest certified "
                                                     "design (alpha = 0) falls short of the sampled loop's margins")
+
+
+def test_the_python_synthesis_refuses_a_loop_it_is_not_for_before_any_work(tmp_path):
+    """``dvfc.synthesize`` (the curated API) on the reduced planar loop: a :class:`ScenarioError`
+    naming ``loop`` (fact 6 is for the paper's loop with n >= 6 joints), nothing written; the command
+    says the same in one line, exit 2."""
+    import dvfc
+    from dvfc.analysis.scenario import ScenarioError
+
+    planar = Path(__file__).resolve().parent.parent / "examples" / "planar2dd_reduced.toml"
+    target = tmp_path / "out" / "designed.toml"
+    with pytest.raises(ScenarioError, match=r"^loop: gain synthesis is for the paper's loop with n >= 6 joints"):
+        dvfc.synthesize(dvfc.load(planar), target)
+    assert not target.parent.exists()
+    result = CliRunner().invoke(app, ["synthesize", str(planar), "--out", str(target)])
+    assert result.exit_code == 2 and "loop: gain synthesis is for the paper's loop" in result.output
+    assert not target.parent.exists()
