@@ -135,10 +135,15 @@ def fail(message: str) -> typer.Exit:
     return typer.Exit(2)
 
 
-def prepare_out_dir(path: Path) -> Path:
-    """Create the output directory, or fail (status 2) before any work is done."""
+def check_out_dir(path: Path) -> None:
+    """Fail (status 2) when the output directory's path is taken by something else than a directory."""
     if path.exists() and not path.is_dir():
         raise fail(f"--out: {path} exists and is not a directory")
+
+
+def prepare_out_dir(path: Path) -> Path:
+    """Create the output directory, or fail (status 2) before any work is done."""
+    check_out_dir(path)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -676,8 +681,7 @@ def synthesize_command(
             refuse_unless_synthesisable(case)
         campaign_design(case, scenario, target, json_target, (p_fail, confidence, workers), what, resume)
         return
-    if target.parent.exists() and not target.parent.is_dir():
-        raise fail(f"--out: {target.parent} exists and is not a directory")
+    check_out_dir(target.parent)
     with (
         resumable(f"dvfc synthesize {scenario} --out {target} --resume"),
         err.status("synthesising the gains") as status,
@@ -1110,8 +1114,7 @@ def campaign_command(
     directory = out_dir or Path("out") / f"{case.name}-campaign"
     again = f"dvfc campaign {scenario} --runs {runs} --seed {seed} --out {directory} --resume"
     searched = f"{again} --p {p_fail:g} --confidence {confidence:g} --what-would-pass"
-    if directory.exists() and not directory.is_dir():
-        raise fail(f"--out: {directory} exists and is not a directory")
+    check_out_dir(directory)  # the campaign creates it once its arguments are checked
     with resumable(again), run_bar("campaign", runs, "runs") as advance, library_errors(CAMPAIGN_FLAGS, directory):
         result = run_campaign_job(case, directory, runs, seed=seed, confidence=confidence,
                                   p_fail=p_fail, quantile=quantile, search=search, batch_size=batch_size,

@@ -112,14 +112,20 @@ def folder(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("golden")
 
 
+@pytest.fixture(scope="module")
+def arguments(folder) -> dict[str, list[str]]:
+    """:func:`commands` in ``folder``, its shortened scenarios written once for the module."""
+    return commands(folder)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["simulate", "pose", "certify", "certify_grid", "verify", "export", "synthesize",
                                   "margins", "campaign"])  # fmt: skip
-def test_each_commands_json_is_the_recorded_one(name, folder):
+def test_each_commands_json_is_the_recorded_one(name, folder, arguments):
     """The command's JSON has the recorded keys at every level and the recorded values (numbers to
     :data:`RTOL`), and it exits with the recorded status."""
     target = folder / f"{name}.json"
-    result = CliRunner().invoke(app, [*commands(folder)[name], "--json", str(target)], env={"COLUMNS": "400"})
+    result = CliRunner().invoke(app, [*arguments[name], "--json", str(target)], env={"COLUMNS": "400"})
     assert result.exit_code in (0, 1), result.output
     got = {"exit_code": result.exit_code, "json": comparable(json.loads(target.read_text()), str(folder))}
     recorded = GOLDEN / f"{name}.json"
