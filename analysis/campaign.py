@@ -15,14 +15,13 @@ of the plant and its errors, nothing beyond it.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from contextlib import closing
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import casadi as cs
 import numpy as np
@@ -31,16 +30,16 @@ import pyarrow.parquet as pq
 from scipy import stats
 
 from dvfc.analysis import sensitivity
+from dvfc.analysis.batches import BatchRun
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import INPUTS, MASSES, Dispersion, base_values, with_values
-from dvfc.analysis.grid import batches
 from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_bound, tracking_error
-from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted, write_json
+from dvfc.analysis.output import write_json
 from dvfc.analysis.parametric import parametrised
+from dvfc.analysis.record import ABSENT, Absent, Record
 from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
-from dvfc.analysis.simulate import Settings, Trajectory
-from dvfc.analysis.tasks import run_tasks
+from dvfc.analysis.simulate import RunStatus, Settings, Trajectory
 from dvfc.models.errors import PlantErrors, camera_size, true_features
 from dvfc.models.loop import ClosedLoop
 
@@ -122,7 +121,8 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
     loop = spec.case.loop
     holds, reason = judge(traj, loop, settings, spec.bound)
     position, angle = tracking_error(traj)
-    ratio = max(position / spec.bound.position, angle / spec.bound.angle_deg) if traj.status == "ok" else math.inf
+    completed = traj.status is RunStatus.OK
+    ratio = max(position / spec.bound.position, angle / spec.bound.angle_deg) if completed else math.inf
     record = limit_record(traj, robot_limits(loop, settings))
     limits = [max(record["speed_ratio"]), max(record["position_ratio"])]
     if not settings.implementation.saturate:
@@ -193,11 +193,6 @@ def campaign_batch(spec: CampaignSpec, start: int, stop: int) -> dict[str, list]
     return {key: [r[key] for r in rows] for key in rows[0]}
 
 
-def part_path(directory: Path, start: int) -> Path:
-    """The Parquet file of the batch starting at run ``start`` (names sort by it)."""
-    return directory / RUNS / f"part-{start:09d}.parquet"
-
-
 def read_runs(directory: Path) -> pa.Table:
     """Every run of a campaign in ``directory``, in run order."""
     return pq.read_table(directory / RUNS).sort_by("run")
@@ -216,36 +211,13 @@ def run_campaign(
     scenario_sha256: str = "",
 ) -> int:
     """Make runs ``0 .. runs - 1``, one Parquet file per batch in ``directory / runs``, saving
-    ``campaign.json`` (runs done) after each; with ``resume``, from the runs done. Returns the
-    runs done."""
-    state_path, folder = directory / "campaign.json", directory / RUNS
-    folder.mkdir(parents=True, exist_ok=True)
-    done = 0
-    if resume and state_path.exists():
-        saved = json.loads(state_path.read_text())
-        if saved["scenario_sha256"] != scenario_sha256 or saved["seed"] != spec.seed or saved["runs"] != runs:
-            raise ValueError("resume: the campaign in this directory has another scenario, seed or number of runs")
-        done = saved["done"]
-    for part in folder.glob("part-*.parquet"):  # batches past the recorded runs (or of an old campaign)
-        if int(part.stem.removeprefix("part-")) >= done:
-            part.unlink()
-
-    def save() -> None:
-        data = {"scenario_sha256": scenario_sha256, "seed": spec.seed, "runs": runs, "done": done}
-        atomic_write(state_path, lambda h: h.write(json_text(data).encode()))
-
-    save()
-    ranges = list(batches(done, runs, batch_size))
-    with closing(run_tasks(campaign_batch, ranges, workers, scheduler, shared=spec)) as results:
-        for result in results:
-            raise_if_interrupted()  # keep nothing of this batch
-            table = pa.table(result)
-            atomic_write(part_path(directory, result["run"][0]), lambda h, t=table: pq.write_table(t, h))
-            done = result["run"][-1] + 1
-            save()
-            if progress is not None:
-                progress(done)
-    return done
+    ``campaign.json`` (runs done) after each; with ``resume``, from the runs done
+    (:class:`dvfc.analysis.batches.BatchRun`). Returns the runs done."""
+    identity = {"scenario_sha256": scenario_sha256, "seed": spec.seed, "runs": runs}
+    run = BatchRun(directory, RUNS, "campaign.json", identity,
+                   "the campaign in this directory has another scenario, seed or number of runs")  # fmt: skip
+    return int(run.run(runs, batch_size, campaign_batch, spec, pa.table, resume=resume, workers=workers,
+                       scheduler=scheduler, progress=progress)["done"])  # fmt: skip
 
 
 def clopper_pearson_upper(failures: int, runs: int, confidence: float) -> float:
@@ -381,7 +353,7 @@ def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] 
         traj = simulator.for_run(settings).run(s0)
         r = row(spec, 0, traj, settings, values)
         # a run that stops: worse the earlier it stops (so the search climbs toward failure)
-        score = r["closeness"] if traj.status == "ok" else 1e3 * (2 - traj.t[-1] / settings.duration)
+        score = r["closeness"] if traj.status is RunStatus.OK else 1e3 * (2 - traj.t[-1] / settings.duration)
         evaluations += 1
         if score > best["ratio"]:
             best.update(ratio=score, values={k: v.tolist() for k, v in values.items()}, holds=r["holds"],
@@ -406,6 +378,35 @@ def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] 
     }  # fmt: skip
 
 
+@dataclass(frozen=True, kw_only=True)
+class CampaignResult(Record):
+    """``dvfc campaign`` (docs/cli.md): the campaign's statistics (:func:`summarize`: the failure
+    probability's bound at its confidence, the zero-failure count, the tracking error's tolerance bound,
+    the drivers, the worst runs), its dataset; the worst case found (with ``search``), what would pass
+    (``--what-would-pass``; None: no run fails) and provenance, when made."""
+
+    scenario: str
+    runs: int
+    failures: int
+    confidence: float
+    p_fail_upper: float
+    bound: str
+    statement: str
+    criterion: str
+    tracking_bound: dict[str, Any]
+    zero_failure: dict[str, Any]
+    tolerance: dict[str, Any]
+    sensitivity: list[dict[str, Any]]
+    sensitivity_floor: dict[str, Any]
+    worst: list[dict[str, Any]]
+    seed: int
+    wall_time_per_run: float | None
+    dataset: str
+    worst_case_search: dict[str, Any] | Absent = ABSENT
+    what_would_pass: dict[str, Any] | Absent | None = ABSENT
+    provenance: dict[str, Any] | Absent = ABSENT
+
+
 def campaign(
     case: Case,
     directory: Path,
@@ -421,7 +422,7 @@ def campaign(
     scheduler: str | None = None,
     resume: bool = False,
     progress: Callable[[int], None] | None = None,
-) -> dict:
+) -> CampaignResult:
     """The case's ``[dispersion]`` as a campaign of ``runs`` independent runs of the loop as implemented,
     each judged by the margins criterion, stored batch by batch in ``directory`` (``resume`` continues
     an interrupted one); its statistics (:func:`summarize`) at ``confidence``, the zero-failure count
@@ -441,9 +442,11 @@ def campaign(
     directory.mkdir(parents=True, exist_ok=True)
     run_campaign(spec, directory, runs, batch_size=batch_size, workers=workers, scheduler=scheduler, resume=resume,
                  progress=progress, scenario_sha256=case.provenance([])["scenario_sha256"])  # fmt: skip
-    result = summarize(spec, read_runs(directory), confidence, p_fail, quantile)
+    result = CampaignResult(**summarize(spec, read_runs(directory), confidence, p_fail, quantile), scenario=case.name,
+                            dataset=str(directory / RUNS))  # fmt: skip
     if search:
         found = worst_case(spec, search)
         write_json(directory / "worst_case.json", found)
-        result["worst_case_search"] = found | {"replay": spec.replay(values=directory / "worst_case.json")}
-    return result | {"scenario": case.name, "dataset": str(directory / RUNS)}
+        replay = spec.replay(values=directory / "worst_case.json")
+        result = replace(result, worst_case_search=found | {"replay": replay})
+    return result

@@ -20,6 +20,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, design_bef
 from dvfc.analysis.simulate import Settings
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop
+from dvfc.models.robot import spans_the_task
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ class Case:
         """Why Theorems 1-2 do not apply to the case's loop (the paper's, on an arm with fewer
         than six joints: ``J_b pinv(J_b) != I``), or None."""
         n = self.loop.robot.n
-        if self.planar or n >= 6:
+        if self.planar or spans_the_task(n):
             return None
         return f"n = {n} < 6 joints: J_b pinv(J_b) != I, so Theorems 1-2 do not apply to the paper's loop on this arm"
 

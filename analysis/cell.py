@@ -36,10 +36,10 @@ from pathlib import Path
 import numpy as np
 import tomlkit
 
+from dvfc.analysis.batches import batches
 from dvfc.analysis.campaign import CampaignSpec, campaign_batch, clopper_pearson_upper, zero_failure_runs
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify
-from dvfc.analysis.grid import batches
 from dvfc.analysis.margins import TrackingBound, tracking_bound
 from dvfc.analysis.multirate import lyapunov_check, multirate_loop, spectral_radius
 from dvfc.analysis.synthesize import scenario_text

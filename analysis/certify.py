@@ -46,6 +46,7 @@ from dvfc.analysis.output import interrupted
 from dvfc.models.lie import SE3, SO3
 from dvfc.models.loop import PlantWeights, Weights, disturbance_matrix, disturbance_weight, output_matrix
 from dvfc.models.planar import planar_disturbance_matrix, planar_output_matrix
+from dvfc.models.robot import spans_the_task
 
 INFLATION = 1e-6
 """Relative inflation of a computed gamma before the a posteriori check: at the exact
@@ -112,7 +113,7 @@ class GainPoint:
     @property
     def xi_limit(self) -> float:
         """The largest ``s = 1/(2 gamma^2)`` the ``xi`` block of ``P`` allows (docs/math.md, fact 17)."""
-        return float(xi_limits(self.k_xi[None], self)[0])
+        return float(xi_limits(self.k_xi[None], self.plant_weights)[0])
 
     @property
     def isotropic(self) -> bool:
@@ -123,22 +124,18 @@ class GainPoint:
         return GainPoint(self.k_xi, self.k_c, np.asarray(k_e, dtype=float), self.weights, self.plant, self.k_i)
 
 
-def xi_limits(k_xi: np.ndarray, point: GainPoint) -> np.ndarray:
-    """``min_i (k_xi,i - S_xi,i^2/2) / D_tau,i^2`` for a batch ``k_xi`` (B, n) and the weights of
-    ``point``: the ``xi`` block of ``P`` is ``diag(k_xi - S_xi^2/2 - s D_tau^2)`` (docs/math.md,
+def xi_limits(k_xi: np.ndarray, plant: PlantWeights) -> np.ndarray:
+    """``min_i (k_xi,i - S_xi,i^2/2) / D_tau,i^2`` for a batch ``k_xi`` (B, n) and the generalized
+    plant's weights: the ``xi`` block of ``P`` is ``diag(k_xi - S_xi^2/2 - s D_tau^2)`` (docs/math.md,
     fact 17), ``min k_xi - 1/2`` exactly at unit weights."""
-    n = k_xi.shape[1]
-    s2, d2 = point.output_squared[:n], point.disturbance_weights[:n] ** 2
-    return ((k_xi - 0.5 * s2) / d2).min(axis=1)
+    return ((k_xi - 0.5 * np.square(plant.xi)) / np.square(plant.tau_d)).min(axis=1)
 
 
-def estimation_scale(point: GainPoint) -> np.ndarray:
-    """The diagonal of ``W_e D_v`` (``t`` entries), whose square is ``W`` on ``e_e``: ``W_e`` at unit
-    weights."""
-    n, t = len(point.k_xi), len(point.k_c)
-    w = point.weights
-    w_e = np.repeat([w.w_pe, w.w_re], 3) if t == 6 else np.full(t, float(w.w_pe))
-    return w_e * point.disturbance_weights[n:]
+def estimation_scale(weights: Weights, plant: PlantWeights, task: int = 6) -> np.ndarray:
+    """The diagonal of ``W_e D_v`` (``task`` entries), whose square is ``W`` on ``e_e``: ``W_e`` at
+    unit plant weights."""
+    w_e = np.repeat([weights.w_pe, weights.w_re], 3) if task == 6 else np.full(task, float(weights.w_pe))
+    return w_e * plant.disturbance(task)[len(plant.tau_d) :]
 
 
 def sound_k_e(k_e: np.ndarray) -> np.ndarray:
@@ -200,8 +197,8 @@ def exact_s(n_ce: np.ndarray, xi_limit: np.ndarray, k_c: np.ndarray, k_e: np.nda
     (:func:`xi_limits`), ``k_c``, ``k_e`` (B, t), ``w_e`` (B, t) the diagonal of ``W_e D_v``
     (:func:`estimation_scale`), ``output_squared`` (2t,) the diagonal of ``S^2`` on
     ``(e_c, e_e)`` (None: ones). Returns ``(s, reason, A)``: ``s`` (B,) with ``-inf`` where
-    ``A_cc`` is not positive definite, a reason code per point (0 fine, 1 the ``xi`` block,
-    2 ``A_cc`` not positive definite, 3 Schur complement not positive), and
+    ``A_cc`` is not positive definite, a :class:`Reason` per point (``CERTIFIED``, ``K_XI`` the
+    ``xi`` block, ``E_C_BLOCK`` ``A_cc`` not positive definite, ``SCHUR``), and
     ``A = N^T K N - S^2/2`` on ``(e_c, e_e)`` (B, 2t, 2t).
     """
     t = n_ce.shape[1] // 2
@@ -216,7 +213,8 @@ def exact_s(n_ce: np.ndarray, xi_limit: np.ndarray, k_c: np.ndarray, k_e: np.nda
         d = 1.0 / w_e[ok]  # D^-1/2 = W_e^-1
         s[ok] = np.linalg.eigvalsh(d[:, :, None] * schur * d[:, None, :])[:, 0]
     s = np.minimum(s, xi_limit)
-    reason = np.where(xi_limit <= 0, 1, np.where(~ok, 2, np.where(s <= 0, 3, 0)))
+    reason = np.where(xi_limit <= 0, Reason.K_XI,
+                      np.where(~ok, Reason.E_C_BLOCK, np.where(s <= 0, Reason.SCHUR, Reason.CERTIFIED)))  # fmt: skip
     return s, reason, a
 
 
@@ -268,17 +266,17 @@ def p_min_eigenvalue(point: GainPoint, reference: SE3, r_ec: np.ndarray, gamma: 
     return float(np.linalg.eigvalsh(a - w / (2 * gamma**2))[0])
 
 
-def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[float, int]:
-    """Smallest gamma at one rotation by the closed form, and the reason code."""
+def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[float, Reason]:
+    """Smallest gamma at one rotation by the closed form, and its :class:`Reason`."""
     s, reason, _ = exact_s(
         output_blocks(point.weights.as_array()[None], reference, np.asarray(r_ec)[None]),
         np.array([point.xi_limit]),
         point.k_c[None],
         point.k_e[None],
-        estimation_scale(point)[None],
+        estimation_scale(point.weights, point.plant_weights, len(point.k_c))[None],
         point.output_squared[len(point.k_xi) :],
     )
-    return float(gamma_of(s)[0]), int(reason[0])
+    return float(gamma_of(s)[0]), Reason(reason[0])
 
 
 SOLVERS = (cp.CLARABEL, cp.SCS)
@@ -462,7 +460,7 @@ def gammas_over_rotations(point: GainPoint, reference: SE3, rotations: np.ndarra
         np.full(b, point.xi_limit),
         np.tile(point.k_c, (b, 1)),
         np.tile(point.k_e, (b, 1)),
-        np.tile(estimation_scale(point), (b, 1)),
+        np.tile(estimation_scale(point.weights, point.plant_weights, len(point.k_c)), (b, 1)),
         point.output_squared[len(point.k_xi) :],
     )
     return gamma_of(s)
@@ -544,12 +542,12 @@ def certify_planar(
         np.array([point.xi_limit]),
         point.k_c[None],
         point.k_e[None],
-        estimation_scale(point)[None],
+        estimation_scale(point.weights, point.plant_weights, len(point.k_c))[None],
         point.output_squared[len(point.k_xi) :],
     )
     result = Certificate(False, None, "exact (planar loop, fact 3)", None, None, PLANAR_REGION)
-    if code[0]:
-        result.reason = REASONS[int(code[0])]
+    if (reason := Reason(code[0])) is not Reason.CERTIFIED:
+        result.reason = REASONS[reason]
         return result
     nkn_, g = planar_blocks(point)
     a = nkn_ - 0.5 * np.diag(point.output_squared)
@@ -578,7 +576,7 @@ def certify(
     """
     region = region_text(theta_max)
     identity = np.eye(3)
-    if len(point.k_xi) < 6:
+    if not spans_the_task(len(point.k_xi)):
         return Certificate(False, None, "not applicable", None, NOT_APPLICABLE.format(n=len(point.k_xi)), region)
     if point.isotropic:
         sound_point, method = point, "exact (isotropic K_e: R_ec = I decides, fact 2)"
@@ -586,7 +584,7 @@ def certify(
         sound_point = point.with_k_e(sound_k_e(point.k_e))
         method = "exact (anisotropic K_e: blockwise-minimum bound, fact 5)"
     gamma_exact, code = exact_gamma(sound_point, reference, identity)
-    if code:
+    if code is not Reason.CERTIFIED:
         return Certificate(False, None, method, None, REASONS[code], region)
     result = Certificate(False, None, method, None, None, region)
     if not point.isotropic:

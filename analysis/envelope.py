@@ -58,6 +58,7 @@ import casadi as cs
 import numpy as np
 
 from dvfc.analysis.certify import GainPoint, sound_k_e, theorem2_matrices
+from dvfc.analysis.record import Record
 from dvfc.models.camera import Camera
 from dvfc.models.disturbance import torque_bound
 from dvfc.models.inertia import MassBounds
@@ -457,15 +458,16 @@ def visible_level(design: Design, camera: Camera, desired: np.ndarray, steps: in
 
 
 @dataclass
-class Envelope:
-    """The operating envelope of one design (see the module text for every field)."""
+class Envelope(Record):
+    """The operating envelope of one design (see the module text for every field); its fields are the
+    keys of ``points[0].envelope`` in ``dvfc certify``'s JSON."""
 
     rate: float | None
     gamma_prime: float | None
     theta_bar_deg: float | None
     m_hi: float
     m_lo: float
-    ultimate_v: float | None
+    ultimate_V: float | None  # noqa: N815 (the paper's V)
     bounds: dict | None
     level: float | None
     visible: bool | None
@@ -476,45 +478,16 @@ class Envelope:
     max_torque: float | None
     wbar: float
     disturbance: DisturbanceBounds
-    invariant_v: float | None = None
-    boxes: list[list[float]] | None = None
-    ultimate_boxes: list[list[float]] | None = None
-    margin: float | None = None
+    invariant_V: float | None = None  # noqa: N815
+    boxes_px: list[list[float]] | None = None
+    ultimate_boxes_px: list[list[float]] | None = None
+    recheck_margin: float | None = None
     statement: str = ""
     reason: str | None = None
     inertia: dict | None = None
     """The inertia matrices the rate was computed with (docs/math.md, fact 10): ``upper`` ``diag(D_M)``
     at the optimum (None without a rate), ``lower`` the lower bound with ``P = I`` (``m_lo`` its
     smallest entry, used by the ``|xi|`` bound)."""
-
-    def as_dict(self) -> dict:
-        d = self.disturbance
-        return {
-            "rate": self.rate,
-            "gamma_prime": self.gamma_prime,
-            "theta_bar_deg": self.theta_bar_deg,
-            "m_hi": self.m_hi,
-            "m_lo": self.m_lo,
-            "ultimate_V": self.ultimate_v,
-            "bounds": self.bounds,
-            "level": self.level,
-            "invariant_V": self.invariant_v,
-            "visible": self.visible,
-            "image_margin_px": self.image_margin_px,
-            "depth_min": self.depth_min,
-            "start": self.start,
-            "max_target_speed": self.max_target_speed,
-            "max_torque": self.max_torque,
-            "wbar": self.wbar,
-            "disturbance": {"target_speed": d.target_speed, "target_rate": d.target_rate, "torque": d.torque,
-                            "derivation": d.derivation},
-            "boxes_px": self.boxes,
-            "ultimate_boxes_px": self.ultimate_boxes,
-            "recheck_margin": self.margin,
-            "statement": self.statement,
-            "reason": self.reason,
-            "inertia": self.inertia,
-        }  # fmt: skip
 
 
 def _smallest(design: Design, grid: np.ndarray, wbar2: float, v0: float, cover: bool):
@@ -596,7 +569,7 @@ def stated(env: Envelope, start: dict) -> Envelope:
     if start.get("method", "constant") != "constant" and start["inside"]:
         env.statement = start["statement"]
         if start.get("boxes_px") is not None:  # the figure's regions: those of the whole run
-            env.boxes = start["boxes_px"]
+            env.boxes_px = start["boxes_px"]
         return env
     env.statement = statement(env)
     return env
@@ -617,7 +590,7 @@ def _build(design: Design, camera: Camera, disturbance: DisturbanceBounds, start
         theta_bar_deg=math.degrees(chosen.theta_bar) if design.rotational else None,
         m_hi=mass.m_hi,
         m_lo=mass.m_lo,
-        ultimate_v=c_inf,
+        ultimate_V=c_inf,
         bounds=error_bounds(design, c_inf),
         level=level,
         visible=None,
@@ -628,15 +601,15 @@ def _build(design: Design, camera: Camera, disturbance: DisturbanceBounds, start
         max_torque=None,
         wbar=disturbance.wbar,
         disturbance=disturbance,
-        margin=margin,
-        invariant_v=chosen.c_max,
+        recheck_margin=margin,
+        invariant_V=chosen.c_max,
         inertia=inertia_record(mass, kinetic_diagonal(mass, design.k_xi, np.array([chosen.s]))[0]),
     )
     if desired is not None:
         boxes = feature_boxes(design, camera, desired, level)
-        env.visible, env.image_margin_px, env.depth_min, env.boxes = (
+        env.visible, env.image_margin_px, env.depth_min, env.boxes_px = (
             boxes.visible, boxes.margin_px, boxes.depth_min, boxes.boxes)  # fmt: skip
-        env.ultimate_boxes = feature_boxes(design, camera, desired, c_inf).boxes
+        env.ultimate_boxes_px = feature_boxes(design, camera, desired, c_inf).boxes
     return env
 
 
@@ -690,7 +663,7 @@ def statement(env: Envelope) -> str:
     when = f"for all t >= 0 (the start V(0) = {start['V0']:.3g} is inside the certified set V <= {env.level:.3g})"
     if not start["inside"]:
         why = f"not certified: {start['reason']}" if start.get("reason") else "outside it"
-        when = (f"ultimately, for runs that enter the certified set V <= {env.invariant_v:.3g} "
+        when = (f"ultimately, for runs that enter the certified set V <= {env.invariant_V:.3g} "
                 f"(the start V(0) = {start['V0']:.3g} is {why})")  # fmt: skip
     if env.visible is True:
         return f"every feature stays in the image {when}"
@@ -884,10 +857,10 @@ def friction_record(design: Design, camera: Camera, disturbance: DisturbanceBoun
     elif np.any(bound.cross > 0):
         record["certified"] = False
         record["statement"] = (f"with the plant's friction ({law}) not certified: the Coulomb part alone gives "
-                               f"c_inf = {env.ultimate_v:.4g} <= c_max = {env.invariant_v:.4g}, but the viscous cross "
+                               f"c_inf = {env.ultimate_V:.4g} <= c_max = {env.invariant_V:.4g}, but the viscous cross "
                                "term -xi^T (B_v - Bhat) J_b^-1 Y e_c (fact 18.3) is not bounded by this route")
     else:
         record["certified"] = True
         record["statement"] = (f"with the plant's friction ({law}; viscous friction cancelled exactly, fact 19.2): "
-                               f"{env.statement} (c_inf = {env.ultimate_v:.4g})")  # fmt: skip
+                               f"{env.statement} (c_inf = {env.ultimate_V:.4g})")  # fmt: skip
     return record

@@ -23,6 +23,7 @@ import tempfile
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import casadi as cs
 import numpy as np
@@ -355,6 +356,21 @@ class ExportResult:
     check: Check | None = None
     timing: Timing | None = None
     cpu_timing: Timing | None = None
+
+    @property
+    def passed(self) -> bool:
+        """Not checked, or the check passed."""
+        return self.check is None or self.check.passed
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON of ``dvfc export`` (docs/cli.md): the files written (the replay's inputs with
+        ``--check``), the API header, the state size, the program's SHA-256, the check and timing."""
+        e = self.export
+        files = [str(f) for f in e.files] + ([] if self.check is None else [str(self.check.inputs)])
+        timing = None if self.timing is None or self.cpu_timing is None else (
+            {**self.timing.as_dict(), "thread_cpu": self.cpu_timing.as_dict()})  # fmt: skip
+        return {"files": files, "api": str(e.api), "state_size": e.state_size, "sha256": program_digest(e),
+                "check": None if self.check is None else self.check.as_dict(), "timing": timing}  # fmt: skip
 
 
 def export_controller(case: Case, directory: Path, *, checked: bool = False, calls: int = 100_000) -> ExportResult:

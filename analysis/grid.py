@@ -15,10 +15,8 @@ nothing repeated. :func:`export_csv` writes the same rows as one CSV file.
 
 from __future__ import annotations
 
-import json
 import math
-from collections.abc import Callable, Iterator
-from contextlib import closing
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,12 +26,12 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from dvfc.analysis.batches import BatchRun
 from dvfc.analysis.certify import INFLATION, GainPoint, Reason, exact_s, gamma_of, output_blocks, sound_k_e, xi_limits
 from dvfc.analysis.envelope import GridEnvelope, envelope_columns
-from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
-from dvfc.analysis.tasks import run_tasks
+from dvfc.analysis.output import atomic_write
 from dvfc.models.lie import SE3, SO3
-from dvfc.models.loop import PlantWeights, Weights
+from dvfc.models.loop import PlantWeights
 from dvfc.models.planar import TASK, planar_output_matrix
 
 AXES = {
@@ -146,9 +144,9 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
         reference = SE3(spec.p_d, SO3(spec.r_d))
         n_ce = output_blocks(weights, reference, np.tile(np.eye(3), (len(weights), 1, 1)))[which.ravel()]
     n, t = d["k_xi"].shape[1], w_e.shape[1]
-    plant = GainPoint(spec.k_xi, spec.k_c, spec.k_e, Weights(*spec.weights), spec.plant)
+    plant = spec.plant if spec.plant is not None else PlantWeights.unit(n)
     xi_limit = xi_limits(d["k_xi"], plant)
-    s2, d_w = plant.output_squared, plant.disturbance_weights
+    s2, d_w = plant.output(t) ** 2, plant.disturbance(t)
     scaled = w_e * d_w[n:]  # W_e D_v (docs/math.md, fact 17)
     s, reason, a = exact_s(n_ce, xi_limit, d["k_c"], k_e_sound, scaled, s2[n:])
     gamma = gamma_of(s) * (1 + INFLATION)
@@ -162,7 +160,7 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     reason = np.where((reason == Reason.CERTIFIED) & (margin < 0), Reason.RECHECK, reason)
     if spec.gamma_bound is not None:
         reason = np.where((reason == Reason.CERTIFIED) & (gamma > spec.gamma_bound), Reason.ABOVE_BOUND, reason)
-    certified = reason == 0
+    certified = reason == Reason.CERTIFIED
     extra = {}
     if spec.envelope is not None:
         nkn = a + 0.5 * np.diag(s2[n:])  # the envelope's W is the unweighted one (facts 7-10)
@@ -180,11 +178,6 @@ def certify_batch(spec: GridSpec, start: int, stop: int) -> dict[str, np.ndarray
     }
 
 
-
-
-def batches(start: int, total: int, size: int) -> Iterator[tuple[int, int]]:
-    for lo in range(start, total, size):
-        yield lo, min(lo + size, total)
 
 
 POINTS = "points"
@@ -262,47 +255,32 @@ def run_sweep(
     progress: Callable[[int], None] | None = None,
     scenario_sha256: str = "",
 ) -> SweepState:
-    """Certify every grid point, one Parquet file per batch in ``directory / points``; resumable."""
+    """Certify every grid point, one Parquet file per batch in ``directory / points``; resumable
+    (:class:`dvfc.analysis.batches.BatchRun`, its state ``sweep.json``)."""
     axes = [name for name, _ in spec.axes]
-    state_path = directory / "sweep.json"
-    folder = directory / POINTS
-    folder.mkdir(exist_ok=True)
-    if resume and state_path.exists():
-        saved = json.loads(state_path.read_text())
-        if saved["scenario_sha256"] != scenario_sha256 or saved["total"] != spec.size:
-            raise ValueError("--resume: the sweep in this directory belongs to another scenario or grid")
-        named = (_named(saved[k]) for k in ("best", "worst", "cheapest"))
-        state = SweepState(saved["done"], saved["certified"], *named)
-    else:
-        state = SweepState(0, 0, None, None, None)
-    for part in folder.glob("part-*.parquet"):  # batches past the recorded point (or of an old sweep)
-        if int(part.stem.removeprefix("part-")) >= state.done:
-            part.unlink()
+    run = BatchRun(directory, POINTS, "sweep.json", {"scenario_sha256": scenario_sha256, "total": spec.size},
+                   "the sweep in this directory belongs to another scenario or grid")  # fmt: skip
 
-    def save() -> None:
-        data = {
-            "scenario_sha256": scenario_sha256,
-            "total": spec.size,
-            "done": state.done,
-            "certified": state.certified,
-            **{k: list(v) if v else None for k, v in (("best", state.best), ("worst", state.worst),
-                                                     ("cheapest", state.cheapest))},
-        }  # fmt: skip
-        atomic_write(state_path, lambda h: h.write(json_text(data).encode()))
+    def absorb(kept: dict, result: dict[str, np.ndarray]) -> dict:
+        state = _state(kept)
+        _record(state, result)
+        return _saved(state)
 
-    save()
-    ranges = list(batches(state.done, spec.size, batch_size))
-    with closing(run_tasks(certify_batch, ranges, workers, scheduler, shared=spec)) as results:
-        for result in results:
-            raise_if_interrupted()  # keep nothing of this batch
-            table = batch_table(result, axes)
-            atomic_write(part_path(directory, int(result["index"][0])),
-                         lambda h, table=table: pq.write_table(table, h, compression="zstd"))  # fmt: skip
-            _record(state, result)
-            save()
-            if progress is not None:
-                progress(state.done)
-    return state
+    final = run.run(spec.size, batch_size, certify_batch, spec, lambda result: batch_table(result, axes),
+                    kept=_saved(SweepState(0, 0, None, None, None)), absorb=absorb, resume=resume, workers=workers,
+                    scheduler=scheduler, progress=progress, compression="zstd")  # fmt: skip
+    return _state(final)
+
+
+def _saved(state: SweepState) -> dict:
+    """The sweep's state as ``sweep.json`` keeps it."""
+    named = (("best", state.best), ("worst", state.worst), ("cheapest", state.cheapest))
+    return {"done": state.done, "certified": state.certified, **{k: list(v) if v else None for k, v in named}}
+
+
+def _state(saved: dict) -> SweepState:
+    """The sweep's state of ``sweep.json``."""
+    return SweepState(saved["done"], saved["certified"], *(_named(saved[k]) for k in ("best", "worst", "cheapest")))
 
 
 def _named(saved: list | None) -> tuple[float, int] | None:

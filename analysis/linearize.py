@@ -26,7 +26,7 @@ import casadi as cs
 import control
 import numpy as np
 
-from dvfc.analysis.simulate import Settings, Simulator, Trajectory
+from dvfc.analysis.simulate import RunStatus, Settings, Simulator, Trajectory
 from dvfc.models.lie import SE3, SO3, quaternion_rate, quaternion_to_matrix
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import TASK, PlanarLoop
@@ -152,7 +152,7 @@ def sharpest_from_rest(
     kept: tuple[float, Trajectory] | None = None
     while True:
         ratio, traj = run_from_rest(loop, lin, peak_sinusoid(lin), horizon)
-        if traj.status != "ok":
+        if traj.status is not RunStatus.OK:
             return (*kept, False) if kept is not None else (ratio, traj, False)
         half = int(np.searchsorted(traj.t, traj.t[-1] / 2))
         rise = ratio - float(np.sqrt(traj.integrals["z_squared"][half] / traj.integrals["d_squared"][half]))

@@ -29,6 +29,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -42,10 +43,11 @@ from dvfc.analysis.multirate import (
     multirate_loop,
 )
 from dvfc.analysis.output import append_log, raise_if_interrupted, read_log
+from dvfc.analysis.record import ABSENT, Absent, Record
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import ScenarioError
-from dvfc.analysis.simulate import Settings, Trajectory, rotation_angle
+from dvfc.analysis.simulate import RunStatus, Settings, Trajectory, rotation_angle
 from dvfc.models.errors import PlantErrors
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.robot import Payload, Robot
@@ -282,7 +284,7 @@ def envelope_growth(traj: Trajectory, bound: TrackingBound) -> Growth:
 
 def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: TrackingBound) -> tuple[bool, str]:
     """Whether a run holds by :data:`CRITERION`, with the reason when it does not."""
-    if traj.status != "ok":
+    if traj.status is not RunStatus.OK:
         return False, f"{traj.status}: {traj.message}"
     record = limit_record(traj, robot_limits(loop, settings))
     ratio = max(record["torque_commanded_ratio"])
@@ -329,7 +331,7 @@ def continuous_bound(case: Case) -> TrackingBound:
     each (the scenario's loop without its ``[implementation]`` and ``[plant]``)."""
     paper = replace(case.settings, implementation=None, plant=None)
     traj = as_implemented(case.loop, paper).run(case.s0)
-    if traj.status != "ok":
+    if traj.status is not RunStatus.OK:
         raise MarginError(f"the continuous loop itself does not complete ({traj.message})")
     position, angle = (TRACKING_FACTOR * e for e in tracking_error(traj))
     text = (f"{TRACKING_FACTOR:g}x the continuous loop's (no operating envelope with rotation bounds is certified "
@@ -565,6 +567,24 @@ def linear_margin_text(result: dict) -> str:
     return implemented_text(result["linear_margins"])
 
 
+@dataclass(frozen=True, kw_only=True)
+class MarginsResult(Record):
+    """``dvfc margins`` (docs/cli.md): each parameter's margin of the loop as implemented (measured), the
+    criterion, the tracking bound, fact 14's linear margins, the scenario's own run; or (``margins``
+    None) why there is none (``no_margins``); what would pass (``--what-would-pass``) and provenance,
+    when made."""
+
+    scenario: str
+    margins: dict[str, dict[str, Any]] | None
+    criterion: str | Absent = ABSENT
+    tracking_bound: dict[str, Any] | Absent = ABSENT
+    linear_margins: dict[str, Any] | Absent = ABSENT
+    scenario_run: dict[str, Any] | Absent = ABSENT
+    no_margins: str | Absent = ABSENT
+    what_would_pass: dict[str, Any] | Absent = ABSENT
+    provenance: dict[str, Any] | Absent = ABSENT
+
+
 def margins(
     case: Case,
     directory: Path,
@@ -573,10 +593,10 @@ def margins(
     resume: bool = False,
     envelope: dict | None = None,
     own_run: Trajectory | None = None,
-) -> dict:
+) -> MarginsResult:
     """Every margin of :data:`PARAMETERS` of the case and, beside them, the linear margins of the
     sampled loop linearised at rest (``linear_margins``: docs/math.md, fact 14,
-    :func:`dvfc.analysis.multirate.implemented_record`) (JSON-ready, without provenance).
+    :func:`dvfc.analysis.multirate.implemented_record`), without provenance.
     ``map_tasks(function, argument_tuples)`` runs the searches (each task receives the case) and
     returns their results in order; ``envelope`` (the case's envelope record) and ``own_run``
     (the case run as implemented): when already computed."""
@@ -605,11 +625,5 @@ def margins(
     unchecked = f"fact 14: {linear.reason}: the measured margins are not checked against linear ones"
     clause = LINEAR_CLAUSE if linear.margins is not None else unchecked
     steady = STEADY.format(growth=GROWTH, most=HORIZONS[-1], linear=clause)
-    return {
-        "scenario": spec.name,
-        "margins": out,
-        "criterion": CRITERION.format(bound=bound.text) + steady,
-        "tracking_bound": bound.as_dict(),
-        "linear_margins": record,
-        "scenario_run": own,
-    }
+    return MarginsResult(scenario=spec.name, margins=out, criterion=CRITERION.format(bound=bound.text) + steady,
+                         tracking_bound=bound.as_dict(), linear_margins=record, scenario_run=own)  # fmt: skip

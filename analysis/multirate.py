@@ -55,6 +55,7 @@ from dvfc.analysis.linearize import _quaternion_product, equilibrium_configurati
 from dvfc.analysis.simulate import Settings
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import PlanarLoop
+from dvfc.models.robot import spans_the_task
 from dvfc.models.target import TargetMotion
 
 LYAPUNOV_MARGIN = 0.5
@@ -416,7 +417,7 @@ def applicability(loop: ClosedLoop, settings: Settings) -> str | None:
         return "the scenario has no [implementation]: the loop is the paper's continuous one"
     if isinstance(loop, PlanarLoop):
         return "the reduced planar loop: the statement is derived for the paper's loop (36)"
-    if loop.robot.n < 6:
+    if not spans_the_task(loop.robot.n):
         return f"the arm has {loop.robot.n} joints: with n < 6 J_b is not invertible (no equilibrium of the law)"
     if imp.quantization > 0:
         return f"quantization {imp.quantization:g} px: the image estimate is not 0 at the equilibrium (no fixed point)"

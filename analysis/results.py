@@ -1,11 +1,15 @@
-"""JSON-ready results of the toolkit's jobs, shared by the command line and the reports."""
+"""The typed results of the toolkit's jobs (:mod:`dvfc.analysis.record`: each field a key of the job's
+JSON, serialised once by ``to_json``) and the records they are built of, shared by the command line
+and the reports."""
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
+from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -45,32 +49,189 @@ from dvfc.analysis.grid import GridSpec, SweepState
 from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import MARGINAL_POLES, FromRest, from_rest
 from dvfc.analysis.multirate import implemented_record
+from dvfc.analysis.record import ABSENT, INTERNAL, Absent, Record
 from dvfc.analysis.sampled import limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
-from dvfc.analysis.simulate import Settings, Trajectory, summary
+from dvfc.analysis.simulate import RunStatus, Settings, Trajectory, summary
 from dvfc.analysis.start import planned_start, ramp_start, until_integral
-from dvfc.analysis.verify import Claim, verify
+from dvfc.analysis.verify import Claim, ClaimStatus, verify
 from dvfc.models.camera import Camera
 from dvfc.models.errors import PlantErrors
 from dvfc.models.loop import ClosedLoop, Weights
 
 
+@dataclass(frozen=True, kw_only=True)
+class SimulationResult(Record):
+    """``dvfc simulate``: a run of the case (docs/cli.md): its summary, how the loop was implemented and
+    integrated, per joint its peaks against the URDF's limits, the files written; a replayed campaign
+    run's row (``campaign_row``) by the margins criterion."""
+
+    scenario: str
+    mode: str
+    implementation: dict[str, Any]
+    integration: dict[str, Any] | None
+    summary: dict[str, Any]
+    limits: dict[str, Any]
+    outputs: dict[str, str]
+    provenance: dict[str, Any]
+    campaign_row: dict[str, Any] | Absent = ABSENT
+    run: Trajectory = field(metadata=INTERNAL, repr=False, compare=False)
+
+    @property
+    def completed(self) -> bool:
+        """The run reached its horizon."""
+        return self.run.status is RunStatus.OK
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoseResult(Record):
+    """``dvfc pose``: where everything is at the start (:func:`dvfc.analysis.pose.initial_view`), the
+    configuration solved for (``pose --solve``; None: none) and the gain windows (None: none)."""
+
+    scenario: str
+    solution: dict[str, Any] | None
+    camera_in_world: dict[str, list[float]]
+    target_in_world: dict[str, list[float]]
+    target_in_camera: dict[str, list[float]]
+    image_coordinates: str
+    image_size: list[float] | None
+    features: list[dict[str, Any]]
+    gain_windows: dict[str, Any] | None
+    windows_warning: str | None = field(default=None, metadata=INTERNAL)
+    """The gain windows' warning (a ``k_xi,i`` outside its window), or None."""
+
+    @property
+    def in_view(self) -> bool:
+        """Every feature point in front of the camera and inside the image."""
+        return all(f["in_view"] for f in self.features)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CertificateSummary(Record):
+    """How many points were certified, the smallest certified gamma, the time taken (s)."""
+
+    points: int
+    certified: int
+    gamma_min: float | None
+    seconds: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class CertificateResult(Record):
+    """``dvfc certify``: Theorem 2 at the case's gains, or at the named points of its ``[grid]`` (with the
+    grid's axes and stored files), each point a :func:`point_record`; assembled by :meth:`of` only."""
+
+    scenario: str
+    loop: str
+    region: str
+    assumptions: list[str]
+    gamma_required: float | None
+    grid: dict[str, Any] | Absent = ABSENT
+    points: list[dict[str, Any]]
+    points_dataset: str | Absent = ABSENT
+    points_csv: str | Absent = ABSENT
+    summary: CertificateSummary
+    provenance: dict[str, Any]
+
+    @property
+    def certified(self) -> bool:
+        """Every point certified."""
+        return self.summary.certified == self.summary.points
+
+    @classmethod
+    def of(cls, spec: Scenario, points: list[dict[str, Any]], summary: CertificateSummary, provenance: dict,
+           **grid: Any) -> CertificateResult:  # fmt: skip
+        """The certificate of ``spec``'s loop over its ``[certify]`` region: its assumptions, the gamma it
+        requires, the ``points``; ``grid``: a grid's ``grid``, ``points_dataset`` and ``points_csv``."""
+        planar = spec.loop == "planar"
+        return cls(scenario=spec.name, loop=spec.loop,
+                   region=PLANAR_REGION if planar else region_text(math.radians(spec.certify.theta_max_deg)),
+                   assumptions=list(PLANAR_ASSUMPTIONS if planar else ASSUMPTIONS),
+                   gamma_required=spec.certify.gamma, points=points, summary=summary, provenance=provenance,
+                   **grid)  # fmt: skip
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClaimsSummary(Record):
+    """How many claims were checked (PASS or FAIL), failed and could not be decided; the time taken (s)."""
+
+    claims: int
+    failed: int
+    inconclusive: int
+    seconds: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class VerificationResult(Record):
+    """``dvfc verify``: every claim of the paper checked on simulated runs of the case, at the gamma
+    certified for its gains (``gamma_certified``: whether it is)."""
+
+    scenario: str
+    gamma: float | None
+    gamma_certified: bool
+    claims: list[Claim]
+    summary: ClaimsSummary
+    provenance: dict[str, Any]
+
+    @property
+    def passed(self) -> bool:
+        """No claim fails and none is inconclusive."""
+        return not (self.summary.failed or self.summary.inconclusive)
+
+
+class StatementStatus(StrEnum):
+    """What a review's statement is: a certificate re-checked (``CERTIFIED`` or not), one whose
+    assumptions fail here (``DOES NOT APPLY``), a check on simulated runs (``PASS``, ``FAIL``,
+    ``INCONCLUSIVE``), a measurement (``MEASURED``)."""
+
+    CERTIFIED = "CERTIFIED"
+    NOT_CERTIFIED = "NOT CERTIFIED"
+    DOES_NOT_APPLY = "DOES NOT APPLY"
+    PASS = "PASS"
+    FAIL = "FAIL"
+    INCONCLUSIVE = "INCONCLUSIVE"
+    MEASURED = "MEASURED"
+
+    @classmethod
+    def certified(cls, holds: bool) -> StatementStatus:
+        return cls.CERTIFIED if holds else cls.NOT_CERTIFIED
+
+
+@dataclass(frozen=True, kw_only=True)
+class Statement(Record):
+    """One statement of a review: what it says, the loop it is about, its status, its detail.
+    ``claims``: the row summing up the paper's claims checked on runs, which the verdict counts from
+    the claims themselves."""
+
+    statement: str
+    loop: str
+    status: StatementStatus
+    detail: str
+    claims: bool = field(default=False, metadata=INTERNAL)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Verdict(Record):
+    """A review's whole verdict (:func:`verdict`)."""
+
+    passed: bool
+    headline: str
+    failed: list[dict[str, Any]]
+    inconclusive: list[dict[str, Any]]
+    not_certified: list[Statement]
+
+
 def simulation_result(case: Case, trajectory: Trajectory, outputs: dict[str, Path], provenance: dict,
-                      settings: Settings | None = None) -> dict:
-    """The JSON result of a run of the case (``dvfc simulate``; ``settings``: the run's, when not the
-    case's, as a campaign run replayed): its summary, how the loop was implemented, per joint its
-    peaks against the URDF's limits, the files written."""
+                      settings: Settings | None = None) -> SimulationResult:
+    """The result of a run of the case (``dvfc simulate``; ``settings``: the run's, when not the case's,
+    as a campaign run replayed)."""
     loop, settings = case.loop, settings or case.settings
-    return {
-        "scenario": case.name,
-        "mode": loop.mode,
-        "implementation": implementation_record(settings),
-        "integration": None if settings.implementation is None else SubstepChoice.of_run(trajectory.stats).as_dict(),
-        "summary": summary(trajectory),
-        "limits": limit_record(trajectory, robot_limits(loop, settings)),
-        "outputs": {name: str(path) for name, path in outputs.items()},
-        "provenance": provenance,
-    }
+    integration = None if settings.implementation is None else SubstepChoice.of_run(trajectory.stats).as_dict()
+    return SimulationResult(scenario=case.name, mode=loop.mode, implementation=implementation_record(settings),
+                            integration=integration, summary=summary(trajectory),
+                            limits=limit_record(trajectory, robot_limits(loop, settings)),
+                            outputs={name: str(path) for name, path in outputs.items()}, provenance=provenance,
+                            run=trajectory)  # fmt: skip
 
 
 def trajectory_arrays(case: Case, trajectory: Trajectory, settings: Settings | None = None) -> dict[str, np.ndarray]:
@@ -198,7 +359,7 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict, rest: Fro
 def envelope_record(case: Case, *, search: bool = True) -> dict:
     """The operating envelope of the case's design (docs/math.md, facts 7-9), with what it assumes."""
     loop, point, planar = case.loop, case.point, case.planar
-    if not planar and loop.robot.n < 6:
+    if case.theorems_do_not_apply is not None:
         return {"rate": None, "reason": NOT_APPLICABLE.format(n=loop.robot.n)}
     design = design_of(point, None if planar else case.reference, loop.robot.mass_bounds)
     section = case.scenario.envelope
@@ -210,7 +371,7 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
         env = stated(env, planned_start(design, loop.camera, disturbance, env, loop.plan))
     elif loop.ramp is not None:  # fact 16a: the ramp's bound from t = 0 decides
         env = stated(env, ramp_start(design, loop.camera, disturbance, env, loop.ramp))
-    record = env.as_dict()
+    record = env.to_json()
     if (friction := plant_friction(case)) is not None and not planar:  # docs/math.md, facts 18-19
         record["friction"] = friction_record(design, loop.camera, disturbance, start_storage(loop, case.s0), env,
                                              FrictionBound.of(friction, loop.compensation))  # fmt: skip
@@ -277,7 +438,7 @@ def certificate_for(spec: Scenario, point: GainPoint, *, with_sdp: bool = True, 
 
 def certificate_result(
     case: Case, provenance: dict, *, lower_bounds: bool = True, rest: FromRest | None = None
-) -> tuple[dict, Certificate]:
+) -> CertificateResult:
     """Theorem 2 at the case's gains: the paper's gamma, the fact-4 gamma, and (optionally)
     lower bounds on the true gain (``rest``: the run from rest they take, when already made), over
     the ``[certify]`` region; the operating envelope; with an implementation, the local
@@ -295,22 +456,9 @@ def certificate_result(
         record["integral"] = coverage
     if case.settings.implementation is not None:
         record["implemented"] = implemented_record(case.loop, case.s0, case.settings)
-    result = {
-        "scenario": spec.name,
-        "loop": spec.loop,
-        "region": cert.region,
-        "assumptions": list(PLANAR_ASSUMPTIONS if planar else ASSUMPTIONS),
-        "gamma_required": spec.certify.gamma,
-        "points": [record],
-        "summary": {
-            "points": 1,
-            "certified": int(cert.certified),
-            "gamma_min": cert.gamma,
-            "seconds": time.perf_counter() - start,
-        },
-        "provenance": provenance,
-    }
-    return result, cert
+    summary_ = CertificateSummary(points=1, certified=int(cert.certified), gamma_min=cert.gamma,
+                                  seconds=time.perf_counter() - start)  # fmt: skip
+    return CertificateResult.of(spec, [record], summary_, provenance)
 
 
 def verification_result(
@@ -320,7 +468,7 @@ def verification_result(
     implemented_run: Trajectory | None = None,
     rest: FromRest | None = None,
     paper_run: Trajectory | None = None,
-) -> tuple[dict, list[Claim]]:
+) -> VerificationResult:
     """Every claim of the paper checked on simulated runs, at the gamma certified for the gains;
     the envelope's claims against ``envelope`` (:func:`envelope_record` of the case), the limits
     on ``implemented_run`` (the case run as implemented), Theorem 2 from rest on ``rest``
@@ -330,22 +478,16 @@ def verification_result(
     spec, loop, point = case.scenario, case.loop, case.point
     cert = certificate_for(spec, point, with_sdp=False, bounded=False)
     gamma = cert.gamma
-    if gamma is None and not case.planar and loop.robot.n < 6:  # test the paper's claims as written
+    if gamma is None and case.theorems_do_not_apply is not None:  # test the paper's claims as written
         gamma = exact_gamma(point, case.reference, np.eye(3))[0]
         gamma = None if not np.isfinite(gamma) else gamma
     envelope = envelope_record(case, search=False) if envelope is None else envelope
     claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run, rest, paper_run)
-    count = lambda status: sum(c.status == status for c in claims)  # noqa: E731
-    result = {
-        "scenario": spec.name,
-        "gamma": gamma,
-        "gamma_certified": cert.certified,
-        "claims": [c.as_dict() for c in claims],
-        "summary": {"claims": count("PASS") + count("FAIL"), "failed": count("FAIL"),
-                    "inconclusive": count("INCONCLUSIVE"), "seconds": time.perf_counter() - start},
-        "provenance": provenance,
-    }  # fmt: skip
-    return result, claims
+    count = lambda status: sum(c.status is status for c in claims)  # noqa: E731
+    summary_ = ClaimsSummary(claims=count(ClaimStatus.PASS) + count(ClaimStatus.FAIL), failed=count(ClaimStatus.FAIL),
+                             inconclusive=count(ClaimStatus.INCONCLUSIVE), seconds=time.perf_counter() - start)
+    return VerificationResult(scenario=spec.name, gamma=gamma, gamma_certified=cert.certified, claims=claims,
+                              summary=summary_, provenance=provenance)  # fmt: skip
 
 
 def best_gamma(point: dict) -> tuple[float | None, str]:
@@ -360,140 +502,139 @@ def best_gamma(point: dict) -> tuple[float | None, str]:
 def statements(
     certificate: dict, verification: dict, margins: dict | None = None, dispersion: dict | None = None,
     controller: dict | None = None,
-) -> list[dict]:
-    """Every statement a review makes, each with the loop it is about and its own status:
-    ``CERTIFIED`` / ``NOT CERTIFIED`` (a certificate, re-checked), ``DOES NOT APPLY`` (its
-    assumptions fail here), ``PASS`` / ``FAIL`` / ``INCONCLUSIVE`` (checks on simulated runs),
-    ``MEASURED`` (a measurement, not a certificate). ``margins`` and ``dispersion`` (the
-    report's campaign, its ``summary`` the campaign's ``summary.json``): when measured;
-    ``controller``: the exported program checked against the simulated one
-    (:func:`dvfc.analysis.export.running_controller`), when the scenario has one."""
+) -> list[Statement]:
+    """Every statement a review makes, each with the loop it is about and its own status
+    (:class:`StatementStatus`), from the JSON of ``certificate`` and ``verification`` (the report's
+    stored stages); ``margins`` and ``dispersion`` (the report's campaign, its ``summary`` the
+    campaign's ``summary.json``): when measured; ``controller``: the exported program checked against
+    the simulated one (:func:`dvfc.analysis.export.running_controller`), when the scenario has one."""
+    S = StatementStatus
     point = certificate["points"][0]
     gamma, which = best_gamma(point)
     integral = point.get("integral")
-    out = [{
-        "statement": "L2 gain (Theorem 2)", "loop": "ideal continuous loop, " + certificate["region"],
-        "status": "CERTIFIED" if gamma is not None else "NOT CERTIFIED",
-        "detail": f"gamma <= {gamma:.6g} by {which}, {channels_text(point, certificate['loop'] == 'planar')}"
+    out = [Statement(
+        statement="L2 gain (Theorem 2)", loop="ideal continuous loop, " + certificate["region"],
+        status=S.certified(gamma is not None),
+        detail=f"gamma <= {gamma:.6g} by {which}, {channels_text(point, certificate['loop'] == 'planar')}"
         + ("" if integral is None else f"; with integral action: {integral['theorem_2']}")
         if gamma is not None else str(point["reason"]),
-    }]  # fmt: skip
+    )]  # fmt: skip
     env = point.get("envelope") or {}
     if integral is not None:
-        out.append({"statement": "constant-torque equilibrium (fact 20.3)", "loop": "ideal continuous loop, static "
-                    "target", "status": "CERTIFIED", "detail": integral["constant_torque"]})  # fmt: skip
+        out.append(Statement(statement="constant-torque equilibrium (fact 20.3)",
+                             loop="ideal continuous loop, static target", status=S.CERTIFIED,
+                             detail=integral["constant_torque"]))  # fmt: skip
     if env.get("friction") is not None:
-        out.append({"statement": "operating envelope with the plant's friction (fact 18)",
-                    "loop": "ideal continuous loop with the [plant] friction",
-                    "status": "CERTIFIED" if env["friction"]["certified"] else "NOT CERTIFIED",
-                    "detail": env["friction"]["statement"]})  # fmt: skip
+        out.append(Statement(statement="operating envelope with the plant's friction (fact 18)",
+                             loop="ideal continuous loop with the [plant] friction",
+                             status=S.certified(env["friction"]["certified"]),
+                             detail=env["friction"]["statement"]))  # fmt: skip
     if env.get("rate") is None:
-        out.append({"statement": "operating envelope (facts 7-10)", "loop": "ideal continuous loop",
-                    "status": "NOT CERTIFIED", "detail": str(env.get("reason", "not computed"))})  # fmt: skip
+        out.append(Statement(statement="operating envelope (facts 7-10)", loop="ideal continuous loop",
+                             status=S.NOT_CERTIFIED, detail=str(env.get("reason", "not computed"))))  # fmt: skip
         if (start := env.get("start") or {}).get("until_s") is not None:  # fact 20.6
-            out.append({"statement": "the start, until integral action engages (fact 20.6)",
-                        "loop": f"ideal continuous loop, 0 <= t <= {start['until_s']:.4g} s",
-                        "status": "CERTIFIED" if start["inside"] else "NOT CERTIFIED",
-                        "detail": start["statement"] if start["inside"] else str(start.get("reason"))})  # fmt: skip
+            out.append(Statement(statement="the start, until integral action engages (fact 20.6)",
+                                 loop=f"ideal continuous loop, 0 <= t <= {start['until_s']:.4g} s",
+                                 status=S.certified(start["inside"]),
+                                 detail=start["statement"] if start["inside"] else str(start.get("reason"))),
+                       )  # fmt: skip
     else:
         speed, own = env.get("max_target_speed"), env["disturbance"]["target_speed"]
         out += [
-            {"statement": "decay rate and ultimate bounds (facts 7, 10)", "loop": "ideal continuous loop",
-             "status": "CERTIFIED", "detail": f"rate {env['rate']:.4g} 1/s, ultimate V <= {env['ultimate_V']:.4g}"},
-            {"statement": "every feature in the image (fact 8)", "loop": "ideal continuous loop, ultimately",
-             "status": "CERTIFIED" if env["visible"] else "NOT CERTIFIED",
-             "detail": f"{env['image_margin_px']:.4g} px from the border" if env["visible"] else env["statement"]},
-            {"statement": "at the target's own speed", "loop": "ideal continuous loop",
-             "status": "CERTIFIED" if speed is not None and speed >= own else "NOT CERTIFIED",
-             "detail": "largest target speed with every statement certified (features in view) "
-                       f"{'-' if speed is None else f'{speed:.4g}'} m/s against {own:.4g} m/s"},
-            {"statement": "the start", "loop": "ideal continuous loop, from t = 0",
-             "status": "CERTIFIED" if env["start"]["inside"] else "NOT CERTIFIED",
-             "detail": f"V(0) = {env['start']['V0']:.4g} "
-                       + ("inside the certified set" if env["start"]["inside"] else
-                          "outside the certified set: the statements above hold only once the run enters it")},
+            Statement(statement="decay rate and ultimate bounds (facts 7, 10)", loop="ideal continuous loop",
+                      status=S.CERTIFIED, detail=f"rate {env['rate']:.4g} 1/s, ultimate V <= {env['ultimate_V']:.4g}"),
+            Statement(statement="every feature in the image (fact 8)", loop="ideal continuous loop, ultimately",
+                      status=S.certified(env["visible"]),
+                      detail=f"{env['image_margin_px']:.4g} px from the border" if env["visible"]
+                      else env["statement"]),
+            Statement(statement="at the target's own speed", loop="ideal continuous loop",
+                      status=S.certified(speed is not None and speed >= own),
+                      detail="largest target speed with every statement certified (features in view) "
+                             f"{'-' if speed is None else f'{speed:.4g}'} m/s against {own:.4g} m/s"),
+            Statement(statement="the start", loop="ideal continuous loop, from t = 0",
+                      status=S.certified(env["start"]["inside"]),
+                      detail=f"V(0) = {env['start']['V0']:.4g} "
+                             + ("inside the certified set" if env["start"]["inside"] else
+                                "outside the certified set: the statements above hold only once the run enters it")),
         ]  # fmt: skip
     implemented = point.get("implemented")
     if implemented is not None:
-        status = ("DOES NOT APPLY" if not implemented["applies"] else
-                  "CERTIFIED" if implemented["certified"] else "NOT CERTIFIED")  # fmt: skip
+        status = S.DOES_NOT_APPLY if not implemented["applies"] else S.certified(implemented["certified"])
         detail = (f"rho = {implemented['rho']:.6g} over {implemented['period'] * 1e3:.4g} ms, local rate "
                   f"{implemented['rate']:.4g} 1/s" if implemented["certified"] else str(implemented["reason"]))
-        out.append({"statement": "local stability of the loop as implemented (fact 14)",
-                    "loop": "sampled multirate loop, linearised at rest: local", "status": status, "detail": detail})
+        out.append(Statement(statement="local stability of the loop as implemented (fact 14)",
+                             loop="sampled multirate loop, linearised at rest: local", status=status, detail=detail))
     if margins is not None and "margins" in margins:
         held = [f"{name} {m['holds_at']:.4g} {m['unit']}" for name, m in margins["margins"].items()
                 if m.get("holds_at") is not None]  # fmt: skip
-        out.append({"statement": "margins of the loop as implemented", "loop": "sampled nonlinear loop, simulated",
-                    "status": "MEASURED", "detail": "holds at " + ", ".join(held)})
+        out.append(Statement(statement="margins of the loop as implemented", loop="sampled nonlinear loop, simulated",
+                             status=S.MEASURED, detail="holds at " + ", ".join(held)))  # fmt: skip
     if dispersion is not None and "summary" in dispersion:
         campaign = dispersion["summary"]
         loop = f"sampled nonlinear loop, simulated: {campaign['runs']} runs drawn from the [dispersion]"
-        out.append({"statement": "dispersion campaign", "loop": loop, "status": "MEASURED",
-                    "detail": campaign["statement"]})  # fmt: skip
+        out.append(Statement(statement="dispersion campaign", loop=loop, status=S.MEASURED,
+                             detail=campaign["statement"]))  # fmt: skip
     if controller is not None:
         out.append(program_statement(controller))
     summary_ = verification["summary"]
-    status = "FAIL" if summary_["failed"] else "INCONCLUSIVE" if summary_["inconclusive"] else "PASS"
-    out.append({"statement": "the paper's claims and the limits, checked on runs", "loop": "simulated runs",
-                "status": status, "detail": f"{summary_['claims']} checked, {summary_['failed']} fail, "
-                                            f"{summary_['inconclusive']} inconclusive"})  # fmt: skip
+    status = S.FAIL if summary_["failed"] else S.INCONCLUSIVE if summary_["inconclusive"] else S.PASS
+    out.append(Statement(statement="the paper's claims and the limits, checked on runs", loop="simulated runs",
+                         status=status, detail=f"{summary_['claims']} checked, {summary_['failed']} fail, "
+                                               f"{summary_['inconclusive']} inconclusive", claims=True))  # fmt: skip
     return out
 
 
-PROGRAM_STATEMENT = "the exported program is the simulated controller (dvfc export --check)"
-
-
-def program_statement(controller: dict) -> dict:
+def program_statement(controller: dict) -> Statement:
     """The statement that the program that runs is the controller the runs simulate: the compiled C
     step replayed on the run as implemented, sample by sample, and closing the plant's loop
     (:func:`dvfc.analysis.export.check`, within its stated tolerances); ``INCONCLUSIVE`` when it
     could not be compiled, ``DOES NOT APPLY`` when the loop has no program to export."""
-    row = {"statement": PROGRAM_STATEMENT,
-           "loop": "the compiled C step on the loop as implemented's run, sample by sample and in closed loop"}
+    statement = "the exported program is the simulated controller (dvfc export --check)"
+    loop = "the compiled C step on the loop as implemented's run, sample by sample and in closed loop"
     if "check" not in controller:
-        status = "INCONCLUSIVE" if controller["reason"] == NO_COMPILER else "DOES NOT APPLY"
-        return {**row, "status": status, "detail": f"not checked: {controller['reason']}"}
+        status = StatementStatus.INCONCLUSIVE if controller["reason"] == NO_COMPILER else StatementStatus.DOES_NOT_APPLY
+        return Statement(statement=statement, loop=loop, status=status, detail=f"not checked: {controller['reason']}")
     check, tolerance = controller["check"], controller["tolerances"]
     detail = (f"program SHA-256 {controller['sha256'][:16]}: {check['samples']} samples, largest torque difference "
               f"{check['max_abs_torque_difference']:.3g} N m (relative {check['max_rel_torque_difference']:.3g}, "
               f"at most {tolerance['torque_relative']:.0e}); closed loop: joints within "
               f"{check['closed_loop_max_state_difference']:.3g} (at most {tolerance['closed_loop']:.0e})")
-    return {**row, "status": "PASS" if check["passed"] else "FAIL", "detail": detail}
+    status = StatementStatus.PASS if check["passed"] else StatementStatus.FAIL
+    return Statement(statement=statement, loop=loop, status=status, detail=detail)
 
 
-def verdict(certificate: dict, verification: dict, statements_: list[dict] | None = None) -> dict:
+def verdict(certificate: dict, verification: dict, statements_: list[Statement] | None = None) -> Verdict:
     """The whole verdict of a review: the certificate AND every check behind it.
 
-    ``passed`` only when the design is certified, no claim fails, no check is inconclusive and
-    the exported program's replay (:func:`program_statement`, when given) does not fail;
-    ``failed`` and ``inconclusive`` list those claims with their reasons;
-    ``not_certified`` the review's statements (:func:`statements`, when given) that are not
-    certified or do not apply here, which the headline names too."""
+    ``passed`` only when the design is certified, no claim fails, no check is inconclusive and no
+    statement of the review (:func:`statements`, when given) FAILS (the exported program's replay,
+    :func:`program_statement`; the claims' own row is counted from the claims); ``failed`` and
+    ``inconclusive`` list those claims with their reasons; ``not_certified`` the statements that are
+    not certified or do not apply here, which the headline names too."""
     point = certificate["points"][0]
     pick = lambda status: [c for c in verification["claims"] if c["status"] == status]  # noqa: E731
-    failed, inconclusive = pick("FAIL"), pick("INCONCLUSIVE")
+    failed, inconclusive = pick(ClaimStatus.FAIL), pick(ClaimStatus.INCONCLUSIVE)
     checks = []
     if failed:
         checks.append(f"{len(failed)} of {verification['summary']['claims']} checked claims FAIL")
     if inconclusive:
         checks.append(f"{len(inconclusive)} check(s) INCONCLUSIVE")
-    if any(s["statement"] == PROGRAM_STATEMENT and s["status"] == "FAIL" for s in statements_ or []):
-        checks.append("the exported program's replay FAILS")
+    checks += [f"{s.statement}: FAIL" for s in statements_ or [] if s.status is StatementStatus.FAIL and not s.claims]
     if point["certified"]:
         headline = "L2 gain CERTIFIED" + (", but " + " and ".join(checks) if checks else ", and every check passes")
     else:
         headline = "L2 gain NOT CERTIFIED" + (" and " + " and ".join(checks) if checks else "")
-    short = [s for s in statements_ or [] if s["status"] in ("NOT CERTIFIED", "DOES NOT APPLY")]
+    not_here = (StatementStatus.NOT_CERTIFIED, StatementStatus.DOES_NOT_APPLY)
+    short = [s for s in statements_ or [] if s.status in not_here]
     if short:
         headline += f"; {len(short)} statement(s) not certified here or not applying (listed)"
-    return {"passed": bool(point["certified"]) and not checks, "headline": headline, "failed": failed,
-            "inconclusive": inconclusive, "not_certified": short}  # fmt: skip
+    return Verdict(passed=bool(point["certified"]) and not checks, headline=headline, failed=failed,
+                   inconclusive=inconclusive, not_certified=short)  # fmt: skip
 
 
 def grid_result(spec: Scenario, grid: GridSpec, state: SweepState, files: dict[str, str], provenance: dict,
-                seconds: float) -> dict:
-    """The JSON result of a grid sweep: the points worth naming, each labelled and re-certified
+                seconds: float) -> CertificateResult:
+    """The result of a grid sweep: the points worth naming, each labelled and re-certified
     alone (with the rotation search): the smallest certified gamma; with a ``[certify] gamma``
     requirement, the cheapest point meeting it (smallest ``|K| = |[k_xi; k_c; k_e]|``); the largest
     gamma (or a point not certified). ``files`` names the stored results."""  # fmt: skip
@@ -509,22 +650,8 @@ def grid_result(spec: Scenario, grid: GridSpec, state: SweepState, files: dict[s
         d = grid.designs(entry[1], entry[1] + 1)
         gp = GainPoint(d["k_xi"][0], d["k_c"][0], d["k_e"][0], Weights(*d["w"][0]))
         points.append({"label": label, "index": entry[1], **point_record(gp, certificate_for(spec, gp))})
-    planar = spec.loop == "planar"
     best = points[0] if state.best is not None else None
-    return {
-        "scenario": spec.name,
-        "loop": spec.loop,
-        "region": PLANAR_REGION if planar else region_text(math.radians(spec.certify.theta_max_deg)),
-        "assumptions": list(PLANAR_ASSUMPTIONS if planar else ASSUMPTIONS),
-        "gamma_required": bound,
-        "grid": {name: v.tolist() if len(v) <= 1000 else f"{len(v)} values" for name, v in grid.axes},
-        "points": points,
-        **files,
-        "summary": {
-            "points": grid.size,
-            "certified": state.certified,
-            "gamma_min": best["gamma"] if best else None,
-            "seconds": seconds,
-        },
-        "provenance": provenance,
-    }
+    summary_ = CertificateSummary(points=grid.size, certified=state.certified,
+                                  gamma_min=best["gamma"] if best else None, seconds=seconds)  # fmt: skip
+    axes = {name: v.tolist() if len(v) <= 1000 else f"{len(v)} values" for name, v in grid.axes}
+    return CertificateResult.of(spec, points, summary_, provenance, grid=axes, **files)

@@ -56,7 +56,7 @@ from dvfc.analysis.controller import image_update, sample_update
 from dvfc.analysis.implementation import MAX_AUTO_SUBSTEPS, SubstepChoice
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.parametric import parameter_vector
-from dvfc.analysis.simulate import Settings, Simulator, Trajectory, joint_peaks
+from dvfc.analysis.simulate import RunStatus, Settings, Simulator, Stop, Trajectory, joint_peaks
 from dvfc.models.errors import PlantErrors, camera_size, controller_features, friction_torque, true_features
 from dvfc.models.lie import SE3
 from dvfc.models.loop import QUADRATURES, ClosedLoop
@@ -166,10 +166,9 @@ class _Stop:
 
     step: int
     rank: int
-    status: str
-    message: str
-    tau_end: int
-    qd_end: int
+    stop: Stop = field(compare=False)
+    tau_end: int = field(compare=False)
+    qd_end: int = field(compare=False)
 
 
 class SampledSimulator(Simulator):
@@ -385,23 +384,23 @@ class SampledSimulator(Simulator):
         noise = imp.pixel_noise * rng.standard_normal(size) if self.loop.mode == "image" else np.zeros(size)
         return noise + imp.outliers(size, faults) if imp.outlier_probability > 0 else noise
 
-    def observe(self, t: float, s: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, str | None]:
+    def observe(self, t: float, s: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, Stop | None]:
         """What an image captured at ``(t, s)`` with pixel ``noise`` gives: the exact ``e_e`` (15), the
-        features the controller reads, and why the image is lost (a point behind the camera or a
-        feature outside the image), or None."""
+        features the controller reads, and the stop when the image is lost (a point behind the camera
+        or a feature outside the image), or None."""
         errors = () if self.errors is None else (self._errors,)
         f, e_ideal, measured, depth = (v.ravel() for v in self._camera(t, s, noise, *errors))
         if np.any(depth <= 0):
-            return e_ideal, measured, f"a feature point is behind the camera at t = {t:.4g} s"
+            return e_ideal, measured, Stop.behind_camera(t)
         if self._window is not None and (np.any(f < self._window[0]) or np.any(f > self._window[1])):
             outside = np.flatnonzero(np.any(((f < self._window[0]) | (f > self._window[1])).reshape(-1, 2), axis=1))
-            return e_ideal, measured, f"feature {int(outside[0])} left the image at t = {t:.4g} s"
+            return e_ideal, measured, Stop.out_of_view(int(outside[0]), t)
         return e_ideal, measured, None
 
-    def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray | None, str | None]:
+    def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray | None, Stop | None]:
         """The ``e_e`` of an image captured at ``(t, s)`` (None: the controller drops it, as the program
-        does an implausible one, :func:`~dvfc.analysis.controller.image_update`), and the reason there
-        is no image (a feature lost), or None."""
+        does an implausible one, :func:`~dvfc.analysis.controller.image_update`), and the stop when
+        there is no image (a feature lost), or None."""
         e_ideal, measured, lost = self.observe(t, s, self.noise(rng, self._faults))
         if lost is not None or self.loop.mode != "image":
             return (None if lost else e_ideal), lost
@@ -496,8 +495,7 @@ class SampledSimulator(Simulator):
                 e_new = e_new if e_read is None else e_read
                 measured += 1
                 if lost is not None:
-                    status = "behind_camera" if "behind" in lost else "out_of_view"
-                    stops.append(_Stop(c, 0, status, lost, c, c))
+                    stops.append(_Stop(c, 0, lost, c, c))
                     return None
             return e_new
 
@@ -510,11 +508,8 @@ class SampledSimulator(Simulator):
             history["qd"].append(speeds)
             if imp.velocity_limits == "stop" and np.any(over := speeds > self.limits.velocity):
                 j, joint = (int(i[0]) for i in np.nonzero(over))
-                message = (
-                    f"stopped at t = {(first + j) * h:.4g} s: joint {joint + 1} speed {speeds[j, joint]:.4g} rad/s "
-                    f"exceeds its limit {self.limits.velocity[joint]:.4g} rad/s"
-                )
-                stops.append(_Stop(first + j, 1, "velocity_limit", message, first + j, first + j + 1))
+                stop = Stop.velocity_limit((first + j) * h, joint, speeds[j, joint], self.limits.velocity[joint])
+                stops.append(_Stop(first + j, 1, stop, first + j, first + j + 1))
 
         check_joints(0, s[None, : 2 * n])
         k = 0
@@ -531,7 +526,7 @@ class SampledSimulator(Simulator):
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc
                 message = f"CVODES failed between t = {k * h:.4g} s and t = {end * h:.4g} s"
-                stops.append(_Stop(k, 4, "integrator_failure", message, k, k + 1))
+                stops.append(_Stop(k, 4, Stop(RunStatus.INTEGRATOR_FAILURE, message), k, k + 1))
                 break
             history["tau"].append(np.abs(commanded.T))
             history["tau_applied"].append(np.abs(applied.T))
@@ -544,8 +539,7 @@ class SampledSimulator(Simulator):
                 kept[int(c)] = after[:, c - k - 1]
             if not (np.isfinite(after).all() and np.isfinite(quad).all()):
                 j = int(np.flatnonzero(~np.isfinite(np.vstack([after, quad])).all(axis=0))[0])
-                message = f"non-finite state after t = {(k + j) * h:.4g} s"
-                stops.append(_Stop(k + j, 3, "diverged", message, k + j + 1, k + j + 1))
+                stops.append(_Stop(k + j, 3, Stop.diverged((k + j) * h), k + j + 1, k + j + 1))
             check_joints(k + 1, after[: 2 * n].T)
             if stops:
                 break
@@ -554,13 +548,12 @@ class SampledSimulator(Simulator):
                 singular, evaluated = self._evaluate(rows, evaluated, signal_chunks)
                 if singular is not None:
                     r = rows[evaluated - 1][0]
-                    stops.append(_Stop(r, 2, "singular", singular, r + 1, r + 1))
+                    stops.append(_Stop(r, 2, singular, r + 1, r + 1))
                     break
                 if progress is not None:
                     progress(k * h)
                 if time.perf_counter() - start > st.time_budget:
-                    message = f"stopped at t = {k * h:.4g} s: time budget {st.time_budget:g} s exceeded"
-                    stops.append(_Stop(k, 4, "time_budget", message, k, k + 1))
+                    stops.append(_Stop(k, 4, Stop.time_budget(k * h, st.time_budget), k, k + 1))
         # The captures up to the end (T, or the first stop) not measured yet: a feature lost in
         # one ends the run there, though its image would arrive later.
         measure_through(min(stops).step if stops else steps, captures)
@@ -571,7 +564,7 @@ class SampledSimulator(Simulator):
             history["tau_applied"].append(np.abs(applied[None, :]))
             if steps % self.stride == 0:
                 rows.append((steps, s, np.concatenate([applied, e_held, observer])))
-            stop = _Stop(steps, 5, "ok", "", steps + 1, steps + 1)
+            stop = _Stop(steps, 5, Stop(), steps + 1, steps + 1)
         else:
             stop = min(stops)
         if not rows:  # stopped before the first period: the start is still a row (no torque counted)
@@ -582,7 +575,7 @@ class SampledSimulator(Simulator):
             singular, kept_rows = self._evaluate(rows, evaluated, signal_chunks)
             if singular is not None:
                 r = rows[kept_rows - 1][0]
-                stop = _Stop(r, 2, "singular", singular, r + 1, r + 1)
+                stop = _Stop(r, 2, singular, r + 1, r + 1)
                 rows = rows[:kept_rows]
         signals = {name: np.concatenate([c[name] for c in signal_chunks])[: len(rows)] for name in signal_chunks[0]}
         signals["state"] = np.array([r[1] for r in rows])
@@ -599,17 +592,17 @@ class SampledSimulator(Simulator):
             t=steps_of_rows * h,
             signals=signals,
             integrals={name: quad[:, i] for i, name in enumerate(QUADRATURES)},
-            status=stop.status,
-            message=stop.message,
+            status=stop.stop.status,
+            message=stop.stop.message,
             wall_time=time.perf_counter() - start,
             stats={"steps": stop.tau_end, "samples": stop.qd_end - 1, **self._periods.choice.stats},
             peaks=peaks,
-            stopped_at=None if stop.status == "ok" else stop.step * h,
+            stopped_at=None if stop.stop.status is RunStatus.OK else stop.step * h,
         )
 
-    def _evaluate(self, rows: list, evaluated: int, chunks: list) -> tuple[str | None, int]:
+    def _evaluate(self, rows: list, evaluated: int, chunks: list) -> tuple[Stop | None, int]:
         """Signals of the output rows not yet evaluated, appended to ``chunks``; returns the
-        singularity message (if any) and how many rows are evaluated (kept)."""
+        singularity's stop (if any) and how many rows are evaluated (kept)."""
         new = rows[evaluated:]
         t = np.array([r[0] for r in new]) * self.implementation.period
         states = np.array([r[1] for r in new]).T

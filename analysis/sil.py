@@ -12,8 +12,8 @@ The sampled simulator runs the same program's update at each sample
 one loop: what this adds is the program as it is called (its state, its ring of estimates, its
 checks) and any other step with its signature, the compiled C one (``dvfc export --check``).
 
-A feature behind the camera or outside the image at a capture ends the run there (status
-``out_of_view``), as in the sampled simulator.
+A feature behind the camera or outside the image at a capture ends the run there with the sampled
+simulator's own stop (:class:`~dvfc.analysis.simulate.Stop`: ``behind_camera`` or ``out_of_view``).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import numpy as np
 from dvfc.analysis.case import Case
 from dvfc.analysis.controller import Controller
 from dvfc.analysis.sampled import SampledSimulator, as_implemented
+from dvfc.analysis.simulate import RunStatus, Stop
 
 StepFunction = Callable[
     [np.ndarray, float, np.ndarray, np.ndarray, np.ndarray | None, int], tuple[np.ndarray, np.ndarray]
@@ -48,7 +49,7 @@ class SilRun:
     captures: np.ndarray
     features: np.ndarray
     states: np.ndarray
-    status: str
+    status: RunStatus
     message: str
 
 
@@ -68,9 +69,9 @@ class Plant:
         """``[q; qd]`` one control period after ``(t, joints)`` with ``tau`` held."""
         return self._period(t, np.concatenate([joints, self._rest]), tau)[: 2 * self.n]
 
-    def image(self, t: float, q: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, str | None]:
+    def image(self, t: float, q: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, Stop | None]:
         """The features the controller reads from an image at ``(t, q)`` with pixel ``noise``, and
-        why the image is lost (a point behind the camera or outside the image), or None."""
+        the stop when the image is lost (a point behind the camera or outside the image), or None."""
         _, measured, lost = self.simulator.observe(t, np.concatenate([q, np.zeros(self.n), self._rest]), noise)
         return measured, lost
 
@@ -97,17 +98,16 @@ def software_in_the_loop(
     state = controller.initial_state()
     record = {key: [] for key in ("q", "qd", "tau", "captures", "features", "states")}
     taken: dict[int, np.ndarray] = {}  # the features of each capture not handed over yet
-    status, message, j = "ok", "", 0
+    stop, j = Stop(), 0
     for k in range(steps):
         t = k * h
         record["q"].append(joints[:n])
         record["qd"].append(joints[n:])
         while j < len(captures) and captures[j] == k:  # the image captured now, drawn in capture order
             taken[k], lost = plant.image(t, joints[:n], simulator.noise(rng, faults))
-            if lost is not None:
-                status, message = "out_of_view", lost
+            stop = stop if lost is None else lost
             j += 1
-        if status != "ok":
+        if stop.status is not RunStatus.OK:
             break
         arriving = np.flatnonzero(arrivals == k)
         capture = int(captures[arriving[0]]) if len(arriving) else -1
@@ -132,8 +132,8 @@ def software_in_the_loop(
         captures=np.array(record["captures"], dtype=int),
         features=np.array(record["features"]).reshape(count, 2 * m),
         states=np.array(record["states"]).reshape(count, controller.layout.size),
-        status=status,
-        message=message,
+        status=stop.status,
+        message=stop.message,
     )
 
 

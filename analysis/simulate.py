@@ -104,6 +104,37 @@ class RunStatus(StrEnum):
     INTEGRATOR_FAILURE = "integrator_failure"
 
 
+@dataclass(frozen=True)
+class Stop:
+    """How a run ended and what it says of it, worded once for both simulators (this module's
+    and :class:`~dvfc.analysis.sampled.SampledSimulator`)."""
+
+    status: RunStatus = RunStatus.OK
+    message: str = ""
+
+    @classmethod
+    def behind_camera(cls, t: float) -> Stop:
+        return cls(RunStatus.BEHIND_CAMERA, f"a feature point is behind the camera at t = {t:.4g} s")
+
+    @classmethod
+    def out_of_view(cls, feature: int, t: float) -> Stop:
+        return cls(RunStatus.OUT_OF_VIEW, f"feature {feature} left the image at t = {t:.4g} s")
+
+    @classmethod
+    def time_budget(cls, t: float, budget: float) -> Stop:
+        return cls(RunStatus.TIME_BUDGET, f"stopped at t = {t:.4g} s: time budget {budget:g} s exceeded")
+
+    @classmethod
+    def diverged(cls, t: float) -> Stop:
+        return cls(RunStatus.DIVERGED, f"non-finite state after t = {t:.4g} s")
+
+    @classmethod
+    def velocity_limit(cls, t: float, joint: int, speed: float, limit: float) -> Stop:
+        """Joint ``joint`` (from 0) at ``speed`` over its ``limit`` (rad/s)."""
+        return cls(RunStatus.VELOCITY_LIMIT, f"stopped at t = {t:.4g} s: joint {joint + 1} speed {speed:.4g} rad/s "
+                                             f"exceeds its limit {limit:.4g} rad/s")  # fmt: skip
+
+
 @dataclass
 class Trajectory:
     """Signals on the time grid (first axis: time) and the accumulated integrals."""
@@ -275,9 +306,9 @@ class Simulator:
         low, high = camera.image_window()
         return np.any((xy < low) | (xy > high), axis=2)
 
-    def _singularity(self, t: np.ndarray, sigma: np.ndarray, cond: np.ndarray) -> tuple[int, str] | None:
+    def _singularity(self, t: np.ndarray, sigma: np.ndarray, cond: np.ndarray) -> tuple[int, Stop] | None:
         """The first of the times ``t`` where the law would divide by a near-zero (``sigma``,
-        ``cond`` from :func:`conditioning_of`), with a message, or None."""
+        ``cond`` from :func:`conditioning_of`), with its stop, or None."""
         arm, image = self._monitored
         bad_arm = np.flatnonzero(~(sigma >= self.settings.sigma_min))
         bad_image = np.flatnonzero(~(cond <= CONDITION_MAX)) if self.loop.mode == "image" else np.array([], int)
@@ -288,7 +319,7 @@ class Simulator:
             what = f"{arm} is near-singular: sigma_min({arm}) = {sigma[first]:.3g} < {self.settings.sigma_min:g}"
         else:
             what = f"{image} is ill-conditioned: cond({image}) = {cond[first]:.3g} > {CONDITION_MAX:g}"
-        return first, f"stopped at t = {t[first]:.4g} s: {what} (the law would divide by it)"
+        return first, Stop(RunStatus.SINGULAR, f"stopped at t = {t[first]:.4g} s: {what} (the law would divide by it)")
 
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
         """Integrate from ``s0`` over the settings' horizon."""
@@ -299,7 +330,7 @@ class Simulator:
         integrals = np.zeros((len(QUADRATURES), steps + 1))
         states[:, 0] = s0
         chunks = [self._signals(t[:1], states[:, :1])]  # signals, evaluated as the run goes
-        status, message = "ok", ""
+        stop = Stop()
         start = time.perf_counter()
         k = 0
         n_steps = 0
@@ -318,14 +349,12 @@ class Simulator:
                     refining, size = True, 1
                     continue
                 reached = t[k] + float(integrator.stats().get("tcur", 0.0) or 0.0)
-                status = "integrator_failure"
                 sigma, cond = chunks[-1]["sigma_min_arm_jacobian"][-1], chunks[-1]["cond_image_jacobian"][-1]  # (1,)
                 arm, image = self._monitored
-                message = (
-                    f"CVODES stopped at t = {reached:.4g} s: the step size collapsed or the step limit was reached "
-                    f"(the run diverges or is too stiff); at t = {t[k]:.4g} s sigma_min({arm}) = {sigma[0]:.3g}, "
-                    f"cond({image}) = {cond[0]:.3g}"
-                )
+                stop = Stop(RunStatus.INTEGRATOR_FAILURE,
+                            f"CVODES stopped at t = {reached:.4g} s: the step size collapsed or the step limit was "
+                            f"reached (the run diverges or is too stiff); at t = {t[k]:.4g} s sigma_min({arm}) = "
+                            f"{sigma[0]:.3g}, cond({image}) = {cond[0]:.3g}")  # fmt: skip
                 break
             per_step = (time.perf_counter() - chunk_start) / count
             size = 1 if refining else max(st.chunk, int(CHUNK_SECONDS / max(per_step, 1e-9)) // st.chunk * st.chunk)
@@ -333,7 +362,7 @@ class Simulator:
             xf = np.asarray(result["xf"])[:, :count]
             qf = np.asarray(result["qf"])[:, :count]
             if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(qf))):
-                status, message = "diverged", f"non-finite state after t = {t[k]:.4g} s"
+                stop = Stop.diverged(t[k])
                 break
             for q in self.loop.quaternions:
                 xf[q] /= np.linalg.norm(xf[q], axis=0)
@@ -345,18 +374,14 @@ class Simulator:
             )
             if singular is not None:
                 chunks.append({name: v[: singular[0] + 1] for name, v in chunk.items()})
-                k += singular[0] + 1
-                status, message = "singular", singular[1]
+                k, stop = k + singular[0] + 1, singular[1]
                 break
             chunks.append(chunk)
             k += count
             if progress is not None:
                 progress(t[k])
             if time.perf_counter() - start > st.time_budget:
-                status, message = (
-                    "time_budget",
-                    f"stopped at t = {t[k]:.4g} s: time budget {st.time_budget:g} s exceeded",
-                )
+                stop = Stop.time_budget(t[k], st.time_budget)
                 break
         t, states, integrals = t[: k + 1], states[:, : k + 1], integrals[:, : k + 1]
         signals = {name: np.concatenate([c[name] for c in chunks]) for name in chunks[0]}
@@ -364,19 +389,17 @@ class Simulator:
         behind = np.flatnonzero(np.any(signals["depth"] <= 0, axis=1))
         outside = self.outside_image(signals["f"])
         lost = np.flatnonzero(outside.any(axis=1))
-        if status == "ok" and behind.size:
-            i = int(behind[0])
-            status, message = "behind_camera", f"a feature point is behind the camera at t = {t[i]:.4g} s"
-        elif status == "ok" and lost.size:
+        if stop.status is RunStatus.OK and behind.size:
+            stop = Stop.behind_camera(t[int(behind[0])])
+        elif stop.status is RunStatus.OK and lost.size:
             i = int(lost[0])
-            point = int(np.flatnonzero(outside[i])[0])
-            status, message = "out_of_view", f"feature {point} left the image at t = {t[i]:.4g} s"
+            stop = Stop.out_of_view(int(np.flatnonzero(outside[i])[0]), t[i])
         return Trajectory(
             t=t,
             signals=signals,
             integrals={name: integrals[i] for i, name in enumerate(QUADRATURES)},
-            status=status,
-            message=message,
+            status=stop.status,
+            message=stop.message,
             wall_time=time.perf_counter() - start,
             stats={"steps": n_steps},
         )
@@ -446,7 +469,7 @@ def summary(traj: Trajectory) -> dict:
         "status": traj.status,
         "message": traj.message,
         "t_final": float(traj.t[-1]),
-        "stopped": traj.status != "ok",
+        "stopped": traj.status is not RunStatus.OK,
         "stopped_at": float(traj.t[-1] if traj.stopped_at is None else traj.stopped_at),
         "final_at": float(traj.t[-1]),
         "final": {

@@ -35,8 +35,10 @@ import os
 import time
 import tomllib
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
+from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 import cvxpy as cp
 import numpy as np
@@ -47,6 +49,7 @@ from dvfc.analysis.certify import Certificate, GainPoint, certify, estimation_sc
 from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, pose_diagonal, s_limit
 from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.output import append_log, atomic_write, read_log
+from dvfc.analysis.record import ABSENT, INTERNAL, Absent, Record
 from dvfc.analysis.results import envelope_record, point_record, speed_theta_bar
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, ScenarioError, integral_gain
@@ -54,6 +57,7 @@ from dvfc.analysis.windows import GainWindows, WindowSpec, case_window_spec, cas
 from dvfc.models.inertia import MassBounds
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Gains, PlantWeights, Weights
+from dvfc.models.robot import spans_the_task
 
 TARGET_MARGIN = 1e-4
 """Relative margin below a gamma target that the synthesis aims at."""
@@ -102,12 +106,36 @@ class Bounds:
         return {"k_xi": k_xi, "k_c": [float(b) for b in self.k_c], "k_e": [float(b) for b in self.k_e]}
 
 
+class Outcome(StrEnum):
+    """How a synthesis ended: a design (``ok``), or the kind of reason there is none; for the written
+    design, refused (its run as implemented exceeds the limits) or its target speed not certified."""
+
+    DESIGNED = "ok"
+    INFEASIBLE = "infeasible"
+    OUTSIDE_LIMITS = "no design within the limits"
+    REFUSED = "refused, nothing written"
+    UNCERTIFIED = "uncertified"
+
+    def status(self, reason: str) -> str:
+        """The outcome as ``synthesize``'s JSON says it: ``ok``, else ``<outcome>: <reason>``."""
+        return self.value if self is Outcome.DESIGNED else f"{self.value}: {reason}"
+
+
 @dataclass
 class Synthesis:
+    """A synthesis' design and its certificate, or (``point`` None) why there is none: ``outcome``
+    and ``reason`` in words."""
+
     point: GainPoint | None
     certificate: Certificate | None
-    status: str
+    outcome: Outcome = Outcome.DESIGNED
+    reason: str = ""
     weights_tried: int = 1
+
+    @property
+    def status(self) -> str:
+        """The outcome in words (:meth:`Outcome.status`)."""
+        return self.outcome.status(self.reason)
 
 
 def window_constraints(windows: WindowSpec | None, k_xi: cp.Variable) -> list:
@@ -131,9 +159,9 @@ def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target:
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
     k_ep, k_er = cp.Variable(), cp.Variable()
     k_ce = cp.hstack([k_c, k_ep, k_ep, k_ep, k_er, k_er, k_er])
-    weighted = GainPoint(np.ones(n), np.ones(6), np.ones(6), weights, plant)
-    s2, d_w = weighted.output_squared, weighted.disturbance_weights
-    w_ce = np.diag(np.r_[np.zeros(6), estimation_scale(weighted) ** 2])
+    plant = plant if plant is not None else PlantWeights.unit(n)
+    s2, d_w = plant.output() ** 2, plant.disturbance()
+    w_ce = np.diag(np.r_[np.zeros(6), estimation_scale(weights, plant) ** 2])
     a_ce = n_ce.T @ cp.diag(k_ce) @ n_ce - 0.5 * np.diag(s2[n:])
     # aim slightly below the target: the certifier inflates gamma by 1e-6 and the solver's
     # optimum is accurate to ~1e-8, so a 1e-4 margin keeps the certified gamma <= target
@@ -183,7 +211,7 @@ def synthesize(
         base = weights.as_array()
         candidates = [Weights(*(base * np.array(c))) for c in itertools.product(scales, repeat=4)]
     where = "the bounds" if windows is None else "the bounds and the gain windows (with the synthesis' margins)"
-    best: Synthesis = Synthesis(None, None, f"infeasible: no gains within {where} certify", len(candidates))
+    best = Synthesis(None, None, Outcome.INFEASIBLE, f"no gains within {where} certify", len(candidates))
     for w in candidates:
         gains = _sdp(w, reference, n, bounds, gamma_target, plant, windows)
         if gains is None:
@@ -199,7 +227,7 @@ def synthesize(
             < np.linalg.norm(np.r_[best.point.k_xi, best.point.k_c, best.point.k_e])
         )
         if better:
-            best = Synthesis(point, cert, "ok", len(candidates))
+            best = Synthesis(point, cert, weights_tried=len(candidates))
     return best
 
 
@@ -271,7 +299,7 @@ def synthesize_speed(
     upper = GainPoint(np.broadcast_to(bounds.k_xi[1], n), np.full(6, bounds.k_c[1]), np.full(6, bounds.k_e[1]), weights)
     top = s_limit(design_of(upper, reference, mass))
     where = "the bounds" if windows is None else "the bounds and the gain windows (with the synthesis' margins)"
-    failed = Synthesis(None, None, f"infeasible: no gains within {where} give a positive decay rate")
+    failed = Synthesis(None, None, Outcome.INFEASIBLE, f"no gains within {where} give a positive decay rate")
     if top <= 0:
         return failed
     problem, s, kappa, (k_xi, k_c, k_ep, k_er) = _speed_problem(weights, reference, n, bounds, mass, theta_bar, windows)
@@ -288,7 +316,7 @@ def synthesize_speed(
         return failed
     point = GainPoint(*_clipped(bounds, k_xi, k_c, k_ep, k_er), weights, plant)
     cert = certify(point, reference, theta_max=theta_max)
-    return Synthesis(point, cert, "ok")
+    return Synthesis(point, cert)
 
 
 def designer(
@@ -476,8 +504,8 @@ class LimitSearch:
             return self.chosen.synthesis
         if self.exceeds is None:
             return self.trials[0].synthesis
-        return Synthesis(None, None, f"no design within the limits: the family's smallest certified design "
-                                     f"(alpha = {self.exceeds.alpha:.4g}) {excess(self.exceeds.run)}")  # fmt: skip
+        smallest = f"the family's smallest certified design (alpha = {self.exceeds.alpha:.4g})"
+        return Synthesis(None, None, Outcome.OUTSIDE_LIMITS, f"{smallest} {excess(self.exceeds.run)}")
 
 
 def search_within_limits(
@@ -782,7 +810,7 @@ def synthesize_case(
         run = None if search.chosen is None else search.chosen.run
     if result.point is None:
         if windows is not None and (empty := windows.empty(bounds.k_xi)):
-            result = replace(result, status=f"infeasible: {'; '.join(empty)}")
+            result = replace(result, outcome=Outcome.INFEASIBLE, reason="; ".join(empty))
         return CaseSynthesis(spec.name, objective, result, bounds, search, None, None, None, None, None, theta)
     if not within_limits(run):
         refused = f"its run as implemented {excess(run)}"
@@ -796,54 +824,80 @@ def synthesize_case(
     return CaseSynthesis(spec.name, objective, result, bounds, search, run, None, text, envelope, start, theta)
 
 
-def synthesis_record(done: CaseSynthesis, written: Path | None, provenance: dict, seconds: float) -> dict:
-    """The JSON of ``synthesize`` (docs/cli.md) from its workflow's result and the file written
-    (None: nothing written)."""
+@dataclass(frozen=True, kw_only=True)
+class SynthesisResult(Record):
+    """``dvfc synthesize`` (docs/cli.md): the outcome (``status``, in words; ``outcome``, typed), the
+    objective, the gain box, the design's certificate point (None: no design), the file written (None:
+    nothing written); the target speed of a target-speed synthesis, the limits search, the design's run
+    against the limits and fact 14, the start check, when made."""
+
+    scenario: str
+    status: str
+    objective: str
+    bounds: dict[str, Any]
+    weights_tried: int
+    point: dict[str, Any] | None
+    region: str | None
+    scenario_file: str | None
+    seconds: float
+    provenance: dict[str, Any]
+    synthesis_theta_bar_deg: float | Absent = ABSENT
+    max_target_speed: float | Absent | None = ABSENT
+    limit_search: dict[str, Any] | Absent = ABSENT
+    limits: dict[str, Any] | Absent = ABSENT
+    implemented: dict[str, Any] | Absent = ABSENT
+    sampled: dict[str, Any] | Absent = ABSENT
+    start: dict[str, Any] | Absent = ABSENT
+    outcome: Outcome = field(metadata=INTERNAL)
+
+    @property
+    def written(self) -> bool:
+        """A design was accepted, certified, and written."""
+        return self.scenario_file is not None and self.outcome is Outcome.DESIGNED
+
+
+def synthesis_record(done: CaseSynthesis, written: Path | None, provenance: dict, seconds: float) -> SynthesisResult:
+    """The result of ``synthesize`` from its workflow's result and the file written (None: nothing
+    written)."""
     result = done.result
-    record = {
-        "scenario": done.scenario,
-        "status": result.status if done.refused is None else f"refused, nothing written: {done.refused}",
-        "objective": done.objective,
-        "bounds": done.bounds.as_dict(),
-        "weights_tried": result.weights_tried,
-        "point": None if result.point is None else point_record(result.point, result.certificate),
-        "region": None if result.certificate is None else result.certificate.region,
-        "scenario_file": None if written is None else str(written),
-        "seconds": seconds,
-        "provenance": provenance,
-    }
+    outcome, reason = (result.outcome, result.reason) if done.refused is None else (Outcome.REFUSED, done.refused)
+    point = None if result.point is None else point_record(result.point, result.certificate)
+    speed: dict[str, Any] = {}
     if done.theta_bar is not None:
-        record["synthesis_theta_bar_deg"] = math.degrees(done.theta_bar)
-        record["max_target_speed"] = None
-    if done.search is not None:
-        record["limit_search"] = limit_search_record(done.search, done.bounds)
+        speed = {"synthesis_theta_bar_deg": math.degrees(done.theta_bar), "max_target_speed": None}
+        if done.envelope is not None:  # the written design's own envelope
+            point = {**point, "envelope": done.envelope}
+            speed["max_target_speed"] = done.envelope["max_target_speed"]
+            if speed["max_target_speed"] is None:
+                outcome = Outcome.UNCERTIFIED
+                reason = f"no target speed certified for the written design ({done.envelope['reason']})"
+    run: dict[str, Any] = {}
     if done.run is not None:
-        record["limits"] = {k: v for k, v in done.run.items() if k not in ("implemented", "sampled")}
-        record["implemented"] = done.run["implemented"]
-        record["sampled"] = {"criterion": SAMPLED_CRITERION, "shortfall": done.run["sampled"]}
-    if done.start is not None:
-        record["start"] = done.start.as_dict()
-    if done.theta_bar is not None and done.envelope is not None:  # the written design's own envelope
-        record["point"]["envelope"] = done.envelope
-        record["max_target_speed"] = speed = done.envelope["max_target_speed"]
-        if speed is None:
-            why = done.envelope["reason"]
-            record["status"] = f"uncertified: no target speed certified for the written design ({why})"
-    return record
+        run = {"limits": {k: v for k, v in done.run.items() if k not in ("implemented", "sampled")},
+               "implemented": done.run["implemented"],
+               "sampled": {"criterion": SAMPLED_CRITERION, "shortfall": done.run["sampled"]}}  # fmt: skip
+    return SynthesisResult(
+        scenario=done.scenario, status=outcome.status(reason), outcome=outcome, objective=done.objective,
+        bounds=done.bounds.as_dict(), weights_tried=result.weights_tried, point=point,
+        region=None if result.certificate is None else result.certificate.region,
+        scenario_file=None if written is None else str(written), seconds=seconds, provenance=provenance,
+        limit_search=ABSENT if done.search is None else limit_search_record(done.search, done.bounds),
+        start=ABSENT if done.start is None else done.start.as_dict(), **speed, **run,
+    )  # fmt: skip
 
 
 def refuse_unless_synthesisable(case: Case) -> None:
     """Raise :class:`ScenarioError` unless the case is of the paper's loop with ``n >= 6`` joints, which
     the gain synthesis is for (fact 6)."""
     n = case.loop.robot.n
-    if case.scenario.loop != "paper" or n < 6:
+    if case.scenario.loop != "paper" or not spans_the_task(n):
         raise ScenarioError(f"loop: gain synthesis is for the paper's loop with n >= 6 joints "
                             f"(this is {case.scenario.loop}, n = {n})")  # fmt: skip
 
 
 def synthesize_scenario(
     case: Case, target: Path, provenance: dict, *, resume: bool = False, progress: Callable[[str], None] | None = None
-) -> dict:
+) -> SynthesisResult:
     """The ``[synthesize]`` workflow (:func:`synthesize_case`) on a case of the paper's loop with
     ``n >= 6`` joints, its design written as a scenario at ``target`` when accepted, the checked runs
     logged beside it (``target.runs.jsonl``, reused with ``resume``, removed when done); the JSON of

@@ -26,7 +26,7 @@ from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import FromRest, from_rest, weight_diagonals
 from dvfc.analysis.quiet import silenced
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
-from dvfc.analysis.simulate import Settings, Simulator, Trajectory, identity_residuals, rotation_angle
+from dvfc.analysis.simulate import RunStatus, Settings, Simulator, Trajectory, identity_residuals, rotation_angle
 from dvfc.analysis.start import run_regions
 from dvfc.models.disturbance import BandLimitedNoise
 from dvfc.models.kinematic import VisualFeedbackSystem
@@ -134,7 +134,7 @@ def on_run(name: str, reference: str, traj: Trajectory, value: float, bound: str
     if not holds:
         why = f"measured {value:.3g}, required {bound}"
         return Claim(name, reference, value, bound, False, "; ".join(filter(None, (why, detail, traj.message))))
-    if traj.status != "ok":
+    if traj.status is not RunStatus.OK:
         why = f"holds up to t = {traj.t[-1]:.4g} s, where the run stopped ({traj.message}); not checked beyond"
         return Claim(name, reference, value, bound, None, "; ".join(filter(None, (why, detail))), inconclusive=True)
     return Claim(name, reference, value, bound, True, detail)
@@ -171,7 +171,7 @@ def theorem_1(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Clai
     rise = float(np.diff(v).max(initial=0.0) / v[0])
     ratio = float(np.linalg.norm(x[-1]) / np.linalg.norm(x[0]))
     bound = f"|x(T)| / |x(0)| <= 1e-2 at T = {settings.duration:g} s"
-    if traj.status == "ok":
+    if traj.status is RunStatus.OK:
         converged = Claim("x -> 0", "Theorem 1", ratio, bound, ratio <= 1e-2)
     else:
         converged = Claim("x -> 0", "Theorem 1", ratio, bound, None, f"the run stopped before T: {traj.message}",
@@ -247,7 +247,7 @@ def lyapunov_derivative(loop: ClosedLoop, s0: np.ndarray, settings: Settings) ->
     return on_run(name, ref, traj, err, bound, False, detail)
 
 
-LEFT_REGION = ("behind_camera", "singular")
+LEFT_REGION = (RunStatus.BEHIND_CAMERA, RunStatus.SINGULAR)
 """Stops of a run that leave the region where the paper's statements hold."""
 
 
@@ -335,7 +335,7 @@ def conditioning_claim(traj: Trajectory, threshold: float) -> Claim:
     """The arm's Jacobian stays away from singularity along a run (the law uses its pinv)."""
     sigma = float(traj["sigma_min_arm_jacobian"].min())
     return Claim("no singularity: min sigma_min of the arm's Jacobian along the run", "Section V-A, pinv",
-                 sigma, f">= {threshold:g}", traj.status != "singular" and sigma >= threshold,
+                 sigma, f">= {threshold:g}", traj.status is not RunStatus.SINGULAR and sigma >= threshold,
                  traj.message)  # fmt: skip
 
 
@@ -740,7 +740,7 @@ def implemented(loop: ClosedLoop, s0: np.ndarray, settings: Settings, run: Traje
             storage_detail = f"{integration_hint(traj, storage, IMPLEMENTED_TOL)}; {storage_detail}"
     return [
         Claim(f"the {how} run completes", "as implemented", traj.t[-1], f"t = {settings.duration:g} s",
-              None if traj.status == "ok" else False, traj.message),
+              None if traj.status is RunStatus.OK else False, traj.message),
         on_run(f"V(t) - V(0) = int (u^T nu + x^T G w + xi^T delta + o) on the {how} run", "docs/math.md, fact 11",
                traj, storage, f"<= {IMPLEMENTED_TOL:g}", storage <= IMPLEMENTED_TOL, storage_detail),
         Claim("torques within effort limits", "URDF <limit effort>", torque.max(), "max peak |tau| / effort <= 1",

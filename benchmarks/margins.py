@@ -66,7 +66,7 @@ def main() -> None:
         result = margins(Case.load(DEFAULT_SCENARIO), Path(directory),
                          map_tasks=lambda f, a: run_tasks(f, a, workers))  # fmt: skip
         t_margins = time.perf_counter() - start
-    runs = sum(m.get("runs", 0) for m in result["margins"].values())
+    runs = sum(m.get("runs", 0) for m in result.margins.values())
     print(f"default scenario, {settings.duration:g} s runs, {os.cpu_count()} cores, {workers} workers")
     rows = (
         ("continuous run, compiled (baseline)", t_continuous),
@@ -81,7 +81,7 @@ def main() -> None:
         print(f"  {label:40s} {wall:8.2f} s   {wall / t_continuous:8.1f}x the baseline")
     print(f"  fact 14's monodromy and margins: {t_fact14 / t_sampled:.3g}x one run as implemented")
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
-    for name, m in result["margins"].items():
+    for name, m in result.margins.items():
         print(f"  {name:14s} holds at {fmt(m['holds_at']):>8}  breaks at {fmt(m['breaks_at']):>8}  {m['unit']}")
     for name, m in result["linear_margins"]["margins"].items():
         print(f"  linear {name:12s} stable at {fmt(m['stable_at']):>8}  unstable at {fmt(m['unstable_at']):>8}  "

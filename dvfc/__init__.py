@@ -7,13 +7,13 @@ scenario read, validated and built once)::
 
     case = dvfc.load()                       # the built-in default, or dvfc.load("my_cell.toml")
     run = dvfc.simulate(case)                # the loop as implemented (a Trajectory)
-    certificate = dvfc.certify(case)         # Theorem 2 and the operating envelope (JSON-ready)
+    certificate = dvfc.certify(case)         # Theorem 2 and the operating envelope (.to_json(): its JSON)
     plane = dvfc.gain_map(case)              # Theorem 2 over a plane of gains
     verification = dvfc.verify(case)         # every claim of the paper on simulated runs
     margins = dvfc.margins(case, "out/m")    # where the loop as implemented stops holding (measured)
     campaign = dvfc.campaign(case, "out/c")  # the [dispersion] as a campaign of runs (measured)
     design = dvfc.synthesize(case, "out/s.toml")  # gains of the [synthesize] box, written as a scenario
-    html, pdf = dvfc.report(case, "out/r")   # the design-review report
+    review = dvfc.report(case, "out/r")      # the design-review report: .html, .pdf, .verdict
     program = dvfc.controller(case)          # the controller as the robot runs it, one step a sample
 
 Everything else lives in the layers: :mod:`dvfc.models` (the symbolic model), :mod:`dvfc.analysis`
@@ -29,10 +29,15 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import numpy as np
 
+    from dvfc.analysis.campaign import CampaignResult
     from dvfc.analysis.case import Case
     from dvfc.analysis.controller import Controller
     from dvfc.analysis.grid import GainMap
+    from dvfc.analysis.margins import MarginsResult
+    from dvfc.analysis.results import CertificateResult, VerificationResult
     from dvfc.analysis.simulate import Trajectory
+    from dvfc.analysis.synthesize import SynthesisResult
+    from dvfc.reports.document import ReportResult
 
 __all__ = ["Case", "campaign", "certify", "controller", "gain_map", "load", "margins", "report", "simulate",
            "synthesize", "verify"]
@@ -76,13 +81,13 @@ def controller(case: Case) -> Controller:
     return Controller(case)
 
 
-def certify(case: Case, *, lower_bounds: bool = True) -> dict:
+def certify(case: Case, *, lower_bounds: bool = True) -> CertificateResult:
     """Theorem 2 at the case's gains (closed form, SDP cross-check, a posteriori check), the
     scaled-storage gamma, lower bounds on the true gain (unless ``lower_bounds`` is False) and
-    the operating envelope; the JSON of ``dvfc certify``."""
+    the operating envelope; ``.to_json()`` is the JSON of ``dvfc certify``."""
     from dvfc.analysis.results import certificate_result
 
-    return certificate_result(case, case.provenance(["dvfc.certify"]), lower_bounds=lower_bounds)[0]
+    return certificate_result(case, case.provenance(["dvfc.certify"]), lower_bounds=lower_bounds)
 
 
 def gain_map(case: Case, axes: list[tuple[str, np.ndarray]] | None = None) -> GainMap:
@@ -94,53 +99,48 @@ def gain_map(case: Case, axes: list[tuple[str, np.ndarray]] | None = None) -> Ga
     return certify_plane(case.point, case.reference, axes, case.scenario.certify.gamma)
 
 
-def verify(case: Case) -> dict:
-    """Every claim of the paper checked on simulated runs of the case; the JSON of ``dvfc verify``."""
+def verify(case: Case) -> VerificationResult:
+    """Every claim of the paper checked on simulated runs of the case; ``.to_json()`` is the JSON of
+    ``dvfc verify``."""
     from dvfc.analysis.results import verification_result
 
-    return verification_result(case, case.provenance(["dvfc.verify"]))[0]
+    return verification_result(case, case.provenance(["dvfc.verify"]))
 
 
-def margins(case: Case, directory: str | Path, *, workers: int = 1, resume: bool = False) -> dict:
+def margins(case: Case, directory: str | Path, *, workers: int = 1, resume: bool = False) -> MarginsResult:
     """The measured margins of the case's loop as implemented (each parameter by bisection on the
-    nonlinear sampled loop, runs logged in ``directory``); the JSON of ``dvfc margins``."""
-    from dvfc.analysis.margins import margins as measure
-    from dvfc.analysis.tasks import run_tasks
+    nonlinear sampled loop, runs logged in ``directory``); ``.to_json()`` is the JSON of ``dvfc margins``."""
+    from dvfc.analysis.jobs import margins as measure
 
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    result = measure(case, directory, map_tasks=lambda f, a: run_tasks(f, a, workers),
-                     resume=resume)  # fmt: skip
-    return {**result, "provenance": case.provenance(["dvfc.margins"])}
+    return measure(case, Path(directory), case.provenance(["dvfc.margins"]), workers=workers, resume=resume)
 
 
 def campaign(case: Case, directory: str | Path, runs: int = 100, *, seed: int = 0, workers: int = 1,
-             resume: bool = False, **statistics: float) -> dict:
+             resume: bool = False, **statistics: float) -> CampaignResult:
     """The case's ``[dispersion]`` as a campaign of ``runs`` runs of the loop as implemented, each judged
     by the margins criterion, stored in ``directory`` (``resume`` continues one); the failure probability's
     bound at its confidence and the tracking error's tolerance bound (``statistics``: ``confidence``,
-    ``p_fail``, ``quantile``, ``search``, as :func:`dvfc.analysis.campaign.campaign`); the JSON of
-    ``dvfc campaign``."""
-    from dvfc.analysis.campaign import campaign as run
+    ``p_fail``, ``quantile``, ``search``, as :func:`dvfc.analysis.campaign.campaign`); ``.to_json()`` is
+    the JSON of ``dvfc campaign``."""
+    from dvfc.analysis.jobs import campaign as run
 
-    result = run(case, Path(directory), runs, seed=seed, workers=workers, resume=resume, **statistics)
-    return result | {"provenance": case.provenance(["dvfc.campaign"])}
+    return run(case, Path(directory), case.provenance(["dvfc.campaign"]), runs, seed=seed, workers=workers,
+               resume=resume, **statistics)  # type: ignore[arg-type]
 
 
-def synthesize(case: Case, target: str | Path, *, resume: bool = False) -> dict:
+def synthesize(case: Case, target: str | Path, *, resume: bool = False) -> SynthesisResult:
     """Gains within the case's ``[synthesize]`` box minimising the certified gamma (fact 6), reaching its
     gamma with the smallest gains, or maximising the certified target speed (facts 7-8), each design
     checked on the loop as implemented; the accepted design written as a scenario at ``target`` (the case
-    loaded from a file); the JSON of ``dvfc synthesize``."""
+    loaded from a file); ``.to_json()`` is the JSON of ``dvfc synthesize``."""
     from dvfc.analysis.synthesize import synthesize_scenario
 
     return synthesize_scenario(case, Path(target), case.provenance(["dvfc.synthesize"]), resume=resume)
 
 
-def report(case: Case, directory: str | Path) -> tuple[Path, Path]:
-    """Write the design-review report of the case: ``directory/report.html`` and ``report.pdf``."""
-    from dvfc.reports.document import assemble, write
+def report(case: Case, directory: str | Path) -> ReportResult:
+    """Write the design-review report of the case: ``directory/report.html`` and ``report.pdf``, with the
+    review's verdict."""
+    from dvfc.reports.document import report as write_report
 
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    return write(assemble(case, case.provenance(["dvfc.report"])), directory)
+    return write_report(case, Path(directory), case.provenance(["dvfc.report"]))

@@ -57,6 +57,16 @@ rigid-body data, so not in the URDF. Puma 560: motor inertias ``J_m`` and gear r
 of Armstrong et al. (1986) as in Corke's Robotics Toolbox (they dominate the wrist)."""
 
 
+TASK_DIM = 6
+"""The dimension of the camera's twist: the task the law (42) commands."""
+
+
+def spans_the_task(n: int) -> bool:
+    """Whether an arm of ``n`` joints can give ``J_b pinv(J_b) = I_6``, which the law's cancellation
+    ((40)-(41), Lemma 2) and so Theorems 1-2 need: ``n >= 6`` (with fewer joints ``J_b`` has rank < 6)."""
+    return n >= TASK_DIM
+
+
 class RobotModelError(ValueError):
     """The URDF cannot be read, or it does not have the frame or joints asked for."""
 

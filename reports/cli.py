@@ -1,4 +1,4 @@
-"""The full ``dvfc`` command line: the analysis commands plus ``dvfc report``."""
+"""The full ``dvfc`` command line: the analysis commands (:mod:`dvfc.analysis.cli`) and ``dvfc report``."""
 
 from __future__ import annotations
 
@@ -6,25 +6,31 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from dvfc.analysis.cli import (
     DEFAULT_SCENARIO,
     OutOpt,
     ScenarioArg,
-    app,
     command_provenance,
-    err,
     load_case,
-    out,
     prepare_out_dir,
     require_six,
     resumable,
 )
+from dvfc.analysis.cli import app as analysis
+from dvfc.analysis.console import progress_bar, say
 from dvfc.analysis.output import atomic_write
-from dvfc.analysis.results import statements, verdict
-from dvfc.reports.document import STEPS, assemble, write
+from dvfc.reports.document import STEPS, ReportResult
+from dvfc.reports.document import report as write_report
 from dvfc.reports.stages import CACHE, TIMINGS, StageCache, StepTimes
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    rich_markup_mode=None,
+    help="Dynamic visual feedback control: simulate, verify, certify, report.",
+)
+app.add_typer(analysis)
 
 
 @app.command()
@@ -43,37 +49,30 @@ def report(
     directory = prepare_out_dir(out_dir or Path("out") / case.name)
     provenance_ = command_provenance(scenario)
     cache = StageCache(directory / CACHE, str(provenance_["toolkit"]["dvfc"]), resume)
-    columns = (
-        SpinnerColumn(),
-        TextColumn("[bold]report[/] {task.description}"),
-        TextColumn("{task.completed}/{task.total}"),
-        TimeElapsedColumn(),
-    )
+    stages = [*STEPS, "HTML and PDF"]
     with (
         resumable(f"dvfc report {scenario} --out {directory} --resume"),
-        Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar,
+        progress_bar("report", len(stages), "stages") as advance,
     ):
-        task = bar.add_task("", total=len(STEPS) + 1)
 
         def step(name: str) -> None:
             times(name)
-            done = STEPS.index(name) if name in STEPS else len(STEPS)
-            bar.update(task, description=name, completed=done)
-            if not err.is_terminal:  # CI logs, nohup: one plain line a stage
-                err.print(f"report: {name} ({done + 1}/{len(STEPS) + 1})", markup=False)
+            advance(stages.index(name))
 
-        data = assemble(case, provenance_, progress=step, cache=cache)
-        step("HTML and PDF")
-        html, pdf = write(data, directory)
+        result = write_report(case, directory, provenance_, progress=step, cache=cache)
         times("end")
         atomic_write(directory / CACHE / TIMINGS, lambda h: h.write(times.table(cache).encode()))
-    out.print(f"report: {html}\n        {pdf}", markup=False)
-    review = statements(data.certificate, data.verification, data.margins, data.dispersion, data.controller)
-    outcome = verdict(data.certificate, data.verification, review)
-    out.print(outcome["headline"], markup=False)
-    for claim in outcome["failed"] + outcome["inconclusive"]:
-        out.print(f"  {claim['status']} {claim['paper']}: {claim['claim']} ({claim['detail']})", markup=False)
-    for s in outcome["not_certified"]:
-        out.print(f"  {s['status']} {s['statement']} ({s['loop']}): {s['detail']}", markup=False)
-    if not outcome["passed"]:
+    show_report(result)
+    if not result.verdict.passed:
         raise typer.Exit(1)
+
+
+def show_report(result: ReportResult) -> None:
+    """Human output of ``report``: the files, the verdict's headline, what keeps it from passing."""
+    outcome = result.verdict
+    say(f"report: {result.html}\n        {result.pdf}")
+    say(outcome.headline)
+    for claim in outcome.failed + outcome.inconclusive:
+        say(f"  {claim['status']} {claim['paper']}: {claim['claim']} ({claim['detail']})")
+    for s in outcome.not_certified:
+        say(f"  {s.status} {s.statement} ({s.loop}): {s.detail}")

@@ -38,7 +38,9 @@ from dvfc.analysis.linearize import FromRest, from_rest
 from dvfc.analysis.margins import MarginError, TrackingBound, linear_margin_text, margins, tracking_bound
 from dvfc.analysis.output import atomic_write
 from dvfc.analysis.pose import xyz_rpy
+from dvfc.analysis.record import Record
 from dvfc.analysis.results import (
+    Verdict,
     best_gamma,
     certificate_result,
     channels_text,
@@ -51,7 +53,7 @@ from dvfc.analysis.results import (
 )
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, ScenarioError, gain_point
-from dvfc.analysis.simulate import Simulator, Trajectory, identity_residuals, summary
+from dvfc.analysis.simulate import RunStatus, Simulator, Trajectory, identity_residuals, summary
 from dvfc.analysis.tasks import run_tasks
 from dvfc.models.camera import Camera
 from dvfc.models.loop import ClosedLoop
@@ -111,7 +113,7 @@ def measure_margins(case: Case, cache: StageCache, envelope: dict, own_run: Traj
     with tempfile.TemporaryDirectory() as tmp:
         try:
             return margins(case, scratch or Path(tmp), map_tasks=tasks,
-                           resume=scratch is not None, envelope=envelope, own_run=own_run)  # fmt: skip
+                           resume=scratch is not None, envelope=envelope, own_run=own_run).to_json()  # fmt: skip
         except MarginError as exc:
             return {"reason": str(exc)}
 
@@ -189,17 +191,17 @@ def assemble(
     implemented = stage("implemented", case, lambda: as_implemented(loop, settings).run(s0))
     # the paper's loop is the one implemented when there is no [implementation] and no [plant]: the same
     # run, unless it stopped where a feature left the image (the paper's run goes on there)
-    same = settings.implementation is None and settings.plant is None and implemented.status == "ok"
+    same = settings.implementation is None and settings.plant is None and implemented.status is RunStatus.OK
     trajectory = implemented if same else stage("simulation", case, lambda: Simulator(loop, settings).run(s0))
     progress(STEPS[1])
     rest = stage("from_rest", case, lambda: _from_rest(case))  # shared by the lower bound and Theorem 2's checks
     rest = rest if isinstance(rest, FromRest) else None  # no equilibrium: both say why
-    certificate = _current(stage("certificate", case, lambda: certificate_result(case, provenance, rest=rest)[0],
+    certificate = _current(stage("certificate", case, lambda: certificate_result(case, provenance, rest=rest).to_json(),
                                  (rest,)), spec, provenance)  # fmt: skip
     envelope = certificate["points"][0]["envelope"]
     progress(STEPS[2])
     verification = _current(stage("verification", case, lambda: verification_result(case, provenance, envelope,
-                                  implemented, rest, trajectory)[0], (envelope, implemented, rest, trajectory)),
+                                  implemented, rest, trajectory).to_json(), (envelope, implemented, rest, trajectory)),
                             spec, provenance)  # fmt: skip
     progress(STEPS[3])
     measured = None
@@ -442,3 +444,24 @@ def write(data: ReportData, directory: Path) -> tuple[Path, Path]:
     atomic_write(html_path, lambda h: h.write(html.encode()))
     atomic_write(pdf_path, lambda h: h.write(pdf))
     return html_path, pdf_path
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReportResult(Record):
+    """``dvfc report``: the files written and the review's verdict (:func:`dvfc.analysis.results.verdict`)."""
+
+    html: Path
+    pdf: Path
+    verdict: Verdict
+
+
+def report(case: Case, directory: Path, provenance: dict, *, progress: Callable[[str], None] = lambda step: None,
+           cache: StageCache | None = None) -> ReportResult:  # fmt: skip
+    """The design-review report of the case (:func:`assemble`, each stage through ``cache``), written to
+    ``directory/report.html`` and ``report.pdf`` (:func:`write`), with its verdict."""
+    directory.mkdir(parents=True, exist_ok=True)
+    data = assemble(case, provenance, progress=progress, cache=cache)
+    progress("HTML and PDF")
+    html, pdf = write(data, directory)
+    review = statements(data.certificate, data.verification, data.margins, data.dispersion, data.controller)
+    return ReportResult(html=html, pdf=pdf, verdict=verdict(data.certificate, data.verification, review))

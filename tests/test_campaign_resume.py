@@ -92,7 +92,7 @@ def test_the_python_campaign_is_the_commands(tmp_path):
                                       "--json", str(target)])  # fmt: skip
     assert result.exit_code in (0, 1), result.output
     by_command = json.loads(target.read_text())
-    by_python = json.loads(json.dumps(dvfc.campaign(dvfc.load(scenario), tmp_path / "py", 3), default=str))
+    by_python = json.loads(json.dumps(dvfc.campaign(dvfc.load(scenario), tmp_path / "py", 3).to_json()))
     drop = lambda r: {k: v for k, v in r.items() if k not in ("provenance", "wall_time_per_run", "dataset")}  # noqa: E731
     assert drop(by_python) == drop(by_command)
     with pytest.raises(ValueError, match=r"^p_fail: 2 is not in \(0, 1\)$"):

@@ -17,7 +17,7 @@ import tomli_w
 import typer
 from typer.testing import CliRunner
 
-import dvfc.analysis.cli as cli_module
+import dvfc.analysis.console as console_module
 from dvfc.analysis.cli import app
 from dvfc.analysis.output import interrupt_aware, interrupted
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
@@ -541,7 +541,7 @@ def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_pat
 def test_simulate_progress_lines_without_a_terminal(tmp_path, monkeypatch):
     """Standard error not a terminal: plain progress lines of simulated time (here at every
     chunk), ending at the horizon, and no bar's control characters."""
-    monkeypatch.setattr(cli_module, "PROGRESS_EVERY", 0.0)
+    monkeypatch.setattr(console_module, "PROGRESS_EVERY", 0.0)
     result = runner.invoke(app, ["simulate", str(write(tmp_path)), "--out", str(tmp_path / "o")])
     assert result.exit_code == 0, result.output
     lines = result.stderr.splitlines()

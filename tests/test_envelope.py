@@ -226,7 +226,7 @@ def test_features_stay_in_their_boxes_when_the_start_is_inside():
     traj = run(loop, s0, settings, duration=5.0, jit=False)
     assert traj.status == "ok"
     assert np.all(traj["V"][:, 0] <= env.level * (1 + 1e-9))
-    boxes = np.asarray(env.boxes)
+    boxes = np.asarray(env.boxes_px)
     pixels = traj["f"].reshape(len(traj.t), -1, 2) + loop.camera.centre
     assert np.all(pixels >= boxes[None, :, :2]) and np.all(pixels <= boxes[None, :, 2:])
 
@@ -312,7 +312,7 @@ def test_p13_planar_envelope_holds_on_a_run():
     v, vdot, w2 = traj["V"][:, 0], traj["Vdot"][:, 0], np.sum(traj["w"] ** 2, axis=1)
     s = 1 / (2 * env.gamma_prime**2)
     assert np.all(vdot + env.rate * v - w2 / (4 * s) <= 1e-8 * (v + w2))
-    bound = np.exp(-env.rate * traj.t) * v[0] + env.ultimate_v * np.maximum.accumulate(w2) / env.wbar**2
+    bound = np.exp(-env.rate * traj.t) * v[0] + env.ultimate_V * np.maximum.accumulate(w2) / env.wbar**2
     assert np.all(v <= bound * (1 + 1e-9))
 
 
@@ -354,7 +354,7 @@ def test_worst_motion_at_095_of_the_largest_certified_speed_keeps_every_feature_
     q_eq = equilibrium_configuration(loop, s0[: loop.robot.n])
     _, s_eq = driven_at_rest(loop, cs.SX.zeros(loop.robot.n + 6), q_eq)
     env = envelope(design, loop.camera, bounds, {"V0": 0.0, "kinetic": 0.0, "pose": 0.0}, search=False)
-    assert env.visible and env.level >= env.ultimate_v
+    assert env.visible and env.level >= env.ultimate_V
     worst = worst_disturbance(loop, s0[: loop.robot.n], bounds, horizon=3.0, intervals=6, iterations=3)  # as verify
     pieces, h = np.asarray(worst["w"]), worst["horizon_s"] / worst["intervals"]
 
@@ -367,7 +367,7 @@ def test_worst_motion_at_095_of_the_largest_certified_speed_keeps_every_feature_
     traj = Simulator(driven(loop, disturbance), Settings(duration=worst["horizon_s"], dt=0.01)).run(s_eq)
     assert traj.status == "ok"
     assert np.all(traj["V"][:, 0] <= env.level * (1 + 1e-9))
-    boxes = np.asarray(env.boxes)
+    boxes = np.asarray(env.boxes_px)
     pixels = traj["f"].reshape(len(traj.t), -1, 2) + loop.camera.centre
     assert np.all(pixels >= boxes[None, :, :2]) and np.all(pixels <= boxes[None, :, 2:])
     assert np.all(pixels >= 0) and np.all(pixels <= [loop.camera.width, loop.camera.height])

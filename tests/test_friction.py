@@ -83,8 +83,8 @@ def test_fact_18_5_the_envelope_with_the_plant_s_friction_is_vacuous_on_the_cell
     assert "vacuous: c_inf = 6.087 > c_max = 0.00137" in env["statement"]
     rows = statements({"points": [{"certified": False, "reason": "-", "envelope": env}], "region": "-",
                        "loop": "paper"}, {"summary": {"failed": 0, "inconclusive": 0, "claims": 0}})  # fmt: skip
-    row = next(r for r in rows if "friction" in r["statement"])
-    assert row["status"] == "NOT CERTIFIED" and "vacuous" in row["detail"]
+    row = next(r for r in rows if "friction" in r.statement)
+    assert row.status == "NOT CERTIFIED" and "vacuous" in row.detail
 
 
 @pytest.mark.slow

@@ -18,7 +18,9 @@ import tomli_w
 from typer.testing import CliRunner
 
 import dvfc.analysis.cli as cli_module
+import dvfc.analysis.console as console_module
 import dvfc.analysis.grid as grid
+import dvfc.analysis.jobs as jobs_module
 from dvfc.analysis.certify import GainPoint, certify
 from dvfc.analysis.cli import app
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, axis_value, gain_map, read_points, run_sweep
@@ -298,7 +300,7 @@ def grid_designs(scenario: Path, indices: np.ndarray) -> dict[str, np.ndarray]:
 def test_progress_lines_without_a_terminal(tmp_path, monkeypatch):
     """Standard error not a terminal (CI, nohup): plain progress lines, here one per batch, the
     expected size before the sweep, and a CSV export on request."""
-    monkeypatch.setattr(cli_module, "PROGRESS_EVERY", 0.0)
+    monkeypatch.setattr(console_module, "PROGRESS_EVERY", 0.0)
     scenario = write_grid_scenario(tmp_path, k_c_num=40)
     out = tmp_path / "out"
     result = runner.invoke(app, ["certify", str(scenario), "--out", str(out), "--batch-size", "2000", "--csv"])
@@ -312,7 +314,7 @@ def test_progress_lines_without_a_terminal(tmp_path, monkeypatch):
 
 def test_large_grids_are_refused_by_size_on_disk(tmp_path, monkeypatch):
     """Above the byte limit the sweep needs --large, and says how large it would be."""
-    monkeypatch.setattr(cli_module, "MAX_GRID_BYTES", 10_000)
+    monkeypatch.setattr(jobs_module, "MAX_GRID_BYTES", 10_000)
     result = runner.invoke(app, ["certify", str(write_grid_scenario(tmp_path, k_c_num=40)), "--out", str(tmp_path)])
     assert result.exit_code == 2 and "8,000 points, about 0 MB on disk" in result.stderr
 

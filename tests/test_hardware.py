@@ -167,7 +167,7 @@ def test_what_would_pass_on_margins_without_a_dispersion_is_one_line_exit_2(tmp_
     result = runner.invoke(app, ["margins", str(tmp_path / "plain.toml"), "--what-would-pass",
                                  "--out", str(tmp_path / "m")])  # fmt: skip
     assert result.exit_code == 2
-    assert result.output.strip().splitlines() == ["error: dispersion: --what-would-pass needs a [dispersion] section"]
+    assert result.output.strip().splitlines() == ["error: dispersion: what would pass needs a [dispersion] section"]
 
 
 def test_resuming_a_search_that_was_never_started_is_one_line_exit_2(tmp_path):
@@ -176,13 +176,13 @@ def test_resuming_a_search_that_was_never_started_is_one_line_exit_2(tmp_path):
                                  "--out", str(target)])  # fmt: skip
     assert result.exit_code == 2
     assert result.output.strip().splitlines() == [
-        f"error: --resume: no --what-would-pass search to resume ({target}.what_would_pass.jsonl not found)"
+        f"error: --resume: no what-would-pass search to resume ({target}.what_would_pass.jsonl not found)"
     ]
     assert not target.exists()
 
 
 def test_the_refusing_synthesis_prints_and_jsons_what_would_pass(tmp_path, monkeypatch):
-    monkeypatch.setattr("dvfc.analysis.cli.what_would_pass",
+    monkeypatch.setattr("dvfc.analysis.jobs.what_would_pass",
                         partial(hw.what_would_pass, evaluate=Threshold(730.0), names=("control_rate",)))  # fmt: skip
     target, saved = tmp_path / "x.toml", tmp_path / "x.json"
     result = runner.invoke(app, ["synthesize", str(CELL), "--for-campaign", "--what-would-pass", "--out", str(target),

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from dvfc.analysis.campaign import CampaignSpec, read_runs, run_campaign
 from dvfc.analysis.case import Case
-from dvfc.analysis.cli import app, tolerance_text
+from dvfc.analysis.cli import app
 from dvfc.analysis.margins import (
     DEFAULT_FRICTION,
     GROWTH,
@@ -40,6 +40,7 @@ from dvfc.analysis.margins import (
 from dvfc.analysis.multirate import implemented_record, implemented_text
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
+from dvfc.analysis.show import tolerance_text
 from dvfc.analysis.simulate import Trajectory
 from dvfc.models.errors import PlantErrors
 

@@ -61,18 +61,19 @@ def test_the_verdict_names_every_statement_not_certified_or_not_applying():
     """A certified design whose claims all pass, with two statements of the review not certified
     and one not applying: the verdict passes (the design's exit 0), and its headline counts the
     three and lists them; the certified and measured statements are not listed."""
-    from dvfc.analysis.results import verdict
+    from dvfc.analysis.results import Statement, StatementStatus, verdict
 
     certificate = {"points": [{"certified": True}]}
     verification = {"claims": [{"status": "PASS"}], "summary": {"claims": 1}}
     statuses = {"L2 gain": "CERTIFIED", "every feature": "NOT CERTIFIED", "own speed": "NOT CERTIFIED",
                 "fact 14": "DOES NOT APPLY", "margins": "MEASURED"}  # fmt: skip
-    review = [{"statement": name, "status": status} for name, status in statuses.items()]
+    review = [Statement(statement=name, loop="-", status=StatementStatus(status), detail="-")
+              for name, status in statuses.items()]  # fmt: skip
     outcome = verdict(certificate, verification, review)
-    assert outcome["passed"]
-    assert [s["statement"] for s in outcome["not_certified"]] == ["every feature", "own speed", "fact 14"]
-    assert "3 statement(s) not certified" in outcome["headline"]
-    assert verdict(certificate, verification)["headline"] == "L2 gain CERTIFIED, and every check passes"
+    assert outcome.passed
+    assert [s.statement for s in outcome.not_certified] == ["every feature", "own speed", "fact 14"]
+    assert "3 statement(s) not certified" in outcome.headline
+    assert verdict(certificate, verification).headline == "L2 gain CERTIFIED, and every check passes"
 
 
 CHECK = {"samples": 5000, "max_abs_torque_difference": 0.0, "max_rel_torque_difference": 0.0,
@@ -90,11 +91,11 @@ def test_the_programs_statement_is_the_replays_outcome(record, status):
     """Page 1's statement on the program that runs: PASS exactly when the replay of the compiled step
     stayed within its tolerances, FAIL otherwise, INCONCLUSIVE without a C compiler, DOES NOT APPLY
     when the loop has no program; a failed replay fails the verdict (the report's exit status)."""
-    from dvfc.analysis.results import PROGRAM_STATEMENT, program_statement, verdict
+    from dvfc.analysis.results import program_statement, verdict
 
     record = record | {"sha256": "0" * 64, "tolerances": {"torque_relative": 1e-12, "closed_loop": 1e-9}}
     row = program_statement(record)
-    assert row["statement"] == PROGRAM_STATEMENT and row["status"] == status
+    assert row.statement.startswith("the exported program") and row.status == status
     certificate = {"points": [{"certified": True}]}
     verification = {"claims": [{"status": "PASS"}], "summary": {"claims": 1}}
-    assert verdict(certificate, verification, [row])["passed"] == (status != "FAIL")
+    assert verdict(certificate, verification, [row]).passed == (status != "FAIL")

@@ -52,9 +52,9 @@ def test_run_stops_at_the_singularity(tmp_path):
 
 
 def test_verify_reports_the_singularity(tmp_path):
-    result, _ = verification_result(out_of_reach(tmp_path), {})
-    claim = next(c for c in result["claims"] if c["claim"].startswith("no singularity"))
-    assert claim["status"] == "FAIL" and "near-singular" in claim["detail"]
+    result = verification_result(out_of_reach(tmp_path), {})
+    claim = next(c for c in result.claims if c.name.startswith("no singularity"))
+    assert claim.status == "FAIL" and "near-singular" in claim.detail
 
 
 def test_wrist_singularity_of_the_ur5_is_detected():

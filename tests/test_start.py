@@ -200,5 +200,5 @@ def test_a_start_the_planned_reference_does_not_certify_is_inside_in_no_output(t
     text = result.stdout
     assert "NOT inside the certified set" in text and "is inside the certified set" not in text
     verification = {"summary": {"claims": 0, "failed": 0, "inconclusive": 0}}
-    row = next(r for r in statements(certificate, verification) if r["statement"] == "the start")
-    assert row["status"] == "NOT CERTIFIED" and "inside the certified set" not in row["detail"]
+    row = next(r for r in statements(certificate, verification) if r.statement == "the start")
+    assert row.status == "NOT CERTIFIED" and "inside the certified set" not in row.detail

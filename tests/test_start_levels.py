@@ -69,18 +69,18 @@ def test_envelope_level_covers_the_start_and_stays_within_the_self_consistent_le
     i = planned_inputs
     design, weights = i["design"], i["design"].weights
     base = envelope(design, i["camera"], i["disturbance"], {**i["start"], "V0": 0.0}, search=False)
-    c_inf = base.ultimate_v
+    c_inf = base.ultimate_V
     above_all = 2 * min(weights[1], weights[3]) * 1.01
     for v0 in (0.5 * c_inf, 1.5 * c_inf, self_consistent(weights, 4.0) * 0.999, 0.01, above_all):
         env = envelope(design, i["camera"], i["disturbance"], {**i["start"], "V0": v0}, search=False)
-        assert env.invariant_v == pytest.approx(self_consistent(weights, env.theta_bar_deg), rel=1e-12)
-        assert env.ultimate_v <= env.invariant_v
+        assert env.invariant_V == pytest.approx(self_consistent(weights, env.theta_bar_deg), rel=1e-12)
+        assert env.ultimate_V <= env.invariant_V
         if v0 >= above_all:
             assert not env.start["inside"] and env.start["level"] is None
             continue
         assert env.start["inside"], v0
-        assert env.level == pytest.approx(max(env.ultimate_v, v0), rel=1e-15)
-        assert v0 <= env.level <= env.invariant_v
+        assert env.level == pytest.approx(max(env.ultimate_V, v0), rel=1e-15)
+        assert v0 <= env.level <= env.invariant_V
 
 
 @pytest.mark.slow

@@ -31,6 +31,7 @@ from dvfc.analysis.synthesize import (
     SEARCH_STEPS,
     TARGET_MARGIN,
     Bounds,
+    Outcome,
     Synthesis,
     designer,
     logged_runs,
@@ -228,9 +229,9 @@ def _threshold_search(feasible_above: float, limit: float):
 
     def design(b: Bounds) -> Synthesis:
         if b.k_xi[1] < feasible_above:
-            return Synthesis(None, None, "infeasible")
+            return Synthesis(None, None, Outcome.INFEASIBLE, "below the feasible box")
         point = GainPoint(np.full(6, b.k_xi[1]), np.full(6, b.k_c[1]), np.full(6, b.k_e[1]), WEIGHTS)
-        return Synthesis(point, None, "ok")
+        return Synthesis(point, None)
 
     def run(point: GainPoint) -> dict:
         return {"status": "ok", "message": "", "torque_commanded_ratio": [point.k_xi[0] / limit], "speed_ratio": [0.5]}

@@ -64,14 +64,15 @@ MUTATIONS = (
         "xi-disturbance-weight-dropped",
         "the xi block's limit without the torque weight D_tau (fact 17)",
         "analysis/certify.py",
-        (("    return ((k_xi - 0.5 * s2) / d2).min(axis=1)\n", "    return (k_xi - 0.5 * s2).min(axis=1)\n"),),
+        (("    return ((k_xi - 0.5 * np.square(plant.xi)) / np.square(plant.tau_d)).min(axis=1)\n",
+          "    return (k_xi - 0.5 * np.square(plant.xi)).min(axis=1)\n"),),
         ("tests/test_reference.py::test_weighted_certificate_is_sound_complete_and_minimal",),
     ),
     Mutation(
         "target-velocity-weight-dropped",
         "W on e_e without the target-velocity weights D_v (W_e in place of W_e D_v, fact 17)",
         "analysis/certify.py",
-        (("    return w_e * point.disturbance_weights[n:]\n", "    return w_e\n"),),
+        (("    return w_e * plant.disturbance(task)[len(plant.tau_d) :]\n", "    return w_e\n"),),
         ("tests/test_reference.py::test_weighted_certificate_is_sound_complete_and_minimal",),
     ),
     Mutation(
@@ -107,8 +108,8 @@ MUTATIONS = (
         "sweep-keeps-stale-parts",
         "a sweep keeps the batch files beyond its recorded point (the audit's resume without truncation, "
         "as it reads for one Parquet file per batch)",
-        "analysis/grid.py",
-        (("            part.unlink()\n", "            pass\n"),),
+        "analysis/batches.py",
+        (("                part.unlink()\n", "                pass\n"),),
         ("tests/test_grid.py::test_new_sweep_replaces_an_older_larger_one",),
     ),
     Mutation(
@@ -180,7 +181,7 @@ MUTATIONS = (
         "planar-certifier-weight",
         "the planar certificate (P11) weighs e_e by w_pc instead of w_pe",
         "analysis/certify.py",
-        (("else np.full(t, float(w.w_pe))\n", "else np.full(t, float(w.w_pc))\n"),),
+        (("else np.full(task, float(weights.w_pe))\n", "else np.full(task, float(weights.w_pc))\n"),),
         ("tests/test_reference.py::test_planar_certificates_are_sound_complete_and_minimal",),
     ),
     Mutation(
@@ -215,16 +216,17 @@ MUTATIONS = (
     Mutation(
         "resume-state-before-data",
         "the sweep state is saved before the batch's file is written",
-        "analysis/grid.py",
+        "analysis/batches.py",
         (
             (
-                "            table = batch_table(result, axes)\n",
-                "            _record(state, result)\n            save()\n"
-                "            table = batch_table(result, axes)\n",
+                "                written = table(result)\n",
+                "                state = {**(state if absorb is None else absorb(state, result)), \"done\": stop}\n"
+                "                self._save(state)\n                written = table(result)\n",
             ),
             (
-                "            _record(state, result)\n            save()\n            if progress",
-                "            if progress",
+                "                state = {**(state if absorb is None else absorb(state, result)), \"done\": stop}\n"
+                "                self._save(state)\n                if progress",
+                "                if progress",
             ),
         ),
         ("tests/test_grid.py::test_crash_between_data_write_and_state_save_resumes_exactly",),
@@ -540,21 +542,22 @@ MUTATIONS = (
         "program-statement-always-passes",
         "page 1 says the exported program is the simulated controller whatever its replay found",
         "analysis/results.py",
-        (('"status": "PASS" if check["passed"] else "FAIL"', '"status": "PASS"'),),
+        (("status = StatementStatus.PASS if check[\"passed\"] else StatementStatus.FAIL", "status = StatementStatus.PASS"),),  # noqa: E501
         ("tests/test_report_text.py::test_the_programs_statement_is_the_replays_outcome",),
     ),
     Mutation(
         "program-replay-failure-passes-the-verdict",
         "a failed replay of the exported program leaves the review's verdict passing",
         "analysis/results.py",
-        (('        checks.append("the exported program\'s replay FAILS")\n', "        pass\n"),),
+        (("if s.status is StatementStatus.FAIL and not s.claims]", "if False]"),),
         ("tests/test_report_text.py::test_the_programs_statement_is_the_replays_outcome",),
     ),
     Mutation(
         "certify-json-key-renamed",
         "the envelope's re-check margin written under another key in dvfc certify's JSON",
         "analysis/envelope.py",
-        (('            "recheck_margin": self.margin,', '            "margin": self.margin,'),),
+        (("    recheck_margin: float | None = None\n", "    margin: float | None = None\n"),
+         ("        recheck_margin=margin,\n", "        margin=margin,\n")),
         ("tests/test_golden.py::test_each_commands_json_is_the_recorded_one[certify]",),
     ),
     Mutation(
@@ -1201,8 +1204,8 @@ MUTATIONS = (
         'verdict-hides-uncertified-statements',
         'the verdict lists no statement that is not certified (the terminal says every check passes)',
         'analysis/results.py',
-        (('    short = [s for s in statements_ or [] if s["status"] in ("NOT CERTIFIED", "DOES NOT APPLY")]',
-          '    short = [s for s in statements_ or [] if s["status"] in ("NOT CERTIFIED",)]'),),
+        (('    not_here = (StatementStatus.NOT_CERTIFIED, StatementStatus.DOES_NOT_APPLY)',
+          '    not_here = (StatementStatus.NOT_CERTIFIED,)'),),
         ('tests/test_report_text.py::test_the_verdict_names_every_statement_not_certified_or_not_applying',),
     ),
     Mutation(
