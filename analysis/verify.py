@@ -115,7 +115,7 @@ class Claim:
             return ClaimStatus.INCONCLUSIVE
         return {True: ClaimStatus.PASS, False: ClaimStatus.FAIL, None: ClaimStatus.MEASURED}[self.passed]
 
-    def as_dict(self) -> dict:
+    def to_json(self) -> dict:
         return {
             "claim": self.name,
             "paper": self.reference,

@@ -293,7 +293,7 @@ def test_verify_confirms_the_envelope_on_a_run():
     case = Case.load(EXAMPLES / "ur5_envelope.toml")
     claims = envelope_claims(case.loop, case.s0, replace(case.settings, duration=4.0, jit=False),
                              envelope_record(case, search=False))  # fmt: skip
-    assert len(claims) == 9 and all(c.passed for c in claims), [c.as_dict() for c in claims if not c.passed]
+    assert len(claims) == 9 and all(c.passed for c in claims), [c.to_json() for c in claims if not c.passed]
 
 
 def test_p13_planar_envelope_holds_on_a_run():
@@ -578,4 +578,4 @@ def test_adversarial_search_drops_a_disturbance_that_drives_the_arm_singular():
 
     case = Case(Scenario.model_validate(scenario_dict(z1)), DEFAULT_SCENARIO.parent)
     claim = adversarial_claim(case.loop, case.s0, envelope_record(case, search=False))
-    assert claim.status == "PASS" and "disturbance(s) dropped" in claim.detail, claim.as_dict()
+    assert claim.status == "PASS" and "disturbance(s) dropped" in claim.detail, claim.to_json()

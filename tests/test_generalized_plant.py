@@ -79,7 +79,7 @@ def test_weighted_theorem_2_holds_from_rest_and_bites(weighted):
     case, gamma = weighted["case"], weighted["cert"].gamma
     short = replace(case.settings, duration=2.0, jit=False)
     claims = theorem_2(case.loop, case.s0, short, gamma)
-    assert all(c.passed for c in claims), [c.as_dict() for c in claims if not c.passed]
+    assert all(c.passed for c in claims), [c.to_json() for c in claims if not c.passed]
     assert any("|z|^2" in c.name for c in claims)
     below = theorem_2(case.loop, case.s0, short, 0.95 * weighted["lin"].peak_gain)
     gain = next(c for c in below if c.name.startswith("measured gain"))

@@ -48,7 +48,7 @@ def test_p10_theorem_1_on_simulation(testbed):
     """(P10): with ``w = 0``, ``V`` decreases by ``int nu^T K nu`` and ``x -> 0``."""
     loop, s0, settings = testbed
     claims = theorem_1(loop, s0, settings)
-    assert all(c.passed for c in claims), [c.as_dict() for c in claims]
+    assert all(c.passed for c in claims), [c.to_json() for c in claims]
 
 
 def test_p11_is_the_translational_part_of_the_papers_p(rng):

@@ -372,13 +372,13 @@ def test_a_fact_11_failure_from_truncation_names_the_setting_that_fixes_it(coars
     loose = as_built_run(coarse, substeps="auto", step_error=1e-4)
     assert loose.stats["substeps"] == 1
     claim = next(c for c in implemented(loop, s0, settings, loose) if c.reference == "docs/math.md, fact 11")
-    assert claim.status == "FAIL" and "; integration error" in claim.detail, claim.as_dict()
+    assert claim.status == "FAIL" and "; integration error" in claim.detail, claim.to_json()
     setting = claim.detail.split("set [implementation] ")[1]
     substeps, step_error = int(setting.split("substeps = ")[1].split()[0]), float(setting.split("<= ")[1].split()[0])
     finer = as_built_run(coarse, substeps=substeps), as_built_run(coarse, substeps="auto", step_error=step_error)
     for fixed in finer:
         again = next(c for c in implemented(loop, s0, settings, fixed) if c.reference == "docs/math.md, fact 11")
-        assert again.status == "PASS", again.as_dict()
+        assert again.status == "PASS", again.to_json()
 
 
 def test_fact_11_observer_term_closes_the_storage_rate_pointwise(as_built):

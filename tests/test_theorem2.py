@@ -65,7 +65,7 @@ def test_verify_claims_hold_at_gamma_and_fail_below_the_measured_gain(worst):
     0.97 of the measured gain (a gamma under-reported by about 5%) (44), (45) and the gain fail."""
     traj, lower = worst["traj"], worst["lin"].peak_gain
     claims = from_rest_claims(traj, worst["paper"].gamma, lower)
-    assert all(c.passed for c in claims), [c.as_dict() for c in claims]
+    assert all(c.passed for c in claims), [c.to_json() for c in claims]
     wrong = from_rest_claims(traj, 0.97 * worst["ratio"], lower)
     assert [c.passed for c in wrong] == [False, False, False, True]
 
@@ -132,8 +132,8 @@ def test_from_rest_check_is_conclusive_on_a_seven_joint_arm(tmp_path):
     gamma = certify(case.point, case.reference).gamma
     claims = theorem_2(case.loop, case.s0, short, gamma)
     attained = next(c for c in claims if c.name.startswith("the measured gain attains"))
-    assert attained.passed is True and attained.value >= ATTAINED, attained.as_dict()
-    assert all(c.passed for c in claims if c.reference.startswith("Theorem 2")), [c.as_dict() for c in claims]
+    assert attained.passed is True and attained.value >= ATTAINED, attained.to_json()
+    assert all(c.passed for c in claims if c.reference.startswith("Theorem 2")), [c.to_json() for c in claims]
 
 
 @pytest.mark.slow
@@ -145,4 +145,4 @@ def test_a_longer_run_that_stops_is_dropped_for_the_last_that_completed():
     short = replace(case.settings, duration=1.0, jit=False)
     claims = [c for c in theorem_2(case.loop, case.s0, short, certify(case.point, case.reference).gamma)
               if c.reference.startswith("Theorem 2") or c.reference == "lower bound"]  # fmt: skip
-    assert len(claims) == 4 and all(c.passed is True for c in claims), [c.as_dict() for c in claims]
+    assert len(claims) == 4 and all(c.passed is True for c in claims), [c.to_json() for c in claims]

@@ -43,7 +43,7 @@ def rotating_target(data):
 @pytest.mark.slow
 def test_every_claim_holds(edit):
     claims = claims_of(*build_loop(edit))
-    failed = [c.as_dict() for c in claims if c.passed is False]
+    failed = [c.to_json() for c in claims if c.passed is False]
     assert not failed, failed
     assert sum(c.passed is True for c in claims) >= 15
 
@@ -81,7 +81,7 @@ def test_lyapunov_derivative_resolves_a_light_wrist():
     loop, s0, settings = build_loop(light_wrist)
     assert 1 / fastest_rate(loop, s0) < 5e-5
     claim = lyapunov_derivative(loop, s0, settings)
-    assert claim.status == "PASS" and claim.value <= 1e-4, claim.as_dict()
+    assert claim.status == "PASS" and claim.value <= 1e-4, claim.to_json()
 
 
 @pytest.mark.slow
@@ -92,7 +92,7 @@ def test_lemma_2_input_scaled_to_stay_in_the_region():
     loop, s0, settings = build_loop()
     settings = replace(settings, duration=1.0)  # the 16-fold input reaches the singularity at t = 0.73 s
     scaled = lemma_2(loop, s0, settings, size=16)
-    assert [c.status for c in scaled] == ["PASS", "PASS"], [c.as_dict() for c in scaled]
+    assert [c.status for c in scaled] == ["PASS", "PASS"], [c.to_json() for c in scaled]
     assert "scaled" in scaled[0].detail
     stuck = lemma_2(loop, s0, settings, size=16, tries=1)
     assert [c.status for c in stuck] == ["INCONCLUSIVE"] * 2 and all("near-singular" in c.detail for c in stuck)
@@ -113,7 +113,7 @@ def test_kinematic_claims_start_from_the_scenario():
     loop, s0, _ = build_loop(lambda d: d["observer"].update(error_xyz=error.tolist(), error_rpy=[0.0, 0.0, 0.0]))
     claims = {c.reference: c for c in kinematic_claims(loop, s0, duration=0.5) if " = " in c.name}
     assert claims["remark after (23)"].detail == f"from the scenario's start, V(0) = {error @ error / 2:.6g}"
-    assert all(c.status == "PASS" for c in claims.values()), [c.as_dict() for c in claims.values()]
+    assert all(c.status == "PASS" for c in claims.values()), [c.to_json() for c in claims.values()]
 
 
 def from_rest(excess: float, v0: float) -> Trajectory:
@@ -162,8 +162,8 @@ def test_theorem_2_integral_claim_tolerates_round_off_and_no_more(excess, v0, v_
     claims = from_rest_claims(from_rest(excess, v0), 1.0, 1.0, v_floor=v_floor)
     integral, gain = claims[1], claims[2]
     assert "(45)" in integral.reference and "gain" in gain.name
-    assert integral.passed is holds, integral.as_dict()
-    assert gain.passed is (excess <= 1e-15), gain.as_dict()
+    assert integral.passed is holds, integral.to_json()
+    assert gain.passed is (excess <= 1e-15), gain.to_json()
 
 
 @pytest.mark.parametrize(("outside", "holds"), [(1e-13, True), (1e-6, False)])
@@ -176,4 +176,4 @@ def test_feature_box_claim_tolerates_round_off_of_the_pixels_and_no_more(outside
     traj = Trajectory(t, {"f": f, "V": np.zeros((len(t), 1))}, {})
     env = {"boxes_px": boxes.tolist(), "level": 1.0, "visible": True}
     claim = feature_region_claim(traj, np.array([640.0, 512.0]), env)
-    assert claim.passed is holds, claim.as_dict()
+    assert claim.passed is holds, claim.to_json()
