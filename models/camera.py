@@ -57,7 +57,7 @@ class Camera:
         """The principal point ``(u0, v0)`` in pixels (the image centre unless given)."""
         if self.principal_point is not None:
             return np.asarray(self.principal_point, dtype=float)
-        if not self.has_image:
+        if self.width is None or self.height is None:
             raise ValueError("the image size is not known")
         return np.array([self.width / 2, self.height / 2])
 
