@@ -549,7 +549,7 @@ def certify_planar(
     )
     result = Certificate(False, None, "exact (planar loop, fact 3)", None, None, PLANAR_REGION)
     if code[0]:
-        result.reason = REASONS[int(code[0])]
+        result.reason = REASONS[Reason(int(code[0]))]
         return result
     nkn_, g = planar_blocks(point)
     a = nkn_ - 0.5 * np.diag(point.output_squared)
@@ -587,7 +587,7 @@ def certify(
         method = "exact (anisotropic K_e: blockwise-minimum bound, fact 5)"
     gamma_exact, code = exact_gamma(sound_point, reference, identity)
     if code:
-        return Certificate(False, None, method, None, REASONS[code], region)
+        return Certificate(False, None, method, None, REASONS[Reason(code)], region)
     result = Certificate(False, None, method, None, None, region)
     if not point.isotropic:
         found, rotation = worst_rotation(point, reference, theta_max)

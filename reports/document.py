@@ -319,7 +319,7 @@ def _envelope_figure(trajectory: Trajectory, loop: ClosedLoop, envelope: dict | 
     return figures.envelope_image(trajectory, camera.centre, (camera.width, camera.height), envelope)
 
 
-def _number(value: float | None, digits: int = 6) -> str:
+def _number(value: float | str | None, digits: int = 6) -> str:
     """A number for the page: ``-`` when absent, ``digits`` significant figures; anything else
     (a string) as it is."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
