@@ -53,6 +53,13 @@ class Camera:
         return self.width is not None and self.height is not None
 
     @property
+    def size(self) -> tuple[float, float]:
+        """The image size ``(width, height)`` in pixels."""
+        if self.width is None or self.height is None:
+            raise ValueError("the image size is not known")
+        return self.width, self.height
+
+    @property
     def centre(self) -> np.ndarray:
         """The principal point ``(u0, v0)`` in pixels (the image centre unless given)."""
         if self.principal_point is not None:
