@@ -38,7 +38,7 @@ class SubstepChoice:
     @classmethod
     def fixed(cls, imp: Implementation) -> SubstepChoice:
         """The scenario's own choice: ``substeps`` RK4 steps, or CVODES."""
-        return cls(imp.substeps if imp.integrator == "rk4" else None)
+        return cls(int(imp.substeps) if imp.integrator == "rk4" else None)
 
     @classmethod
     def of_run(cls, stats: dict[str, float]) -> SubstepChoice:

@@ -26,7 +26,7 @@ import math
 import time
 import xml.etree.ElementTree as ET
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -589,7 +589,7 @@ def margins(
     case: Case,
     directory: Path,
     *,
-    map_tasks: Callable[[Callable, list[tuple]], list],
+    map_tasks: Callable[[Callable, list[tuple]], Iterable],
     resume: bool = False,
     envelope: dict | None = None,
     own_run: Trajectory | None = None,

@@ -23,7 +23,7 @@ DEPENDENCIES = (
 )  # fmt: skip
 
 
-def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+def atomic_write(path: Path, write: Callable[[IO[bytes]], object]) -> None:
     """Write ``path`` through ``write`` into a temporary file in the same directory,
     then rename it over ``path``: readers never see a partial file."""
     path = Path(path)

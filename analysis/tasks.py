@@ -7,7 +7,7 @@ a second while a result is awaited (for progress that counts work done outside t
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import wait as futures_wait
 from contextlib import ExitStack
@@ -23,7 +23,7 @@ def run_tasks(
     scheduler: str | None = None,
     poll: Callable[[], None] | None = None,
     shared: object = None,
-) -> Iterator:
+) -> Generator:
     """``function(*a)`` for each ``a`` of ``arguments`` (``function(shared, *a)`` when ``shared``
     is given: sent to each worker once on a cluster), results in order. ``workers = 1`` without
     ``scheduler``: in this process; ``scheduler``: a Dask scheduler's address, or ``"local"`` for

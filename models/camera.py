@@ -53,11 +53,18 @@ class Camera:
         return self.width is not None and self.height is not None
 
     @property
+    def size(self) -> tuple[float, float]:
+        """The image size ``(width, height)`` in pixels."""
+        if self.width is None or self.height is None:
+            raise ValueError("the image size is not known")
+        return self.width, self.height
+
+    @property
     def centre(self) -> np.ndarray:
         """The principal point ``(u0, v0)`` in pixels (the image centre unless given)."""
         if self.principal_point is not None:
             return np.asarray(self.principal_point, dtype=float)
-        if not self.has_image:
+        if self.width is None or self.height is None:
             raise ValueError("the image size is not known")
         return np.array([self.width / 2, self.height / 2])
 

@@ -158,27 +158,37 @@ def _vector(element: ET.Element | None, key: str) -> np.ndarray:
     return np.zeros(3) if not text else np.array([float(v) for v in text.split()])
 
 
+def urdf_attribute(element: ET.Element, path: str, key: str, error: type[ValueError] = InertiaModelError) -> str:
+    """The attribute ``key`` of the element at ``path`` under ``element`` (``"."``: ``element`` itself);
+    ``error`` naming them when the URDF lacks either."""
+    found = element.find(path)
+    value = None if found is None else found.get(key)
+    if value is None:
+        raise error(f"URDF element <{element.tag} name={element.get('name')!r}> has no {path}/@{key}")
+    return value
+
+
 def _rotation(element: ET.Element | None) -> np.ndarray:
     return np.asarray(rpy_to_matrix(_vector(element, "rpy")), dtype=float)
 
 
 def _links(root: ET.Element) -> dict[str, _Link]:
-    out = {}
+    out: dict[str, _Link] = {}
     for link in root.findall("link"):
         inertial = link.find("inertial")
         if inertial is None:
-            out[link.get("name")] = _EMPTY
+            out[urdf_attribute(link, ".", "name")] = _EMPTY
             continue
-        origin = inertial.find("origin")
-        i = {k: float(v) for k, v in inertial.find("inertia").attrib.items()}
+        origin, inertia = inertial.find("origin"), inertial.find("inertia")
+        i = {k: float(v) for k, v in (inertia.attrib if inertia is not None else {}).items()}
         tensor = np.array([
             [i.get("ixx", 0.0), i.get("ixy", 0.0), i.get("ixz", 0.0)],
             [i.get("ixy", 0.0), i.get("iyy", 0.0), i.get("iyz", 0.0)],
             [i.get("ixz", 0.0), i.get("iyz", 0.0), i.get("izz", 0.0)],
         ])  # fmt: skip
         r = _rotation(origin)
-        mass = float(inertial.find("mass").get("value"))
-        out[link.get("name")] = _Link(mass, _vector(origin, "xyz"), r @ tensor @ r.T)
+        mass = float(urdf_attribute(inertial, "mass", "value"))
+        out[urdf_attribute(link, ".", "name")] = _Link(mass, _vector(origin, "xyz"), r @ tensor @ r.T)
     return out
 
 
@@ -228,10 +238,10 @@ def _carried(name: str, by_child: dict[str, ET.Element], index: dict[str, int]) 
     while child in by_child:
         joint = by_child[child]
         origin = joint.find("origin")
-        k = index.get(joint.get("name"))
+        k = index.get(urdf_attribute(joint, ".", "name"))
         if k is not None and found is None:
             found = _Carried(k, rotation, translation, [])
-        elif k is not None:
+        elif k is not None and found is not None:
             found.above.append((k, translation))
         # across a chain joint only the origin of its frame is tracked (it lies on the axis, so
         # the joint's rotation does not move it): the composed rotation is then unused
@@ -239,7 +249,7 @@ def _carried(name: str, by_child: dict[str, ET.Element], index: dict[str, int]) 
         rotation, translation = r @ rotation, r @ translation + _vector(origin, "xyz")
         if k is not None:
             translation = _vector(origin, "xyz")
-        child = joint.find("parent").get("link")
+        child = urdf_attribute(joint, "parent", "link")
     return found
 
 
@@ -256,7 +266,7 @@ def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[floa
         the chain with a negative principal inertia.
     """
     root = ET.parse(urdf).getroot()
-    by_child = {j.find("child").get("link"): j for j in root.findall("joint")}
+    by_child = {urdf_attribute(j, "child", "link"): j for j in root.findall("joint")}
     index = {name: k for k, name in enumerate(joints)}
     axes = _axes(root, joints)
     n = len(joints)

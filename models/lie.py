@@ -11,12 +11,13 @@ symbolic model and numerical checks.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import casadi as cs
 import numpy as np
 
-Matrix = cs.SX | cs.MX | cs.DM
-ArrayLike = Matrix | np.ndarray | list | tuple
+Matrix: TypeAlias = cs.SX | cs.MX | cs.DM
+ArrayLike: TypeAlias = Matrix | np.ndarray | list | tuple
 
 _SMALL_ANGLE = 1e-6
 

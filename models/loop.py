@@ -589,7 +589,7 @@ class ClosedLoop:
         integral action (fact 20)."""
         u_d, u_e = self._camera_inputs
         feedback = self.inputs is None
-        u_xi = -gain_column(self.gains.k_xi) * self.xi if feedback else self.inputs(self.t)[0 : self.robot.n]
+        u_xi = -gain_column(self.gains.k_xi) * self.xi if self.inputs is None else self.inputs(self.t)[0 : self.robot.n]
         if self.integral and feedback:
             u_xi = u_xi - gain_column(self.gains.k_i) * self.z_i
         return cs.vertcat(u_xi, u_d, u_e)

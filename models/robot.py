@@ -22,13 +22,13 @@ import casadi as cs
 import numpy as np
 from adam.casadi import KinDynComputations
 
-from dvfc.models.inertia import InertiaModelError, MassBounds, mass_matrix_bounds
+from dvfc.models.inertia import InertiaModelError, MassBounds, mass_matrix_bounds, urdf_attribute
 from dvfc.models.lie import SE3, Matrix, vee
 
 _ERD = "cmeel.prefix/share/example-robot-data/robots"
 _SHIPPED = Path(__file__).parent / "urdf"
 
-BUILTIN_URDF = {
+BUILTIN_URDF: dict[str, str | Path] = {
     "ur5": f"{_ERD}/ur_description/urdf/ur5_robot.urdf",
     "panda": f"{_ERD}/panda_description/urdf/panda.urdf",
     "xarm7": f"{_ERD}/xarm_description/urdf/xarm7.urdf",
@@ -115,7 +115,7 @@ def builtin_urdf(name: str) -> Path:
         raise RobotModelError(f"unknown robot model {name!r}; built-in models: {', '.join(sorted(BUILTIN_URDF))}")
     where = BUILTIN_URDF[name]
     try:
-        path = where if isinstance(where, Path) else Path(distribution("example-robot-data").locate_file(where))
+        path = where if isinstance(where, Path) else Path(str(distribution("example-robot-data").locate_file(where)))
     except PackageNotFoundError as exc:
         raise RobotModelError("the package example-robot-data is not installed") from exc
     if not path.is_file():
@@ -142,11 +142,12 @@ def chain_joints(urdf: Path, frame: str) -> list[str]:
         :mod:`dvfc.models.inertia` and the planar and spatial loops are for revolute joints).
     """
     root = _parse(urdf)
-    links = {link.get("name") for link in root.iter("link")}
+    links = {urdf_attribute(link, ".", "name", RobotModelError) for link in root.iter("link")}
     if frame not in links:
         close = difflib.get_close_matches(frame, sorted(links), n=3, cutoff=0.3) or sorted(links)[:6]
         raise ChainError(f"URDF {urdf.name} has no link named {frame!r}; closest: {', '.join(map(repr, close))}")
-    parent_joint = {j.find("child").get("link"): j for j in root.iter("joint") if j.find("child") is not None}
+    parent_joint = {urdf_attribute(j, "child", "link", RobotModelError): j
+                    for j in root.iter("joint") if j.find("child") is not None}
     names: list[str] = []
     link = frame
     while link in parent_joint:
@@ -158,8 +159,8 @@ def chain_joints(urdf: Path, frame: str) -> list[str]:
                 "only revolute and continuous joints are supported; mount the camera on a link above it"
             )
         if kind in ("revolute", "continuous"):
-            names.append(joint.get("name"))
-        link = joint.find("parent").get("link")
+            names.append(urdf_attribute(joint, ".", "name", RobotModelError))
+        link = urdf_attribute(joint, "parent", "link", RobotModelError)
     if not names:
         raise ChainError(f"no movable joint between the root of {urdf.name} and {frame!r}")
     return names[::-1]
@@ -181,7 +182,8 @@ def mimic_joints(urdf: Path) -> dict[str, Mimic]:
         tag = joint.find("mimic")
         if tag is None or joint.get("type") == "fixed":
             continue
-        name, master = joint.get("name"), tag.get("joint")
+        name = urdf_attribute(joint, ".", "name", RobotModelError)
+        master = urdf_attribute(tag, ".", "joint", RobotModelError)
         if master not in names:
             raise RobotModelError(f"joint {name!r} of {urdf.name} mimics {master!r}: no such joint")
         multiplier, offset = float(tag.get("multiplier", 1.0)), float(tag.get("offset", 0.0))
@@ -301,12 +303,13 @@ def massless_links(urdf: Path, moving: list[str]) -> list[str]:
     rigid: dict[str, list[str]] = {}
     for j in joints:
         if j.get("name") not in moving:
-            rigid.setdefault(j.find("parent").get("link"), []).append(j.find("child").get("link"))
+            parent = urdf_attribute(j, "parent", "link", RobotModelError)
+            rigid.setdefault(parent, []).append(urdf_attribute(j, "child", "link", RobotModelError))
 
     def carries(link: str) -> bool:
         return link in heavy or any(carries(child) for child in rigid.get(link, ()))
 
-    children = [j.find("child").get("link") for j in joints if j.get("name") in moving]
+    children = [urdf_attribute(j, "child", "link", RobotModelError) for j in joints if j.get("name") in moving]
     return [link for link in children if not carries(link)]
 
 
@@ -327,7 +330,7 @@ def perturbed_urdf(text: str, frame: str, payload: Payload | None, mass_scale: f
     for inertial in root.iter("inertial"):
         mass = inertial.find("mass")
         if mass is not None:
-            mass.set("value", repr(float(mass.get("value")) * mass_scale))
+            mass.set("value", repr(float(urdf_attribute(mass, ".", "value", RobotModelError)) * mass_scale))
         inertia = inertial.find("inertia")
         if inertia is not None:
             for key, value in inertia.attrib.items():
@@ -338,7 +341,7 @@ def perturbed_urdf(text: str, frame: str, payload: Payload | None, mass_scale: f
         ET.SubElement(inertial, "origin", xyz=" ".join(map(repr, payload.com)), rpy="0 0 0")
         ET.SubElement(inertial, "mass", value=repr(payload.mass))
         keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
-        ET.SubElement(inertial, "inertia", **{k: repr(v) for k, v in zip(keys, payload.inertia, strict=True)})
+        ET.SubElement(inertial, "inertia", {k: repr(v) for k, v in zip(keys, payload.inertia, strict=True)})
         joint = ET.SubElement(root, "joint", name=f"{frame}_payload_joint", type="fixed")
         ET.SubElement(joint, "parent", link=frame)
         ET.SubElement(joint, "child", link=f"{frame}_payload")

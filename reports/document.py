@@ -246,8 +246,8 @@ def assemble(
         "l2": figures.l2_inequality(trajectory, gamma) if gamma is not None else None,
         "map": figures.gain_map(gmap, design) if gmap is not None else None,
         "envelope": _envelope_figure(trajectory, loop, certificate["points"][0].get("envelope")),
-        "implemented": figures.implemented_image(implemented, loop.camera.centre, (loop.camera.width,
-                                                 loop.camera.height)) if loop.camera.has_image else None,
+        "implemented": figures.implemented_image(implemented, loop.camera.centre,
+                                                 loop.camera.size) if loop.camera.has_image else None,
     } | _dispersion_figures(dispersion, loop)  # fmt: skip
     as_built = {
         "implementation": implementation_record(settings),
@@ -290,7 +290,7 @@ def _dispersion_figures(dispersion: dict | None, loop: ClosedLoop) -> dict[str, 
         figures.campaign_ecdf(runs, summary_["tolerance"]),
         figures.sensitivity_bars(summary_["sensitivity"], summary_["sensitivity_floor"]["pawn"]),
         figures.drivers_scatter(runs, summary_["sensitivity"]),
-        figures.implemented_image(dispersion["worst"], camera.centre, (camera.width, camera.height),
+        figures.implemented_image(dispersion["worst"], camera.centre, camera.size,
                                   f"Features of run {worst['run']} (the worst) in the true image",
                                   dispersion["worst_pixels"])
         if camera.has_image else None,
@@ -318,10 +318,10 @@ def _envelope_figure(trajectory: Trajectory, loop: ClosedLoop, envelope: dict | 
     camera = loop.camera
     if not envelope or envelope.get("boxes_px") is None or not camera.has_image:
         return None
-    return figures.envelope_image(trajectory, camera.centre, (camera.width, camera.height), envelope)
+    return figures.envelope_image(trajectory, camera.centre, camera.size, envelope)
 
 
-def _number(value: float | None, digits: int = 6) -> str:
+def _number(value: float | str | None, digits: int = 6) -> str:
     """A number for the page: ``-`` when absent, ``digits`` significant figures; anything else
     (a string) as it is."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
