@@ -14,6 +14,7 @@ import json
 from collections.abc import Callable, Iterator
 from contextlib import closing
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -87,7 +88,7 @@ class BatchRun:
             for (first, stop), result in zip(ranges, results, strict=True):
                 raise_if_interrupted()  # keep nothing of this batch
                 written = table(result)
-                atomic_write(self.part(first), lambda h, t=written: pq.write_table(t, h, compression=compression))
+                atomic_write(self.part(first), partial(pq.write_table, written, compression=compression))
                 state = {**(state if absorb is None else absorb(state, result)), "done": stop}
                 self._save(state)
                 if progress is not None:

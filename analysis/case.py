@@ -19,7 +19,7 @@ from dvfc.analysis.output import provenance
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, design_before, gain_point, load
 from dvfc.analysis.simulate import Settings
 from dvfc.models.lie import SE3
-from dvfc.models.loop import ClosedLoop
+from dvfc.models.loop import ClosedLoop, Mode
 from dvfc.models.robot import spans_the_task
 
 
@@ -32,7 +32,7 @@ class Case:
     scenario: Scenario
     base: Path
     path: Path | None = None
-    mode: str | None = None
+    mode: Mode | None = None
     check_view: bool = True
     built: tuple[ClosedLoop, np.ndarray, Settings] = field(init=False, repr=False, compare=False)
 
@@ -40,7 +40,7 @@ class Case:
         object.__setattr__(self, "built", build(self.scenario, self.base, mode=self.mode, check_view=self.check_view))
 
     @classmethod
-    def load(cls, path: str | Path = DEFAULT_SCENARIO, *, mode: str | None = None, check_view: bool = True) -> Case:
+    def load(cls, path: str | Path = DEFAULT_SCENARIO, *, mode: Mode | None = None, check_view: bool = True) -> Case:
         """Read, validate and build the scenario file ``path`` (:class:`~dvfc.analysis.scenario.ScenarioError`
         naming the field on bad input)."""
         scenario, base = load(path)
@@ -119,7 +119,7 @@ class Case:
 
 
 @lru_cache(maxsize=4)
-def _unpickled(scenario: str, base: Path, path: Path | None, mode: str | None, check_view: bool) -> Case:
+def _unpickled(scenario: str, base: Path, path: Path | None, mode: Mode | None, check_view: bool) -> Case:
     """The case of a pickled one, built once per process (its symbolic loop and compiled
     functions are then reused by every task that receives it)."""
     return Case(Scenario.model_validate_json(scenario), base, path, mode, check_view)

@@ -100,9 +100,9 @@ class Buffered:
         assert all(function.nnz_in(i) == a.size for i, a in enumerate(self.inputs)), "inputs must be dense"
         assert all(function.nnz_out(i) == a.size for i, a in enumerate(self.outputs)), "outputs must be dense"
         for i, array in enumerate(self.inputs):
-            self.buffer.set_arg(i, memoryview(array))
+            self.buffer.set_arg(i, array.data)
         for i, array in enumerate(self.outputs):
-            self.buffer.set_res(i, memoryview(array))
+            self.buffer.set_res(i, array.data)
         self._targets = [array[0] if len(array) == 1 else array.T for array in self.inputs]  # vectors flat
 
     def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -100,6 +101,7 @@ def check_keys(scenario: Scenario) -> None:
             raise ValueError(f"{where}: no such field; {hint}dispersable: {', '.join(FIELDS)}")
         f = FIELDS[key]
         if d.dist == "choice":
+            assert d.values is not None, "a choice has its values (DistributionSection)"
             values = np.asarray([np.ravel(v) for v in d.values], dtype=float)
             if np.any(values < f.low) or np.any(values > f.high):
                 raise ValueError(f"{where}.values: outside [{f.low:g}, {f.high:g}]")
@@ -131,7 +133,7 @@ class Dispersion:
                 value = getattr(d, name)
                 if isinstance(value, list) and len(value) != size:
                     raise ScenarioError(f'dispersion."{key}".{name}: expected {size} entries, got {len(value)}')
-            if d.dist == "choice" and any(np.size(v) != size for v in d.values):
+            if d.dist == "choice" and any(np.size(v) != size for v in d.values or ()):
                 raise ScenarioError(f'dispersion."{key}".values: each value needs {size} entries')
 
     @property
@@ -164,6 +166,7 @@ class Dispersion:
             elif d.dist == "lognormal":
                 value = base * np.exp(np.broadcast_to(np.asarray(d.sigma, float), size) * rng.standard_normal(size))
             else:
+                assert d.values is not None, "a choice has its values (DistributionSection)"
                 value = np.ravel(np.asarray(d.values[int(rng.integers(len(d.values)))], float)) * np.ones(size)
             value = np.clip(value, f.low, f.high)
             out[key] = np.round(value) if f.integer else value
@@ -185,7 +188,7 @@ class Dispersion:
                 factor = np.exp(3 * np.broadcast_to(np.asarray(d.sigma, float), size))
                 low, high = base / factor, base * factor
             else:
-                values = np.asarray([np.ravel(v) * np.ones(size) for v in d.values], float)
+                values = np.asarray([np.ravel(v) * np.ones(size) for v in d.values or ()], float)
                 low, high = values.min(axis=0), values.max(axis=0)
             low, high = np.clip(low, f.low, f.high), np.clip(high, f.low, f.high)
             out += [(float(a), float(b)) for a, b in zip(np.broadcast_to(low, size), np.broadcast_to(high, size),
@@ -209,7 +212,11 @@ def with_values(
     """The settings and initial state of one run: ``values`` (absolute, per key of :data:`FIELDS`)
     applied to the case's ``settings`` (whose ``errors`` are set) and start ``s0``."""
     imp, errors, n = settings.implementation, settings.errors, loop.robot.n
-    imp_changes, err_changes, input_changes, payload_changes = {}, {}, {}, {}
+    assert imp is not None and errors is not None, "a campaign's settings (campaign_settings)"
+    imp_changes: dict[str, Any] = {}
+    err_changes: dict[str, Any] = {}
+    input_changes: dict[str, Any] = {}
+    payload_changes: dict[str, Any] = {}
     for key, v in values.items():
         section, _, name = key.partition(".")
         if section == "implementation":
@@ -262,6 +269,7 @@ def base_values(scenario: Scenario, settings: Settings, s0: np.ndarray, n: int) 
     """The scenario's value of every dispersable field (flat arrays): the values its runs use
     when nothing is drawn."""
     imp, e = settings.implementation, settings.errors
+    assert imp is not None and e is not None, "a campaign's settings (campaign_settings)"
     payload = scenario.plant.payload
     return {
         "plant.mount.xyz": e.mount_xyz, "plant.mount.rpy": e.mount_rpy,

@@ -550,6 +550,7 @@ def envelope(
                 "feature regions are not certified inside the image; the statement is the ultimate one")
             env = ultimate
     if search and env.visible is not None:
+        assert design.reference is not None, "a visibility statement is of the paper's loop"
         _largest_bounds(env, design, camera, desired_features(camera, design.reference), decays(design, grid),
                         theta_bar)  # fmt: skip
     env.statement = statement(env)
@@ -583,7 +584,7 @@ def _build(design: Design, camera: Camera, disturbance: DisturbanceBounds, start
     v0 = start["V0"]
     c_inf = chosen.rho * wbar2
     level = max(c_inf, v0) if inside else c_inf
-    desired = desired_features(camera, design.reference) if design.rotational else None
+    desired = desired_features(camera, design.reference) if design.reference is not None else None
     env = Envelope(
         rate=chosen.kappa,
         gamma_prime=chosen.gamma_prime,
@@ -669,6 +670,7 @@ def statement(env: Envelope) -> str:
         return f"every feature stays in the image {when}"
     if env.visible is False:
         return "visibility is NOT certified: a certified feature region reaches the image border or zero depth"
+    assert env.bounds is not None, "an envelope with a rate has its bounds"
     why = ("the planar loop's feature regions are not derived (the camera's yaw is not a task)"
            if env.bounds["theta_ec_deg"] is None else "no image size given")  # fmt: skip
     return f"errors bounded {when}; no visibility statement: {why}"
@@ -727,8 +729,8 @@ def grid_envelope(
     """The grid context of a scenario: ``theta_bar`` given, or the one giving the design's largest
     certified target speed (with an image; else the smallest self-consistent one), used for
     every point of the grid."""
-    desired = desired_features(camera, design.reference) if design.rotational else None
-    if theta_bar is None and design.rotational:
+    desired = desired_features(camera, design.reference) if design.reference is not None else None
+    if theta_bar is None and desired is not None:
         candidates = decays(design, THETA_GRID)
         cap = visible_level(design, camera, desired)
         wbar2 = disturbance.wbar**2
@@ -789,8 +791,10 @@ def envelope_columns(ctx: GridEnvelope, nkn: np.ndarray, wdiag: np.ndarray, k_xi
 
 def _visible_level_of(ctx: GridEnvelope, weights: np.ndarray) -> float:
     """:func:`visible_level` for one row of weights (boxes depend on the weights, not the gains)."""
-    stub = Design(np.zeros((12, 12)), np.zeros(12), np.zeros(0), ctx.mass, tuple(float(v) for v in weights), True,
-                  None, None, (np.zeros((1, 1)), np.zeros(1)))  # fmt: skip
+    w_pc, w_rc, w_pe, w_re = map(float, weights)
+    stub = Design(np.zeros((12, 12)), np.zeros(12), np.zeros(0), ctx.mass, (w_pc, w_rc, w_pe, w_re), True,
+                  None, None, (np.zeros((1, 1)), np.zeros(1)))  # type: ignore[arg-type]  # fmt: skip (a stub: no point)
+    assert ctx.desired is not None, "called for the paper's loop only"
     return visible_level(stub, ctx.camera, ctx.desired)
 
 

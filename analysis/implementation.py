@@ -75,6 +75,7 @@ class SubstepChoice:
             return {}
         if not self.auto:
             return {"substeps": self.substeps}
+        assert self.step_error is not None and self.estimate is not None, "an automatic choice has both"
         return {"substeps": self.substeps, "step_error": self.step_error, "step_error_estimate": self.estimate}
 
     def as_dict(self) -> dict:

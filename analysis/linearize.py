@@ -34,7 +34,7 @@ from dvfc.models.target import TargetMotion
 
 
 @dataclass
-class DisturbanceDriven:
+class DisturbanceDriven(ClosedLoop):
     """Mixin for a loop whose whole disturbance ``w = [tau_d; target velocity]`` is the
     signal ``disturbance_input(t)`` (the target's motion then becomes a state)."""
 
@@ -42,6 +42,7 @@ class DisturbanceDriven:
 
     @cached_property
     def w(self):
+        assert self.disturbance_input is not None, "a driven loop is given its disturbance"
         return self.disturbance_input(self.t)
 
     @cached_property
@@ -312,6 +313,7 @@ def linearize_planar(loop: PlanarLoop, q0: np.ndarray, iterations: int = 50) -> 
     n = loop.robot.n
     w = cs.SX.sym("w", n + TASK)
     model, _ = driven_at_rest(loop, w, np.asarray(q0, dtype=float))
+    assert isinstance(model, PlanarLoop), "the planar loop driven is planar"
     o0, p_d = _planar_rest(loop)
     error = cs.DM(o0 - p_d) - model.camera_position
     step = cs.Function("step", [model.q], [cs.pinv(model.task_jacobian) @ error, error])

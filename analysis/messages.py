@@ -6,6 +6,7 @@ from __future__ import annotations
 import difflib
 
 from pydantic import BaseModel, ValidationError
+from pydantic_core import ErrorDetails
 
 _UNION_TAGS = {"float", "int", "str", "bool", "list", "dict", "none"}
 """Parts of a pydantic error location that name a branch of a union, not a key."""
@@ -67,7 +68,7 @@ def _unknown_key(loc: tuple, value, root: type[BaseModel], sections: bool) -> st
     return f"{_where(loc)}: unknown {what} {key!r}{hint}"
 
 
-def _message(error: dict, root: type[BaseModel], sections: bool) -> str:
+def _message(error: ErrorDetails, root: type[BaseModel], sections: bool) -> str:
     """One error in our words."""
     kind, ctx, value = error["type"], error.get("ctx", {}), error.get("input")
     if kind == "extra_forbidden":

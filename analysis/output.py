@@ -81,7 +81,9 @@ def _version(package: str) -> str | None:
 def provenance(scenario_path: Path | None, command: list[str], content: bytes | None = None) -> dict[str, Any]:
     """Toolkit and dependency versions, the scenario's SHA-256 (of the file, or of ``content``
     for a scenario that is not a file), the command and the date."""
-    content = Path(scenario_path).read_bytes() if content is None else content
+    if content is None:
+        assert scenario_path is not None, "a scenario that is not a file is given by its content"
+        content = Path(scenario_path).read_bytes()
     return {
         "toolkit": {"dvfc": _version("dvfc")},
         "dependencies": {name: _version(name) for name in DEPENDENCIES},

@@ -157,7 +157,7 @@ def _structure(loop: ClosedLoop) -> tuple:
     """What a loop's functions depend on besides its design: the objects (held by identity:
     ``dataclasses.replace`` of a loop keeps them) and the flags."""
     objects = (loop.robot, loop.camera, loop.target, loop.inputs, loop.plant, loop.plan, *loop.disturbances)
-    flags = (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance)
+    flags: tuple = (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance)
     if loop.integral or loop.friction is not None or loop.compensation is not None:
         numbers = (None if v is None else tuple(map(float, v)) for v in (loop.friction, loop.compensation))
         flags = (*flags, loop.integral, loop.integral_start, *numbers)
@@ -189,7 +189,7 @@ def symbolic(loop: ClosedLoop) -> ClosedLoop:
         weights=Weights(w[0], w[1], w[2], w[3]),
         reference=SE3(position, SO3(rotation)),
         target=replace(loop.target, radius=p[end]),
-        plant=None if not plant else InertialPlant(_same_arm(loop), p[end + 1 : end + 1 + PLANT_ENTRIES]),
+        plant=None if not plant else InertialPlant(_same_arm(loop), p[end + 1 : end + 1 + PLANT_ENTRIES]),  # type: ignore[arg-type]
         parameters=p,
     )
     _symbolic[key] = (objects, model)  # the objects held: their ids stay theirs while cached
@@ -202,6 +202,7 @@ def _same_arm(loop: ClosedLoop) -> Robot:
     """The law's arm, whose URDF, link and armature the plant shares (ValueError otherwise): the
     plant differs only by its masses."""
     r, plant = loop.robot, loop.plant
+    assert plant is not None, "called for a loop with a plant"
     if (plant.urdf, plant.frame, plant.armature) != (r.urdf, r.frame, r.armature):
         raise ValueError("the plant must be the law's arm with other masses (its URDF, link and armature)")
     return r

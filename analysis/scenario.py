@@ -37,7 +37,7 @@ from dvfc.models.camera import Camera
 from dvfc.models.disturbance import BandLimitedNoise, Disturbance, Sine, Step
 from dvfc.models.errors import PlantErrors
 from dvfc.models.lie import SE3
-from dvfc.models.loop import ClosedLoop, Gains, PlantWeights, ReferencePlan, Weights
+from dvfc.models.loop import ClosedLoop, Gains, Mode, PlantWeights, ReferencePlan, Weights
 from dvfc.models.planar import TASK, PlanarLoop
 from dvfc.models.robot import (
     BUILTIN_ARMATURE,
@@ -82,6 +82,11 @@ def _vector(value: float | list[float], n: int, where: str) -> np.ndarray:
     return np.full(n, float(value))
 
 
+def _xyz(values: list[float]) -> tuple[float, float, float]:
+    x, y, z = values
+    return x, y, z
+
+
 def _check_position_limits(robot: Robot, q0: np.ndarray) -> None:
     """Refuse a ``q0`` outside a joint's position limits in the URDF (a continuous joint has none)."""
     lower, upper = robot.limits.lower, robot.limits.upper
@@ -102,6 +107,7 @@ def build_robot(section: RobotSection, base: Path) -> Robot:
             frame = section.camera_frame or BUILTIN_CAMERA_FRAME[section.model]
             armature = BUILTIN_ARMATURE.get(section.model, ())
         else:
+            assert section.urdf is not None, "a urdf without a model (RobotSection)"
             urdf = (base / section.urdf).resolve()
             if not urdf.is_file():
                 raise ScenarioError(f"robot.urdf: no such file: {urdf}")
@@ -127,10 +133,13 @@ def disturbances(section: DisturbancesSection, n: int) -> list[Disturbance]:
     for i, d in enumerate(section.torque):
         where = f"disturbance.torque[{i}]"
         if d.kind == "step":
+            assert d.amplitude is not None, "the fields of its kind (DisturbanceSection)"
             out.append(Step(_vector(d.amplitude, n, f"{where}.amplitude"), d.start))
         elif d.kind == "sine":
+            assert d.amplitude is not None and d.frequency is not None, "the fields of its kind (DisturbanceSection)"
             out.append(Sine(_vector(d.amplitude, n, f"{where}.amplitude"), d.frequency, d.phase))
         else:
+            assert d.rms is not None and d.bandwidth is not None, "the fields of its kind (DisturbanceSection)"
             out.append(BandLimitedNoise(_vector(d.rms, n, f"{where}.rms"), d.bandwidth, d.seed))
     return out
 
@@ -154,7 +163,7 @@ def _check_planar(scenario: Scenario, robot: Robot, q0: np.ndarray) -> None:
     if motion.kind == "circle" and np.linalg.norm(normal[:2]) > PLANAR_TILT_TOL:
         raise ScenarioError(
             "target.motion.normal: the planar loop needs motion in a horizontal plane (normal [0, 0, 1] or "
-            f"[0, 0, -1]); this one is {math.degrees(math.asin(min(1.0, np.linalg.norm(normal[:2])))):.3g} deg "
+            f"[0, 0, -1]); this one is {math.degrees(math.asin(min(1.0, float(np.linalg.norm(normal[:2]))))):.3g} deg "
             "from vertical"
         )
     pose = robot.camera_pose
@@ -199,7 +208,7 @@ def auto_q0(scenario: Scenario, robot: Robot, asked_by: str = 'robot.q0: "auto"'
 
 
 def build(
-    scenario: Scenario, base: Path, *, mode: str | None = None, check_view: bool = True
+    scenario: Scenario, base: Path, *, mode: Mode | None = None, check_view: bool = True
 ) -> tuple[ClosedLoop, np.ndarray, Settings]:
     """The closed loop (the paper's, or the reduced planar one), its initial state and the
     simulation settings of a scenario; ``check_view`` refuses a start with a feature behind
@@ -214,7 +223,7 @@ def build(
     t = scenario.target
     m = t.motion
     camera_at_q0 = SE3.from_matrix(cs.Function("g_wc", [robot.q], [robot.camera_pose.as_matrix()])(q0))
-    target = TargetMotion(t.start(camera_at_q0), m.radius, m.period, tuple(m.normal), tuple(m.spin_axis), m.spin_rate)
+    target = TargetMotion(t.start(camera_at_q0), m.radius, m.period, _xyz(m.normal), _xyz(m.spin_axis), m.spin_rate)
     point = gain_point(scenario, n)
     if scenario.synthesized_from is not None:  # the design before synthesis: refused here, not in the report
         gain_point(scenario, n, scenario.synthesized_from.gains, "synthesized_from.gains")
@@ -350,7 +359,7 @@ def _estimate(loop: ClosedLoop, s0: np.ndarray) -> SE3:
     return SE3.from_matrix(cs.Function("gbar0", [loop.state], [loop.estimate.as_matrix()])(s0))
 
 
-def _implementation_mode(scenario: Scenario) -> str:
+def _implementation_mode(scenario: Scenario) -> Mode:
     """``[implementation] e_e`` when given, else ``[simulation] mode``."""
     imp = scenario.implementation
     return imp.e_e if imp is not None and imp.e_e is not None else scenario.simulation.mode
@@ -376,7 +385,7 @@ def _implementation(scenario: Scenario, mode: str) -> Implementation | None:
 def _plant(section: PlantSection, robot: Robot) -> Robot | None:
     """The arm as it is (None when it is the URDF's)."""
     p = section.payload
-    payload = None if p is None else Payload(p.mass, tuple(p.com), tuple(p.inertia))
+    payload = None if p is None else Payload(p.mass, _xyz(p.com), tuple(p.inertia))
     if payload is None and section.mass_scale == 1.0:
         return None
     try:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import casadi as cs
 import numpy as np
@@ -130,7 +130,7 @@ class CameraSection(_Strict):
         if (self.width is None) != (self.height is None):
             raise ValueError("give both width and height (pixels), or neither")
         if self.principal_point is not None:
-            if self.width is None:
+            if self.width is None or self.height is None:
                 raise ValueError("principal_point needs the image size (width, height)")
             u0, v0 = self.principal_point
             if not (0 <= u0 <= self.width and 0 <= v0 <= self.height):
@@ -139,9 +139,10 @@ class CameraSection(_Strict):
 
     def camera(self, points: np.ndarray) -> Camera:
         """The nominal camera (without a calibration file: see :func:`dvfc.analysis.calibration.camera`)."""
-        pp = None if self.principal_point is None else tuple(self.principal_point)
+        pp = None if self.principal_point is None else (self.principal_point[0], self.principal_point[1])
         fx = self.focal_length or self.fx
-        aspect = 1.0 if self.fy is None else self.fy / self.fx
+        assert fx is not None, "without a calibration file the focal length is given (_image)"
+        aspect = 1.0 if self.fy is None else self.fy / fx
         return Camera(fx, points, self.width, self.height, pp, aspect, tuple(self.distortion or (0.0,) * 5))
 
 
@@ -561,7 +562,7 @@ class SynthesizeSection(_Strict):
 
     @model_validator(mode="after")
     def _ordered(self) -> SynthesizeSection:
-        intervals = [("k_c", self.k_c), ("k_e", self.k_e)]
+        intervals: list[tuple[str, Any]] = [("k_c", self.k_c), ("k_e", self.k_e)]
         if self.k_xi is not None:
             nested = isinstance(self.k_xi[0], list)
             intervals += [(f"k_xi[{i}]", b) for i, b in enumerate(self.k_xi)] if nested else [("k_xi", self.k_xi)]

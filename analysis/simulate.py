@@ -276,9 +276,9 @@ class Simulator:
         outputs = {k: np.empty((count, mapped.size1_out(i))) for i, k in enumerate(self.signal_names)}
         assert all(mapped.nnz_out(i) == v.size for i, v in enumerate(outputs.values())), "signals must be dense"
         for i, value in enumerate(inputs):
-            buffer.set_arg(i, memoryview(value))
+            buffer.set_arg(i, value.data)
         for i, value in enumerate(outputs.values()):
-            buffer.set_res(i, memoryview(value))
+            buffer.set_res(i, value.data)
         trigger()
         return outputs
 

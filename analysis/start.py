@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as cs
 import cv2
@@ -124,7 +125,7 @@ def path_centres(plan: ReferencePlan, points: np.ndarray, tau: np.ndarray) -> np
 
 def path_progress(plan: ReferencePlan, t: np.ndarray) -> np.ndarray:
     """``tau(t)`` (numeric) of the quintic time law."""
-    return quintic(plan.fraction(t))
+    return np.asarray(quintic(plan.fraction(t)))
 
 
 def path_range(plan: ReferencePlan) -> tuple[float, float]:
@@ -185,6 +186,7 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
         return {**record, "reason": "K_c is not isotropic: the rate along the path is not derived (fact 16b.2)"}
     radii = path_range(plan)
     record["path_radius_m"] = list(radii)
+    assert env.theta_bar_deg is not None, "a planned reference is of the paper's loop (refused for the planar one)"
     for decay in decays(design, THETA_GRID[math.radians(env.theta_bar_deg) - 1e-9 <= THETA_GRID]):
         rate = path_rate(design, radii, decay.s, decay.theta_bar)
         if rate.kappa <= 0 or rate.margin < 0:
@@ -226,6 +228,7 @@ def run_regions(loop: ClosedLoop, t: np.ndarray, level: float) -> tuple[np.ndarr
     upper pixel corners (K, m, 2), to compare with a run's features."""
     w = loop.weights
     radius = joint_radius((w.w_pc, w.w_rc, w.w_pe, w.w_re), True, loop.camera.points, level)
+    assert loop.plan is not None, "the regions along a planned reference"
     centres = path_centres(loop.plan, loop.camera.points, path_progress(loop.plan, t))
     ends = [cone_interval(centres, axis, np.broadcast_to(radius, centres.shape[:2])) for axis in (0, 1)]
     scale, centre = loop.camera.focal_length, loop.camera.centre
@@ -333,7 +336,7 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
     bound, times, worst = [record["V0"]], [0.0], math.inf
     t = 0.0
     while True:
-        sigma = smoothstep(min(t / ramp, 1.0))
+        sigma = float(smoothstep(min(t / ramp, 1.0)))
         v, y = bound[-1], bound[-1] * RAMP_GROWTH + 1e-12
         while y < ceiling:
             k, d = _ramp_rates(design, ramp_design, sigma, s, y)
@@ -362,6 +365,7 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
     record.update({"inside": True, "level": level, "ultimate_V_ramp": bound[-1], "recheck_margin": worst,
                    "steps": len(bound) - 1, "step_s": RAMP_STEP})  # fmt: skip
     if camera.has_image:
+        assert design.reference is not None, "a ramp is of the paper's loop (refused for the planar one)"
         desired = desired_features(camera, design.reference)
         c_vis = visible_level(design, camera, desired)
         above = np.flatnonzero(np.asarray(bound) > c_vis)
@@ -462,7 +466,7 @@ def tube_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, p
     while True:
         t0 = (len(bound) - 1) * RAMP_STEP
         tau = tuple(float(v) for v in path_progress(plan, np.array([t0, t0 + RAMP_STEP])))
-        radii = _segment_radii(plan, tau)
+        radii = _segment_radii(plan, (tau[0], tau[1]))
         v, y = bound[-1], bound[-1] * RAMP_GROWTH + 1e-12
         while y < ceiling:
             ends = [at(r) for r in radii]
@@ -498,7 +502,7 @@ def tube_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, p
         boxes = feature_boxes(design, camera, path_centres(plan, camera.points, np.array([1.0])), level)
         depth = min(depth, boxes.depth_min)
         margin = min(margin, -math.inf if boxes.margin_px is None else boxes.margin_px)
-    record = {"inside": worst >= 0, "level": level, "recheck_margin": worst, "steps": len(bound) - 1,
+    record: dict[str, Any] = {"inside": worst >= 0, "level": level, "recheck_margin": worst, "steps": len(bound) - 1,
               "step_s": RAMP_STEP, "ultimate_V": bound[-1]}  # fmt: skip
     if worst < 0:
         record["reason"] = f"an a posteriori check of a step's rate fails ({worst:.3g})"

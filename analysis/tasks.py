@@ -11,6 +11,7 @@ from collections.abc import Callable, Generator, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import wait as futures_wait
 from contextlib import ExitStack
+from typing import Any
 
 POLL_SECONDS = 0.5
 """How often ``poll()`` is called while a result is awaited."""
@@ -50,7 +51,7 @@ def run_tasks(
             stack.callback(client.close)
             window = 2 * max(1, len(client.scheduler_info()["workers"]))
             lead = () if shared is None else (client.scatter(shared, broadcast=True),)
-            submit = lambda a: client.submit(function, *lead, *a, pure=False)  # noqa: E731
+            submit: Callable[[Any], Any] = lambda a: client.submit(function, *lead, *a, pure=False)  # noqa: E731
 
             def wait(future) -> bool:
                 try:
@@ -63,7 +64,7 @@ def run_tasks(
             stack.callback(lambda: pool.shutdown(cancel_futures=True))
             window = 2 * workers
             submit = lambda a: pool.submit(function, *lead, *a)  # noqa: E731
-            wait = lambda f: futures_wait([f], timeout=POLL_SECONDS).not_done  # noqa: E731
+            wait = lambda future: bool(futures_wait([future], timeout=POLL_SECONDS).not_done)  # noqa: E731
 
         def result(future):
             while wait(future):

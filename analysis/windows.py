@@ -133,6 +133,7 @@ class GainWindows:
             if self.below[i]:
                 found.append(f"joint {i + 1} k_xi = {k:.4g} not above the L2 certificate's {self.lower[i]:.4g}{at}")
             if self.above[i]:
+                assert self.upper is not None, "above only with a hold"
                 found.append(f"joint {i + 1} k_xi = {k:.4g} above its hold limit {self.upper[i]:.4g}")
         if self.hold_broken and not self.above.any():
             found.append("the gains together break the hold limit (no single joint's gain is above its own)")
@@ -147,6 +148,7 @@ class GainWindows:
         if self.upper is not None:
             found += [f"joint {i + 1} k_xi = {k:.4g} above {UPPER_FRACTION:g} x its hold limit {up:.4g}"
                       for i, (k, up) in enumerate(zip(self.k_xi, self.upper, strict=True)) if k > UPPER_FRACTION * up]
+            assert self.held is not None, "held with a hold (upper)"
             if self.held > UPPER_FRACTION * (2 - self.margin) and not found:
                 found.append(f"the gains together: h lambda_max(M^-1 K_xi) = {self.held:.4g} above "
                              f"{UPPER_FRACTION:g} x {2 - self.margin:g}")  # fmt: skip

@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from dvfc.analysis.results import CertificateResult, VerificationResult
     from dvfc.analysis.simulate import Trajectory
     from dvfc.analysis.synthesize import SynthesisResult
+    from dvfc.models.loop import Mode
     from dvfc.reports.document import ReportResult
 
 __all__ = ["Case", "campaign", "certify", "controller", "gain_map", "load", "margins", "report", "simulate",
@@ -51,7 +52,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'dvfc' has no attribute {name!r}")
 
 
-def load(path: str | Path | None = None, *, mode: str | None = None) -> Case:
+def load(path: str | Path | None = None, *, mode: Mode | None = None) -> Case:
     """Read, validate and build a scenario file (the built-in default when None); ``mode``
     overrides ``[simulation] mode`` ("ideal" or "image"). Bad input raises
     :class:`~dvfc.analysis.scenario.ScenarioError` naming the field."""

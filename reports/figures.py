@@ -74,7 +74,7 @@ def image_plane(traj: Trajectory, focal_length: float) -> str:
         ax.plot(fbar[:, 2 * i], fbar[:, 2 * i + 1], "--", color=ESTIMATE, label="estimated fbar" if first else None)
         ax.plot(*f[0, 2 * i : 2 * i + 2], "o", color=CONTROL, ms=4, label="t = 0" if first else None)
         ax.plot(*f[-1, 2 * i : 2 * i + 2], "s", color=CONTROL, ms=4, label="final" if first else None)
-        ax.annotate(f"{i + 1}", f[-1, 2 * i : 2 * i + 2], textcoords="offset points", xytext=(5, 5))
+        ax.annotate(f"{i + 1}", (f[-1, 2 * i], f[-1, 2 * i + 1]), textcoords="offset points", xytext=(5, 5))
     ax.set_xlabel("image x [px]")
     ax.set_ylabel("image y [px]")
     ax.set_title(f"Feature points (focal length {focal_length:g} px)")
