@@ -147,13 +147,16 @@ def program_loop(case: Case) -> ClosedLoop:
 def ring_size(case: Case) -> int:
     """Estimates the ring keeps: the latency plus its largest jitter, in periods, plus one."""
     imp = case.settings.implementation
+    assert imp is not None, "a program of a case with an [implementation] (exportable)"
     return imp.latency_steps + imp.latency_jitter + 1
 
 
 def step_function(case: Case) -> cs.Function:
     """One control step of the case's controller, ``dvfc_program(t, q, qd, features, capture, x)
     -> (tau, x_next, status)`` (see the module's description; ``capture < 0``: no image)."""
-    return program_function(program_loop(case), case.settings.implementation, ring_size(case))
+    imp = case.settings.implementation
+    assert imp is not None, "a program of a case with an [implementation] (exportable)"
+    return program_function(program_loop(case), imp, ring_size(case))
 
 
 def integral_update(z: cs.SX, xi: cs.SX, tau: cs.SX, effort: cs.SX, h: float) -> cs.SX:
@@ -276,6 +279,7 @@ class Controller:
         self.case = case
         loop = program_loop(case)
         self.n, self.m = loop.robot.n, loop.camera.m
+        assert case.settings.implementation is not None, "a program of a case with an [implementation] (exportable)"
         self.period = case.settings.implementation.period
         self.layout = Layout(self.n, ring_size(case))
         self.function = step_function(case)

@@ -160,6 +160,7 @@ def generate(case: Case, directory: Path) -> Export:
     generator.add(function)
     generator.generate(str(directory) + os.sep)
     imp, loop = case.settings.implementation, program_loop(case)
+    assert imp is not None, "exportable"
     values = {
         "NAME": case.name,
         "SCENARIO": case.path or case.name,

@@ -45,6 +45,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from fractions import Fraction
+from typing import Any
 
 import casadi as cs
 import numpy as np
@@ -150,6 +151,7 @@ class HeldLinearization:
         phi, g_tau, g_e, g_o = self.flow(h)
         a_z, a_e = phi + g_tau @ self.f + g_o @ self.o, g_tau @ self.f_e + g_e + g_o @ self.o_e
         if self.xi is not None:
+            assert self.xi_e is not None, "xi and xi_e are given together"
             a_z[nz - nt :] += h * self.xi
             a_e[nz - nt :] += h * self.xi_e
         return a_z, a_e
@@ -392,7 +394,7 @@ class MultirateLoop:
         """``pi`` across the self-motion (:func:`transverse`; ``pi`` itself on a 6-joint arm)."""
         return transverse(pi, self.lin.self_motion)
 
-    def rho(self, **change: float) -> float:
+    def rho(self, **change: Any) -> float:
         """``rho`` of the monodromy across the self-motion (:meth:`transverse`) with the
         implementation's fields changed by ``change``; ``inf`` when the product of the step maps
         overflows (never counted stable)."""
@@ -481,6 +483,7 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
     if reason is not None:
         return not_applicable(reason)
     imp = settings.implementation
+    assert imp is not None, "applicability: the loop as implemented"
     try:
         system = multirate_loop(loop, s0[: loop.robot.n], imp)
         with np.errstate(over="ignore", invalid="ignore"):

@@ -236,8 +236,10 @@ class SampledSimulator(Simulator):
             raise ValueError("for_run: the plant errors must be given for both runs or neither")
         other = copy.copy(self)
         imp = settings.implementation
+        assert imp is not None, "a sampled run is of the loop as implemented"
         other.settings, other.implementation = settings, imp
-        other.design = [] if not self.design else [parameter_vector(self.loop, settings.inputs)]
+        design = parameter_vector(self.loop, settings.inputs) if self.design else None
+        other.design = [] if design is None else [design]
         other.limits = imp.limits(self.loop.robot.limits)
         other._effort = other.limits.effort if imp.saturate else np.full(self.loop.robot.n, np.inf)
         if settings.errors is not None:
@@ -334,6 +336,7 @@ class SampledSimulator(Simulator):
         (Given the columns, not built from one, the call costs about half as much.)"""
         chunks = self._periods.chunks
         if count not in chunks:
+            assert self._periods.period is not None, "settled (settle)"
             chunks[count] = Buffered(self._periods.period.mapaccum("dvfc_chunk", count, [0], [0]))
         return chunks[count]
 
@@ -416,6 +419,7 @@ class SampledSimulator(Simulator):
         t, s, e, _, friction, design, *_ = self._symbols
         tau = cs.MX.sym("tau", self.loop.robot.n)
         hold = cs.vertcat(tau, cs.MX.zeros(3 * e.numel()))
+        assert self._periods.choice is not None, "settled (settle)"
         substeps = self._periods.choice.substeps
         after, _ = self._held_flow(t, s, hold, friction, design, substeps)
         period = cs.Function("dvfc_plant_period", [t, s, tau, friction, *design], [after])
@@ -466,6 +470,7 @@ class SampledSimulator(Simulator):
         """Run the sampled loop from ``s0`` over the settings' horizon (``substeps = "auto"``:
         chosen at the first run of this simulator and its copies, :meth:`settle`)."""
         self.settle(s0)
+        assert self._periods.choice is not None, "settled (settle)"
         st, imp, loop = self.settings, self.implementation, self.loop
         n, h = loop.robot.n, imp.period
         steps = round(st.duration * imp.control_rate)

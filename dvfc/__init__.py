@@ -24,7 +24,7 @@ use, so ``import dvfc.models.lie`` stays light.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 if TYPE_CHECKING:
     import numpy as np
@@ -37,7 +37,6 @@ if TYPE_CHECKING:
     from dvfc.analysis.results import CertificateResult, VerificationResult
     from dvfc.analysis.simulate import Trajectory
     from dvfc.analysis.synthesize import SynthesisResult
-    from dvfc.models.loop import Mode
     from dvfc.reports.document import ReportResult
 
 __all__ = ["Case", "campaign", "certify", "controller", "gain_map", "load", "margins", "report", "simulate",
@@ -52,7 +51,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'dvfc' has no attribute {name!r}")
 
 
-def load(path: str | Path | None = None, *, mode: Mode | None = None) -> Case:
+def load(path: str | Path | None = None, *, mode: Literal["ideal", "image"] | None = None) -> Case:
     """Read, validate and build a scenario file (the built-in default when None); ``mode``
     overrides ``[simulation] mode`` ("ideal" or "image"). Bad input raises
     :class:`~dvfc.analysis.scenario.ScenarioError` naming the field."""
