@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import typer
 
@@ -127,7 +127,7 @@ def command_provenance(scenario: Path) -> dict:
     return provenance(scenario, ["dvfc", *sys.argv[1:]])
 
 
-def load_case(path: Path, mode: str | None = None, check_view: bool = True) -> Case:
+def load_case(path: Path, mode: Literal["ideal", "image"] | None = None, check_view: bool = True) -> Case:
     """Read, validate and build a scenario once for the command, or exit with status 2 and one
     line: every command rejects the same bad input, whether or not it uses the faulty part."""
     try:
