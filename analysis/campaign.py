@@ -37,7 +37,7 @@ from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_boun
 from dvfc.analysis.output import write_json
 from dvfc.analysis.parametric import parametrised
 from dvfc.analysis.record import ABSENT, Absent, Record
-from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
+from dvfc.analysis.sampled import SampledSimulator, limit_record, robot_limits, sampled_simulator
 from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import RunStatus, Settings, Trajectory
 from dvfc.models.errors import PlantErrors, camera_size, true_features
@@ -95,7 +95,7 @@ class CampaignSpec:
         settings, s0 = with_values(campaign_settings(self.case), self.case.s0, self.case.loop, self.case.scenario,
                                    values)  # fmt: skip
         noise_seed = int(np.random.SeedSequence(self.seed, spawn_key=(run, 1)).generate_state(1, np.uint64)[0])
-        return replace(settings, implementation=replace(settings.implementation, seed=noise_seed)), s0
+        return replace(settings, implementation=replace(settings.sampled, seed=noise_seed)), s0
 
     def replay(self, run: int | None = None, values: Path | None = None) -> str:
         """The command that replays run ``run``, or run 0's noise with the values in the file ``values``."""
@@ -125,7 +125,7 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
     ratio = max(position / spec.bound.position, angle / spec.bound.angle_deg) if completed else math.inf
     record = limit_record(traj, robot_limits(loop, settings))
     limits = [max(record["speed_ratio"]), max(record["position_ratio"])]
-    if not settings.implementation.saturate:
+    if not settings.sampled.saturate:
         limits.append(max(record["torque_commanded_ratio"]))
     out = {
         "run": run, "holds": holds, "reason": reason, "status": traj.status,
@@ -178,7 +178,7 @@ def shared_simulator(case: Case) -> SampledSimulator:
     if key in _simulators:
         _simulators.move_to_end(key)
         return _simulators[key][1]
-    simulator = as_implemented(case.loop, campaign_settings(case)).settle(case.s0)  # substeps: the case's start
+    simulator = sampled_simulator(case.loop, campaign_settings(case)).settle(case.s0)  # substeps: the case's start
     _simulators[key] = (case, simulator)  # the case held: its id stays its own while cached
     if len(_simulators) > SIMULATORS:
         _simulators.popitem(last=False)

@@ -32,6 +32,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import tomlkit
@@ -102,7 +103,8 @@ class Design:
     @staticmethod
     def of(data: dict) -> Design:
         """The design of its :meth:`as_dict`."""
-        return Design(*(np.asarray(data[k], dtype=float) for k in ("k_xi", "k_c", "k_e")), float(data["k_i_factor"]))
+        k_xi, k_c, k_e = (np.asarray(data[k], dtype=float) for k in ("k_xi", "k_c", "k_e"))
+        return Design(k_xi, k_c, k_e, float(data["k_i_factor"]))
 
 
 @dataclass(frozen=True)
@@ -198,7 +200,7 @@ def checks(case: Case, design: Design) -> Checks:
     if outside:  # the hold breaks: fact 14 is not worth computing
         return Checks(outside, gamma, None, None, False)
     loop = replace(case.loop, gains=Gains(design.k_xi, design.k_c, design.k_e, design.k_i_factor * design.k_xi))
-    imp = case.settings.implementation
+    imp = case.settings.sampled
     try:
         system = multirate_loop(loop, case.s0[: loop.robot.n], imp)
         with np.errstate(over="ignore", invalid="ignore"):
@@ -276,7 +278,7 @@ def synthesize_for_campaign(
 
     def evaluate(xs: list[np.ndarray]) -> list[float]:
         designs = [design_of(case, x) for x in xs]
-        values: list[float | None] = []
+        values: list[Any] = []  # None until its campaign's runs are made
         specs, where = [], []
         for i, d in enumerate(designs):
             key = tuple(np.r_[d.k_xi, d.k_c, d.k_e, d.k_i_factor])
@@ -337,7 +339,7 @@ def refusal(found: Checks, confirmation: Confirmation | None, case: Case) -> str
     """What limits the best design found, in one line: the control rate (the hold limits of the
     windows), the camera latency and rates (fact 14's rho), the effort limits or the tracking error
     (the confirming campaign's failures)."""
-    imp = case.settings.implementation
+    imp = case.settings.sampled
     if confirmation is None:
         if found.outside:
             why = f"the control rate ({imp.control_rate:g} Hz): {found.outside[0]}"

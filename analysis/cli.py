@@ -29,7 +29,7 @@ from dvfc.analysis.console import announcing, err, progress_bar, say, status, wa
 from dvfc.analysis.export import ExportError
 from dvfc.analysis.margins import planned_runs, runs_done
 from dvfc.analysis.output import interrupt_aware, interrupted, provenance, raise_if_interrupted, write_json
-from dvfc.analysis.record import Record
+from dvfc.analysis.record import Serialisable
 from dvfc.analysis.results import certificate_result, verification_result
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
 from dvfc.analysis.synthesize import synthesize_scenario
@@ -80,7 +80,7 @@ def check_json_target(target: str | None) -> None:
         raise fail(f"--json: cannot write {target} (directory missing or not writable)")
 
 
-def emit(result: Record, saved: Path | None, json_target: str | None, show_: Callable[[Any], None]) -> None:
+def emit(result: Serialisable, saved: Path | None, json_target: str | None, show_: Callable[[Any], None]) -> None:
     """Write ``result``'s JSON to ``saved`` (atomically) and to ``--json``; show it to a person unless the
     JSON goes to standard output."""
     data = result.to_json()

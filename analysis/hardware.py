@@ -42,7 +42,7 @@ from dvfc.analysis.cell import Search, synthesize_for_campaign
 from dvfc.analysis.cell import record as cell_record
 from dvfc.analysis.margins import TrackingBound, tracking_bound
 from dvfc.analysis.output import append_log, raise_if_interrupted, read_log
-from dvfc.analysis.scenario import Scenario
+from dvfc.analysis.scenario import Scenario, ScenarioError
 
 UNITS = {"control_rate": "Hz", "camera_rate": "Hz", "latency": "s"}
 """The parameters searched (each separately, in this order: the control and camera rates up, the
@@ -121,6 +121,8 @@ def synthesis_check(case: Case, scenario: Scenario, budget: Budget, progress: Ca
 
 def hardware(scenario: Scenario) -> dict[str, float]:
     """The scenario's control rate and camera rate (Hz; every control sample when not given) and latency (s)."""
+    if scenario.implementation is None:
+        raise ScenarioError("implementation: what would pass changes the loop as implemented; add an [implementation]")
     imp = scenario.implementation.implementation()
     return {"control_rate": imp.control_rate, "camera_rate": imp.camera_rate, "latency": imp.latency}
 
@@ -129,11 +131,10 @@ def control_step(case: Case) -> Fraction:
     """The smallest control rate (Hz) at which the output step ``dt`` and the latency (when not zero)
     are whole numbers of control periods: the least common multiple of their inverses (as fractions)."""
     latency = hardware(case.scenario)["latency"]
-    step = None
-    for p in (case.scenario.simulation.dt, *([latency] if latency > 0 else [])):
+    step = 1 / Fraction(case.scenario.simulation.dt).limit_denominator(10**6)
+    for p in [latency] if latency > 0 else []:
         f = 1 / Fraction(p).limit_denominator(10**6)
-        step = f if step is None else Fraction(math.lcm(step.numerator, f.numerator),
-                                              math.gcd(step.denominator, f.denominator))  # fmt: skip
+        step = Fraction(math.lcm(step.numerator, f.numerator), math.gcd(step.denominator, f.denominator))
     return step
 
 

@@ -71,9 +71,9 @@ def simulate(case: Case, directory: Path, provenance: dict, *, campaign_run: int
     outputs = {"trajectory": directory / "trajectory.npz", "summary": directory / "summary.json"}
     result = simulation_result(case, trajectory, outputs, provenance, settings)
     if replayed is not None:
-        drawn = replayed.values(campaign_run) if values is None else values
+        drawn = replayed.values(campaign_run or 0) if values is None else values
         result = replace(result, campaign_row=campaign_row(replayed, campaign_run or 0, trajectory, settings, drawn))
-    arrays = trajectory_arrays(case, trajectory, settings)
+    arrays: dict[str, Any] = trajectory_arrays(case, trajectory, settings)
     atomic_write(outputs["trajectory"], lambda h: np.savez_compressed(h, **arrays))
     return result
 

@@ -45,7 +45,7 @@ from dvfc.analysis.multirate import (
 from dvfc.analysis.output import append_log, raise_if_interrupted, read_log
 from dvfc.analysis.record import ABSENT, Absent, Record
 from dvfc.analysis.results import envelope_record
-from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits
+from dvfc.analysis.sampled import SampledSimulator, as_implemented, limit_record, robot_limits, sampled_simulator
 from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import RunStatus, Settings, Trajectory, rotation_angle
 from dvfc.models.errors import PlantErrors
@@ -178,7 +178,7 @@ def grid_value(name: str, value: float, settings: Settings) -> float:
     """The value a run is made at: the latency in whole control periods, the camera rate an
     image every whole number ``N`` of control periods (``control_rate / N``: fact 14's exact
     schedules), any other parameter as given."""
-    rate = settings.implementation.control_rate
+    rate = settings.sampled.control_rate
     if name == "latency":
         return round(value * rate) / rate
     if name == "camera_rate":
@@ -195,7 +195,6 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
     every mass (see ``benchmarks/margins.py``). The other parameters are inputs of the
     compiled code, or act between its calls; the plant-error parameters replace one entry of
     the settings' ``errors`` (none: :meth:`PlantErrors.none`), keeping the others."""
-    imp = settings.implementation
     if name == "payload_mass":
         plant = settings.plant
         r = loop.robot
@@ -214,7 +213,8 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
             viscous, coulomb = reference_friction(loop, settings)
             errors = replace(errors, viscous=value * viscous, coulomb=value * coulomb)
         return replace(settings, errors=errors)
-    return replace(settings, implementation=replace(imp, **{name: grid_value(name, value, settings)}))
+    changed: dict[str, Any] = {name: grid_value(name, value, settings)}
+    return replace(settings, implementation=replace(settings.sampled, **changed))
 
 
 @dataclass(frozen=True)
@@ -288,7 +288,7 @@ def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: Trackin
         return False, f"{traj.status}: {traj.message}"
     record = limit_record(traj, robot_limits(loop, settings))
     ratio = max(record["torque_commanded_ratio"])
-    if ratio > 1 and not settings.implementation.saturate:
+    if ratio > 1 and not settings.sampled.saturate:
         return False, f"peak torque {ratio:.4g}x the effort limit"
     if not record["within_velocity"]:
         return False, f"peak joint speed {max(record['speed_ratio']):.4g}x the velocity limit"
@@ -368,7 +368,7 @@ def shared_simulator(case: Case, errors: bool) -> SampledSimulator:
     settings = case.settings
     if errors and settings.errors is None:
         settings = replace(settings, errors=PlantErrors.none(case.loop.camera, case.loop.robot.n))
-    simulator = as_implemented(case.loop, settings)
+    simulator = sampled_simulator(case.loop, settings)
     _simulators[key] = (case, simulator)  # the case held: its id stays its own while cached
     if len(_simulators) > SIMULATORS:
         _simulators.popitem(last=False)
@@ -390,8 +390,8 @@ class LinearCheck:
         """The check of a case from its fact-14 record (:func:`implemented_record`)."""
         if record["margins"] is None:
             return LinearCheck(None, None, record["reason"])
-        imp = case.settings.implementation
-        return LinearCheck(multirate_loop(case.loop, case.s0[: case.loop.robot.n], imp), record["margins"], None)
+        system = multirate_loop(case.loop, case.s0[: case.loop.robot.n], case.settings.sampled)
+        return LinearCheck(system, record["margins"], None)
 
     def rho(self, name: str, value: float) -> float | None:
         """``rho(Pi)`` with ``name = value`` (a value of :func:`grid_value`); None where not
@@ -409,7 +409,7 @@ def _simulator(case: Case, name: str, settings: Settings) -> SampledSimulator:
     """The simulator of a search point: the process's :func:`shared_simulator` for ``settings``, but
     for a payload (a new plant, made in CasADi's virtual machine)."""
     if name == "payload_mass":
-        return as_implemented(case.loop, settings)
+        return sampled_simulator(case.loop, settings)
     return shared_simulator(case, settings.errors is not None).for_run(settings)
 
 
@@ -445,7 +445,7 @@ def trial(
         growth = envelope_growth(traj, bound) if holds else None
         if unstable or growth is None or not growth.growing:
             break
-    if unstable:
+    if unstable and rho is not None:
         holds, detail = False, f"{unstable_text(rho)}; its run over {horizons[-1]:g} s: {detail}"
     elif growth is not None and growth.growing:
         holds, detail = False, (f"error still growing at {horizons[-1]:g} s (the peak over the last quarter "
@@ -554,7 +554,7 @@ def applicable(name: str, settings: Settings, loop: ClosedLoop) -> str | None:
     """Why a parameter cannot be searched on this scenario, or None."""
     if name in ("pixel_noise", "mount_rotation", "focal_length_error") and loop.mode != "image":
         return f'{name.replace("_", " ")} acts through the image: needs e_e = "image"'
-    if name == "friction_scale" and settings.implementation.integrator != "rk4":
+    if name == "friction_scale" and settings.sampled.integrator != "rk4":
         return 'friction needs integrator = "rk4"'
     if name == "mount_rotation" and settings.errors is not None and np.any(settings.errors.mount_rpy):
         return "the scenario's [plant] mount is already rotated: the search turns it about one axis from none"

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from enum import Enum
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import numpy as np
 
@@ -64,6 +64,12 @@ def jsonable(value: Any) -> Any:
     if isinstance(value, Path):
         return str(value)
     return value
+
+
+class Serialisable(Protocol):
+    """What the command line writes as JSON: a :class:`Record`, or a result with its own ``to_json``."""
+
+    def to_json(self) -> dict[str, Any]: ...
 
 
 class Record:

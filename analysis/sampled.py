@@ -67,12 +67,15 @@ def as_implemented(loop: ClosedLoop, settings: Settings) -> Simulator:
     """The simulator of the loop as it runs on the robot: the plant of ``settings`` (the law
     keeps ``loop``'s model), sampled by :class:`SampledSimulator` when ``settings`` has an
     implementation, else continuous; a feature leaving the image ends the run."""
-    loop = replace(loop, plant=settings.plant)
-    settings = replace(settings, view=True)
-    imp = settings.implementation
-    if imp is None:
-        return Simulator(loop, settings)
-    return SampledSimulator(replace(loop, sampled=True), settings)
+    if settings.implementation is None:
+        return Simulator(replace(loop, plant=settings.plant), replace(settings, view=True))
+    return sampled_simulator(loop, settings)
+
+
+def sampled_simulator(loop: ClosedLoop, settings: Settings) -> SampledSimulator:
+    """:func:`as_implemented` for settings with an implementation (a ``ValueError`` without)."""
+    settings = replace(settings, view=True, implementation=settings.sampled)
+    return SampledSimulator(replace(loop, plant=settings.plant, sampled=True), settings)
 
 
 def robot_limits(loop: ClosedLoop, settings: Settings) -> JointLimits:

@@ -25,7 +25,7 @@ import numpy as np
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.controller import Controller
-from dvfc.analysis.sampled import SampledSimulator, as_implemented
+from dvfc.analysis.sampled import SampledSimulator, as_implemented, sampled_simulator
 from dvfc.analysis.simulate import RunStatus, Stop
 
 StepFunction = Callable[
@@ -87,7 +87,7 @@ def software_in_the_loop(
         raise ValueError("software in the loop needs an [implementation]")
     controller = controller or Controller(case)
     step = step or controller.step
-    simulator = as_implemented(case.loop, case.settings)
+    simulator = sampled_simulator(case.loop, case.settings)
     plant = Plant(case, simulator)
     n, m, h = controller.n, controller.m, imp.period
     steps = round((case.settings.duration if duration is None else duration) * imp.control_rate)
@@ -96,7 +96,7 @@ def software_in_the_loop(
     captures, arrivals = imp.arrivals(imp.capture_steps(steps), faults)
     joints = np.array(case.s0[: 2 * n], dtype=float)
     state = controller.initial_state()
-    record = {key: [] for key in ("q", "qd", "tau", "captures", "features", "states")}
+    record: dict[str, list] = {key: [] for key in ("q", "qd", "tau", "captures", "features", "states")}
     taken: dict[int, np.ndarray] = {}  # the features of each capture not handed over yet
     stop, j = Stop(), 0
     for k in range(steps):
@@ -154,7 +154,7 @@ class Comparison:
 
 def compare_with_sampled(case: Case, run: SilRun) -> Comparison:
     """``run`` against :class:`~dvfc.analysis.sampled.SampledSimulator` over the same horizon."""
-    imp = case.settings.implementation
+    imp = case.settings.sampled
     duration = len(run.tau) * imp.period
     trajectory = as_implemented(case.loop, replace(case.settings, duration=duration)).run(case.s0)
     n = case.loop.robot.n

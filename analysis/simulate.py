@@ -82,6 +82,14 @@ class Settings:
     view: bool = False
     inputs: Inputs | None = None
 
+    @property
+    def sampled(self) -> Implementation:
+        """The implementation, for what only the loop as implemented has (a :class:`ValueError` naming
+        the section when there is none)."""
+        if self.implementation is None:
+            raise ValueError("implementation: the loop as implemented needs an [implementation] section")
+        return self.implementation
+
 
 CHUNK_SECONDS = 0.5
 """Target wall time of one integration call after the first."""

@@ -151,7 +151,7 @@ def window_constraints(windows: WindowSpec | None, k_xi: cp.Variable) -> list:
 
 
 def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target: float | None,
-         plant: PlantWeights | None, windows: WindowSpec | None):
+         plant: PlantWeights | None, windows: WindowSpec | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Solve the fact-6 SDP for fixed weights (and the generalized plant's, fact 17) within the gain
     windows (:func:`window_constraints`); returns ``(k_xi, k_c, k_e)`` or None."""  # fmt: skip
     w = weights.as_array()[None]
@@ -181,11 +181,12 @@ def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target:
     return _clipped(bounds, k_xi, k_c, k_ep, k_er)
 
 
-def _clipped(bounds: Bounds, k_xi: cp.Variable, k_c: cp.Variable, k_ep: cp.Variable, k_er: cp.Variable):
+def _clipped(bounds: Bounds, k_xi: cp.Variable, k_c: cp.Variable, k_ep: cp.Variable,
+             k_er: cp.Variable) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The solved gains ``(K_xi, K_c, K_e)`` clipped to ``bounds`` (the solver's round-off can
     step outside them)."""
     clip = lambda v, b: np.clip(np.asarray(v, dtype=float), *b)  # noqa: E731
-    k_e = np.repeat([float(k_ep.value), float(k_er.value)], 3)
+    k_e = np.repeat([float(np.asarray(k_ep.value)), float(np.asarray(k_er.value))], 3)
     return clip(k_xi.value, bounds.k_xi), clip(k_c.value, bounds.k_c), clip(k_e, bounds.k_e)
 
 
@@ -220,11 +221,12 @@ def synthesize(
         cert = certify(point, reference, theta_max=theta_max, gamma_bound=gamma_target)
         if not cert.certified:
             continue
-        better = best.certificate is None or (
-            cert.gamma < best.certificate.gamma
+        chosen, chosen_cert = best.point, best.certificate
+        better = chosen is None or chosen_cert is None or (
+            float(cert.gamma or math.inf) < float(chosen_cert.gamma or math.inf)
             if gamma_target is None
             else np.linalg.norm(np.r_[point.k_xi, point.k_c, point.k_e])
-            < np.linalg.norm(np.r_[best.point.k_xi, best.point.k_c, best.point.k_e])
+            < np.linalg.norm(np.r_[chosen.k_xi, chosen.k_c, chosen.k_e])
         )
         if better:
             best = Synthesis(point, cert, weights_tried=len(candidates))
@@ -371,15 +373,16 @@ def rounded(
     written."""
     if result.point is None:
         return result
+    assert result.certificate is not None and result.certificate.gamma is not None  # a design is certified
     p, limit = result.point, gamma_target or result.certificate.gamma * 1.001
     for digits, rounder in itertools.product(range(3, 9), (_round, _round_down)):
-        gains = [rounder(v, digits) for v in (p.k_xi, p.k_c, p.k_e)]
+        gains = tuple(rounder(v, digits) for v in (p.k_xi, p.k_c, p.k_e))
         inside = all(np.all((g >= lo) & (g <= hi)) for g, (lo, hi) in zip(gains, (bounds.k_xi, bounds.k_c, bounds.k_e),
                                                                           strict=True))  # fmt: skip
         inside = inside and (windows is None or not windows.of(gains[0]).outside_margins())
-        point = GainPoint(*gains, p.weights, p.plant)
+        point = GainPoint(gains[0], gains[1], gains[2], p.weights, p.plant)
         cert = certify(point, reference, theta_max=theta_max, gamma_bound=gamma_target)
-        if inside and cert.certified and cert.gamma <= limit:
+        if inside and cert.certified and cert.gamma is not None and cert.gamma <= limit:
             return replace(result, point=point, certificate=cert)
     return result
 
@@ -505,7 +508,7 @@ class LimitSearch:
         if self.exceeds is None:
             return self.trials[0].synthesis
         smallest = f"the family's smallest certified design (alpha = {self.exceeds.alpha:.4g})"
-        return Synthesis(None, None, Outcome.OUTSIDE_LIMITS, f"{smallest} {excess(self.exceeds.run)}")
+        return Synthesis(None, None, Outcome.OUTSIDE_LIMITS, f"{smallest} {excess(self.exceeds.run or {})}")
 
 
 def search_within_limits(
@@ -560,8 +563,8 @@ def search_within_limits(
     if not good.within:
         return done(lo, None, good)
     for _ in range(SEARCH_STEPS):
-        mid = tried((good.alpha + bad.alpha) / 2)
-        good, bad = (mid, bad) if mid.within else (good, mid)
+        trial = tried((good.alpha + bad.alpha) / 2)
+        good, bad = (trial, bad) if trial.within else (good, trial)
     return done(lo, good, bad)
 
 
@@ -626,9 +629,11 @@ def synthesis_bounds(case: Case) -> Bounds:
         k_xi = tuple(np.full(n, b, dtype=float) for b in cfg.k_xi)
     else:
         windows = case_windows(case)
+        assert windows is not None  # the paper's loop (refuse_unless_synthesisable) has its windows
         hi = np.full(n, DEFAULT_K_XI[1]) if windows.upper is None else np.minimum(windows.upper, DEFAULT_K_XI[1])
         k_xi = (np.where(hi >= DEFAULT_K_XI[0], DEFAULT_K_XI[0], np.minimum(windows.lower, hi)), hi)
-    return Bounds(k_xi, tuple(cfg.k_c), tuple(cfg.k_e))
+    (k_c_lo, k_c_hi), (k_e_lo, k_e_hi) = cfg.k_c, cfg.k_e
+    return Bounds((k_xi[0], k_xi[1]), (k_c_lo, k_c_hi), (k_e_lo, k_e_hi))
 
 
 def limit_search_record(search: LimitSearch, bounds: Bounds) -> dict:
@@ -789,7 +794,8 @@ def synthesize_case(
     theta = speed_theta_bar(case) if speed else None
     design = designer(Weights(**spec.weights.model_dump()), spec.reference.se3(), n,
                       theta_max=math.radians(spec.certify.theta_max_deg), gamma_target=cfg.gamma,
-                      search_weights=cfg.search_weights, speed=(loop.robot.mass_bounds, theta) if speed else None,
+                      search_weights=cfg.search_weights,
+                      speed=(loop.robot.mass_bounds, theta) if theta is not None else None,
                       plant=case.point.plant, windows=windows)  # fmt: skip
     objective = ("maximise the certified target speed (facts 7-8)" if speed else
                  "minimise gamma" if cfg.gamma is None else f"smallest gains with gamma <= {cfg.gamma:g}")  # fmt: skip
@@ -812,6 +818,7 @@ def synthesize_case(
         if windows is not None and (empty := windows.empty(bounds.k_xi)):
             result = replace(result, outcome=Outcome.INFEASIBLE, reason="; ".join(empty))
         return CaseSynthesis(spec.name, objective, result, bounds, search, None, None, None, None, None, theta)
+    assert run is not None and case.path is not None  # a design's run is checked; the case is a file's
     if not within_limits(run):
         refused = f"its run as implemented {excess(run)}"
         return CaseSynthesis(spec.name, objective, result, bounds, search, run, refused, None, None, None, theta)
@@ -861,11 +868,12 @@ def synthesis_record(done: CaseSynthesis, written: Path | None, provenance: dict
     written)."""
     result = done.result
     outcome, reason = (result.outcome, result.reason) if done.refused is None else (Outcome.REFUSED, done.refused)
-    point = None if result.point is None else point_record(result.point, result.certificate)
+    point = None if result.point is None or result.certificate is None else point_record(result.point,
+                                                                                          result.certificate)
     speed: dict[str, Any] = {}
     if done.theta_bar is not None:
         speed = {"synthesis_theta_bar_deg": math.degrees(done.theta_bar), "max_target_speed": None}
-        if done.envelope is not None:  # the written design's own envelope
+        if done.envelope is not None and point is not None:  # the written design's own envelope
             point = {**point, "envelope": done.envelope}
             speed["max_target_speed"] = done.envelope["max_target_speed"]
             if speed["max_target_speed"] is None:
@@ -912,6 +920,7 @@ def synthesize_scenario(
     target.parent.mkdir(parents=True, exist_ok=True)
     done = synthesize_case(case, target, runs=lambda run: logged_runs(run, log, resume=resume), progress=progress)
     log.unlink(missing_ok=True)  # the search is done: its runs are in the result
-    if done.accepted:
-        atomic_write(target, lambda h: h.write(done.text.encode()))
+    if done.text is not None:
+        data = done.text.encode()
+        atomic_write(target, lambda h: h.write(data))
     return synthesis_record(done, target if done.accepted else None, provenance, time.perf_counter() - start)

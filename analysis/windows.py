@@ -220,7 +220,7 @@ class WindowSpec:
         mass = (self.mass + self.mass.T) / 2
         return UPPER_FRACTION * (2.0 - HOLD_MARGIN) * self.control_rate * mass
 
-    def empty(self, box: tuple[np.ndarray, np.ndarray]) -> list[str]:
+    def empty(self, box: tuple[np.ndarray | float, np.ndarray | float]) -> list[str]:
         """Each joint whose gain box ``box`` (lower, upper per joint) leaves no gain inside its
         window with the synthesis' margins, in words: at least :meth:`synthesis_lower` and at most
         ``1 / (H^-1)_ii`` (``H`` :meth:`synthesis_hold`: the largest ``k_xi,i`` with ``k_xi,i e_i

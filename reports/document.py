@@ -77,7 +77,7 @@ class ReportData:
     verification: dict
     gain_map: GainMap | None
     design: dict[str, float]
-    figures: dict[str, str]
+    figures: dict[str, str | None]
     provenance: dict
     implemented: dict
     """The run as implemented (:func:`dvfc.analysis.sampled.as_implemented`): how, its summary, and
@@ -157,7 +157,9 @@ def measure_campaign(case: Case, cache: StageCache, envelope: dict) -> dict:
         return {"reason": str(exc)}
     run = campaign["summary"]["worst"][0]["run"]
     worst = simulate_run(spec, run)[1]
-    pixels = true_pixels(case.loop, worst, spec.run_settings(run)[0].errors)
+    errors = spec.run_settings(run)[0].errors
+    assert errors is not None  # every campaign run has its plant errors (campaign_settings)
+    pixels = true_pixels(case.loop, worst, errors)
     return {**campaign, "bound": bound, "worst": worst, "worst_pixels": pixels}
 
 

@@ -443,8 +443,8 @@ MUTATIONS = (
         "margins-torque-unchecked",
         "the margins' criterion ignores the torque limits when saturate is off",
         "analysis/margins.py",
-        (("    if ratio > 1 and not settings.implementation.saturate:\n",
-          "    if ratio > 1e9 and not settings.implementation.saturate:\n"),),
+        (("    if ratio > 1 and not settings.sampled.saturate:\n",
+          "    if ratio > 1e9 and not settings.sampled.saturate:\n"),),
         ("tests/test_margins.py",),
     ),
     Mutation(
@@ -1300,8 +1300,8 @@ MUTATIONS = (
         'hardware-control-grid-ignores-latency',
         'the control-rate grid keeps the output step whole periods but not the latency',
         'analysis/hardware.py',
-        (('    for p in (case.scenario.simulation.dt, *([latency] if latency > 0 else [])):',
-          '    for p in (case.scenario.simulation.dt,):'),),
+        (('    for p in [latency] if latency > 0 else []:',
+          '    for p in []:'),),
         ('tests/test_hardware.py::test_the_grids_keep_the_latency_and_the_output_step_whole_periods_and_the_camera_exact',),
     ),
 )
