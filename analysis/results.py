@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -127,7 +127,7 @@ class CertificateResult(Record):
     assumptions: list[str]
     gamma_required: float | None
     grid: dict[str, Any] | Absent = ABSENT
-    points: list[dict[str, Any]]
+    points: list[CertificatePoint]
     points_dataset: str | Absent = ABSENT
     points_csv: str | Absent = ABSENT
     summary: CertificateSummary
@@ -139,7 +139,7 @@ class CertificateResult(Record):
         return self.summary.certified == self.summary.points
 
     @classmethod
-    def of(cls, spec: Scenario, points: list[dict[str, Any]], summary: CertificateSummary, provenance: dict,
+    def of(cls, spec: Scenario, points: list[CertificatePoint], summary: CertificateSummary, provenance: dict,
            **grid: Any) -> CertificateResult:  # fmt: skip
         """The certificate of ``spec``'s loop over its ``[certify]`` region: its assumptions, the gamma it
         requires, the ``points``; ``grid``: a grid's ``grid``, ``points_dataset`` and ``points_csv``."""
@@ -284,24 +284,54 @@ def plant_errors_record(settings: Settings, camera: Camera) -> dict:
     return record
 
 
-def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> dict:
+@dataclass(frozen=True, kw_only=True)
+class CertificatePoint(Record):
+    """One point of a certificate (``points[i]`` of ``dvfc certify``'s JSON): a grid's label and index,
+    the gains and weights, the generalized plant's weights, Theorem 2's certificate (closed form, SDP
+    cross-check, a posteriori margin, the worst rotation found), and when computed the scaled-storage
+    bound (fact 4), the lower bounds on the true gain, the operating envelope (facts 7-10), the
+    coverage of integral action (facts 20-21) and the loop as implemented's local certificate (fact 14)."""
+
+    label: str | Absent = ABSENT
+    index: int | Absent = ABSENT
+    gains: dict[str, list[float]]
+    weights: dict[str, float]
+    weights_of_plant: dict[str, Any]
+    certified: bool
+    gamma: float | None
+    method: str
+    margin: float | None
+    reason: str | None
+    worst_rotation: list[list[float]] | None
+    gamma_worst_found: float | None
+    gap: float | None
+    gamma_tight: float | Absent | None = ABSENT
+    alpha: float | Absent | None = ABSENT
+    tight_reason: str | Absent | None = ABSENT
+    gamma_lower_linear: float | Absent = ABSENT
+    hinf_python_control: float | Absent = ABSENT
+    hinf_note: str | Absent = ABSENT
+    gamma_lower_nonlinear: float | Absent = ABSENT
+    worst_disturbance: dict[str, Any] | Absent = ABSENT
+    gamma_lower: float | Absent | None = ABSENT
+    lower_bound_reason: str | Absent = ABSENT
+    tightness: float | Absent | None = ABSENT
+    tightness_tight: float | Absent | None = ABSENT
+    envelope: dict[str, Any] | Absent = ABSENT
+    integral: dict[str, Any] | Absent = ABSENT
+    implemented: dict[str, Any] | Absent = ABSENT
+
+
+def point_record(point: GainPoint, cert: Certificate, tight: TightCertificate | None = None) -> CertificatePoint:
     """One gain point of a certificate (with the fact-4 bound when computed)."""
-    w = point.weights
-    extra = {} if tight is None else {"gamma_tight": tight.gamma, "alpha": tight.alpha, "tight_reason": tight.reason}
-    return {
-        "gains": {"k_xi": point.k_xi.tolist(), "k_c": point.k_c.tolist(), "k_e": point.k_e.tolist()},
-        "weights": {k: float(v) for k, v in asdict(w).items()},
-        "weights_of_plant": plant_record(point),
-        "certified": cert.certified,
-        "gamma": cert.gamma,
-        "method": cert.method,
-        "margin": cert.margin,
-        "reason": cert.reason,
-        "worst_rotation": cert.worst_rotation,
-        "gamma_worst_found": cert.gamma_worst_found,
-        "gap": cert.gap,
-        **extra,
-    }
+    extra: dict[str, Any] = {} if tight is None else {"gamma_tight": tight.gamma, "alpha": tight.alpha,
+                                                      "tight_reason": tight.reason}  # fmt: skip
+    return CertificatePoint(
+        gains={"k_xi": point.k_xi.tolist(), "k_c": point.k_c.tolist(), "k_e": point.k_e.tolist()},
+        weights={k: float(v) for k, v in asdict(point.weights).items()}, weights_of_plant=plant_record(point),
+        certified=cert.certified, gamma=cert.gamma, method=cert.method, margin=cert.margin, reason=cert.reason,
+        worst_rotation=cert.worst_rotation, gamma_worst_found=cert.gamma_worst_found, gap=cert.gap, **extra,
+    )  # fmt: skip
 
 
 def plant_record(point: GainPoint) -> dict:
@@ -331,18 +361,19 @@ def channels_text(point: dict, planar: bool) -> str:
             f"{out['e_c']:g} I, {out['e_e']:g} I), D_w = diag({fmt(dist['tau_d'])}, {velocity}))")
 
 
-def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict, rest: FromRest | None = None) -> dict:
+def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, point: CertificatePoint,
+                       rest: FromRest | None = None) -> dict[str, Any]:  # fmt: skip
     """Lower bounds on the true L2 gain and how far the certificates sit above them: the
     linearisation's peak gain and the gain of the run from rest that ``verify`` checks Theorem 2 on
     (:func:`dvfc.analysis.linearize.sharpest_from_rest`, driven to its sharpness; ``rest``: both,
-    when already made by :func:`dvfc.analysis.linearize.from_rest`)."""
+    when already made by :func:`dvfc.analysis.linearize.from_rest`): the fields of ``point`` they set."""
     try:
         rest = from_rest(loop, s0[: loop.robot.n]) if rest is None else rest
     except ValueError as exc:
         return {"gamma_lower": None, "lower_bound_reason": str(exc)}
     nonlinear, converged = rest.gain, rest.converged
     lower = max(rest.peak_gain, nonlinear)
-    ratio = lambda g: None if g is None else g / lower  # noqa: E731
+    ratio = lambda g: g / lower if isinstance(g, float) else None  # noqa: E731
     return {
         "gamma_lower_linear": rest.peak_gain,
         "hinf_python_control": rest.hinf,
@@ -351,8 +382,8 @@ def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, record: dict, rest: Fro
         "worst_disturbance": {"signal": "the linearisation's worst sinusoid", "frequency_rad_s": rest.peak_frequency,
                               "horizon_s": float(rest.run.t[-1]), "converged": converged},
         "gamma_lower": lower,
-        "tightness": ratio(record["gamma"]),
-        "tightness_tight": ratio(record.get("gamma_tight")),
+        "tightness": ratio(point.gamma),
+        "tightness_tight": ratio(point.gamma_tight),
     }
 
 
@@ -450,12 +481,12 @@ def certificate_result(
     tight = tight_gamma_planar(point) if planar else tight_gamma(point, case.reference)
     record = point_record(point, cert, tight if cert.gamma is not None else None)
     if lower_bounds:
-        record.update(lower_bound_record(case.loop, case.s0, record, rest))
-    record["envelope"] = envelope_record(case)
+        record = replace(record, **lower_bound_record(case.loop, case.s0, record, rest))
+    record = replace(record, envelope=envelope_record(case))
     if (coverage := integral_coverage(point)) is not None:
-        record["integral"] = coverage
+        record = replace(record, integral=coverage)
     if case.settings.implementation is not None:
-        record["implemented"] = implemented_record(case.loop, case.s0, case.settings)
+        record = replace(record, implemented=implemented_record(case.loop, case.s0, case.settings))
     summary_ = CertificateSummary(points=1, certified=int(cert.certified), gamma_min=cert.gamma,
                                   seconds=time.perf_counter() - start)  # fmt: skip
     return CertificateResult.of(spec, [record], summary_, provenance)
@@ -649,9 +680,9 @@ def grid_result(spec: Scenario, grid: GridSpec, state: SweepState, files: dict[s
             continue
         d = grid.designs(entry[1], entry[1] + 1)
         gp = GainPoint(d["k_xi"][0], d["k_c"][0], d["k_e"][0], Weights(*d["w"][0]))
-        points.append({"label": label, "index": entry[1], **point_record(gp, certificate_for(spec, gp))})
+        points.append(replace(point_record(gp, certificate_for(spec, gp)), label=label, index=entry[1]))
     best = points[0] if state.best is not None else None
     summary_ = CertificateSummary(points=grid.size, certified=state.certified,
-                                  gamma_min=best["gamma"] if best else None, seconds=seconds)  # fmt: skip
+                                  gamma_min=best.gamma if best else None, seconds=seconds)  # fmt: skip
     axes = {name: v.tolist() if len(v) <= 1000 else f"{len(v)} values" for name, v in grid.axes}
     return CertificateResult.of(spec, points, summary_, provenance, grid=axes, **files)

@@ -124,37 +124,35 @@ def show_certificate(result: CertificateResult) -> None:
     """Human output of ``certify``: the point, the region, the method and a verdict."""
     p = result.points[0]
     table = Table(title=f"Theorem 2 certificate: {result.scenario}", show_header=False)
-    fmt = lambda v: "-" if v is None else f"{v:.6g}"  # noqa: E731
+    fmt = lambda v: f"{v:.6g}" if isinstance(v, float | int) else "-"  # noqa: E731
     rows = [
-        ("k_xi, k_c, k_e", f"{p['gains']['k_xi']}, {p['gains']['k_c']}, {p['gains']['k_e']}"),
-        ("w_pc, w_rc, w_pe, w_re", ", ".join(f"{v:g}" for v in p["weights"].values())),
+        ("k_xi, k_c, k_e", f"{p.gains['k_xi']}, {p.gains['k_c']}, {p.gains['k_e']}"),
+        ("w_pc, w_rc, w_pe, w_re", ", ".join(f"{v:g}" for v in p.weights.values())),
         ("region", result.region),
-        ("method", p["method"]),
-        ("gamma (certified)", fmt(p["gamma"])),
-        ("margin lambda_min(P)", fmt(p["margin"])),
-        ("gamma_tight (alpha V, fact 4)", f"{fmt(p.get('gamma_tight'))} (alpha = {fmt(p.get('alpha'))})"),
-        (
-            "gamma_lower: linearisation, nonlinear from rest",
-            f"{fmt(p.get('gamma_lower_linear'))}, {fmt(p.get('gamma_lower_nonlinear'))}",
-        ),
-        ("tightness gamma / gamma_lower", fmt(p.get("tightness"))),
-        ("worst gamma found by search", fmt(p["gamma_worst_found"])),
+        ("method", p.method),
+        ("gamma (certified)", fmt(p.gamma)),
+        ("margin lambda_min(P)", fmt(p.margin)),
+        ("gamma_tight (alpha V, fact 4)", f"{fmt(p.gamma_tight)} (alpha = {fmt(p.alpha)})"),
+        ("gamma_lower: linearisation, nonlinear from rest",
+         f"{fmt(p.gamma_lower_linear)}, {fmt(p.gamma_lower_nonlinear)}"),
+        ("tightness gamma / gamma_lower", fmt(p.tightness)),
+        ("worst gamma found by search", fmt(p.gamma_worst_found)),
     ]
     for name, value in rows:
         table.add_row(name, str(value))
     out.print(table)
-    if p["certified"]:
-        channels = channels_text(p, result.loop == "planar")
-        out.print(f"CERTIFIED: L2 gain <= {p['gamma']:.6g} {channels} over {result.region}.", markup=False)
+    if p.certified:
+        channels = channels_text(p.to_json(), result.loop == "planar")
+        out.print(f"CERTIFIED: L2 gain <= {fmt(p.gamma)} {channels} over {result.region}.", markup=False)
     else:
-        out.print(f"NOT CERTIFIED: {p['reason']}", markup=False)
-    if (integral := p.get("integral")) is not None:  # docs/math.md, facts 20-21
+        out.print(f"NOT CERTIFIED: {p.reason}", markup=False)
+    if isinstance(integral := p.integral, dict):  # docs/math.md, facts 20-21
         covered = "; ".join(f"{key.replace('_', ' ')}: {integral[key]}" for key in INTEGRAL_COVERAGE)
         out.print(f"WITH INTEGRAL ACTION (k_i = {integral['k_i']}): {covered}.", markup=False)
-    if "implemented" in p:
-        out.print(implemented_text(p["implemented"]), markup=False, soft_wrap=True)
-    if "envelope" in p:
-        show_envelope(p["envelope"])
+    if isinstance(p.implemented, dict):
+        out.print(implemented_text(p.implemented), markup=False, soft_wrap=True)
+    if isinstance(p.envelope, dict):
+        show_envelope(p.envelope)
 
 
 def inertia_text(e: dict) -> str:
@@ -209,12 +207,12 @@ def show_grid(result: CertificateResult) -> None:
     for col in ("point", "gamma", "k_xi", "k_c", "k_e", "w_pc, w_rc, w_pe, w_re", "certified"):
         table.add_column(Text(col))
     for p in result.points:
-        g = p["gains"]
-        gamma = "-" if p["gamma"] is None else f"{p['gamma']:.6g}"
-        weights = ", ".join(f"{v:g}" for v in p["weights"].values())
+        g = p.gains
+        gamma = "-" if p.gamma is None else f"{p.gamma:.6g}"
+        weights = ", ".join(f"{v:g}" for v in p.weights.values())
         short = lambda v: Text(", ".join(f"{x:.3g}" for x in v))  # noqa: E731
-        table.add_row(Text(p["label"]), gamma, short(g["k_xi"]), short(g["k_c"]), short(g["k_e"]), weights,
-                      str(p["certified"]))  # fmt: skip
+        table.add_row(Text(str(p.label)), gamma, short(g["k_xi"]), short(g["k_c"]), short(g["k_e"]), weights,
+                      str(p.certified))  # fmt: skip
     out.print(table)
     out.print(
         f"region: {result.region}; method: exact closed form (fact 3), blockwise-minimum K_e (fact 5)",
@@ -233,17 +231,17 @@ def show_synthesis(record: SynthesisResult) -> None:
         out.print(f"NOT SYNTHESIZED: {record.status}", markup=False, soft_wrap=True)
         _show_limit_search(record)
         return
-    g = p["gains"]
+    g = p.gains
     out.print(
         f"gains: k_xi = {g['k_xi']}\n       k_c = {g['k_c']}\n       k_e = {g['k_e']}\n"
-        f"weights: {p['weights']}\ncertified gamma = {p['gamma']:.6g} over {record.region}\n"
+        f"weights: {p.weights}\ncertified gamma = {p.gamma:.6g} over {record.region}\n"
         f"scenario written: {record.scenario_file or 'none, ' + record.status}",
         markup=False,
     )
     if record.max_target_speed is not ABSENT:
         speed = record.max_target_speed
         line = (f"NOT CERTIFIED: {record.status}" if speed is None
-                else f"certified max target speed = {speed:.6g} m/s ({p['envelope']['statement']})")  # fmt: skip
+                else f"certified max target speed = {speed:.6g} m/s ({p.to_json()['envelope']['statement']})")
         out.print(line, markup=False, soft_wrap=True)
     if isinstance(limits := record.limits, dict):
         out.print(f"run of the design ({limits['status']}): peak |tau| / effort limit "

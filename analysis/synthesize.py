@@ -50,7 +50,7 @@ from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, pose_dia
 from dvfc.analysis.multirate import implemented_record
 from dvfc.analysis.output import append_log, atomic_write, read_log
 from dvfc.analysis.record import ABSENT, INTERNAL, Absent, Record
-from dvfc.analysis.results import envelope_record, point_record, speed_theta_bar
+from dvfc.analysis.results import CertificatePoint, envelope_record, point_record, speed_theta_bar
 from dvfc.analysis.sampled import as_implemented, limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario, ScenarioError, integral_gain
 from dvfc.analysis.windows import GainWindows, WindowSpec, case_window_spec, case_windows
@@ -843,7 +843,7 @@ class SynthesisResult(Record):
     objective: str
     bounds: dict[str, Any]
     weights_tried: int
-    point: dict[str, Any] | None
+    point: CertificatePoint | None
     region: str | None
     scenario_file: str | None
     seconds: float
@@ -874,7 +874,7 @@ def synthesis_record(done: CaseSynthesis, written: Path | None, provenance: dict
     if done.theta_bar is not None:
         speed = {"synthesis_theta_bar_deg": math.degrees(done.theta_bar), "max_target_speed": None}
         if done.envelope is not None and point is not None:  # the written design's own envelope
-            point = {**point, "envelope": done.envelope}
+            point = replace(point, envelope=done.envelope)
             speed["max_target_speed"] = done.envelope["max_target_speed"]
             if speed["max_target_speed"] is None:
                 outcome = Outcome.UNCERTIFIED

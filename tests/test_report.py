@@ -513,7 +513,7 @@ def test_the_controller_section_states_the_exports_digest_replay_step_times_and_
         assert 0 < values[0] <= values[1] <= values[2] <= values[3]
     coverage = " ".join(section[section.index('id="controller-coverage"') :].split("</p>")[0].split())
     assert "Fact 14 for the program's loop (docs/math.md, facts 14 and 22)" in coverage
-    implemented = dvfc.certify(dvfc.load(scenario), lower_bounds=False).points[0]["implemented"]
+    implemented = dvfc.certify(dvfc.load(scenario), lower_bounds=False).points[0].implemented
     assert f"rho = {implemented['program_rho']:.6g} (below 1: local exponential stability of the loop the program" in (
         coverage)
     assert f"observer integrates (12) continuously, rho = {implemented['rho']:.6g}" in coverage
