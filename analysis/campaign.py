@@ -208,12 +208,13 @@ def run_campaign(
     scheduler: str | None = None,
     resume: bool = False,
     progress: Callable[[int], None] | None = None,
-    scenario_sha256: str = "",
+    key: str = "",
 ) -> int:
     """Make runs ``0 .. runs - 1``, one Parquet file per batch in ``directory / runs``, saving
-    ``campaign.json`` (runs done) after each; with ``resume``, from the runs done
+    ``campaign.json`` (runs done) after each; with ``resume``, from the runs done of the campaign of the
+    same ``key`` (the scenario's SHA-256, or a report stage's key), seed and runs
     (:class:`dvfc.analysis.batches.BatchRun`). Returns the runs done."""
-    identity = {"scenario_sha256": scenario_sha256, "seed": spec.seed, "runs": runs}
+    identity = {"key": key, "seed": spec.seed, "runs": runs}
     run = BatchRun(directory, RUNS, "campaign.json", identity,
                    "the campaign in this directory has another scenario, seed or number of runs")  # fmt: skip
     return int(run.run(runs, batch_size, campaign_batch, spec, pa.table, resume=resume, workers=workers,
@@ -441,7 +442,7 @@ def campaign(
         raise ValueError(f"resume: no campaign to resume in {directory}")
     directory.mkdir(parents=True, exist_ok=True)
     run_campaign(spec, directory, runs, batch_size=batch_size, workers=workers, scheduler=scheduler, resume=resume,
-                 progress=progress, scenario_sha256=case.provenance([])["scenario_sha256"])  # fmt: skip
+                 progress=progress, key=case.provenance([])["scenario_sha256"])  # fmt: skip
     result = CampaignResult(**summarize(spec, read_runs(directory), confidence, p_fail, quantile), scenario=case.name,
                             dataset=str(directory / RUNS))  # fmt: skip
     if search:

@@ -1,4 +1,4 @@
-"""The certified operating envelope of one design (MATH facts 7-9; the rate of docs/math.md, fact 10).
+"""The certified operating envelope of one design (docs/math.md, facts 7-9; the rate of fact 10).
 
 The L2 gain of Theorem 2 says nothing uniform in time about a target that keeps moving
 (its energy is infinite). This module answers the review's questions instead, from the

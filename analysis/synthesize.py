@@ -1,4 +1,4 @@
-"""Gain synthesis (MATH fact 6): for fixed ``W_c, W_e, g_d``, ``N`` does not depend on
+"""Gain synthesis (docs/math.md, fact 6): for fixed ``W_c, W_e, g_d``, ``N`` does not depend on
 ``K``, so ``P = N^T diag(k) N - I/2 - s W`` is linear in ``(k, s)`` and choosing the gains
 that minimise the certified gamma under bounds is an SDP.
 
@@ -13,7 +13,7 @@ The result is handed to the ordinary certifier (closed form, SDP cross-check, a
 posteriori eigenvalue check): the synthesised gamma is the certifier's, not the solver's.
 Optionally the weights are searched on a log grid around the scenario's (outer loop).
 
-For the operating envelope (MATH facts 7-8) the objective is the certified target speed
+For the operating envelope (docs/math.md, facts 7-8) the objective is the certified target speed
 instead (:func:`synthesize_speed`): at fixed ``s = 1/(2 gamma'^2)`` and ``theta_bar``, ``D``
 does not depend on the gains and ``Q(s) = N^T K N - s W`` is linear in them, so
 ``maximize kappa`` subject to ``Q(s) - kappa D >= 0`` (and the ``xi`` block) is one SDP; the
@@ -287,7 +287,7 @@ def synthesize_speed(
     windows: WindowSpec | None = None,
 ) -> Synthesis:
     """Gains within ``bounds`` and the gain ``windows`` maximising the certified target speed of
-    the envelope at ``theta_bar`` (radians; MATH facts 7-8): ``max over s of s kappa*(s)``,
+    the envelope at ``theta_bar`` (radians; docs/math.md, facts 7-8): ``max over s of s kappa*(s)``,
     ``kappa*(s)`` the SDP of :func:`_speed_problem`.
 
     ``kappa*`` is concave in ``s`` (the value of a convex program whose constraints are jointly

@@ -140,7 +140,7 @@ def _campaign(case: Case, cache: StageCache, name: str, bound: TrackingBound, us
     with tempfile.TemporaryDirectory() as tmp:
         directory = scratch or Path(tmp)
         run_campaign(spec, directory, case.scenario.report.campaign_runs, resume=scratch is not None,
-                     scenario_sha256=cache.key(name, case, uses))  # fmt: skip
+                     key=cache.key(name, case, uses))  # fmt: skip
         table = read_runs(directory)
     return spec, {"summary": summarize_campaign(spec, table, CONFIDENCE, P_FAIL, QUANTILE), "runs": table.to_pydict()}
 

@@ -67,3 +67,20 @@ def test_an_implausible_image_is_dropped_by_the_simulator_as_by_the_program():
                                     int(run.captures[k])).status for k in arrivals]  # fmt: skip
     dropped = sum(status is Status.IMAGE_REJECTED for status in statuses)
     assert 0 < dropped < len(statuses), statuses
+
+
+def test_a_point_behind_the_camera_stops_both_loops_with_the_same_stop():
+    """A target placed behind the camera (0.3 m back along its optical axis): the program-in-the-loop run
+    and the sampled simulator both end at the first capture, with the one stop they share
+    (:class:`~dvfc.analysis.simulate.Stop`): ``behind_camera``, the same words, not ``out_of_view``."""
+    data = dvfc.load(DEFAULT_SCENARIO).scenario.model_dump()
+    for key in ("xyz", "rpy"):
+        data["target"].pop(key)
+    data["target"]["relative_to_camera"] = {"xyz": [0.0, 0.0, -0.3], "rpy": [0.0, 0.0, 0.0]}
+    data.pop("start")
+    data["simulation"] |= {"duration": 0.02, "jit": False}
+    case = dvfc.Case(Scenario.model_validate(data), DEFAULT_SCENARIO.parent, None, None, False)
+    sil = software_in_the_loop(case)
+    sampled = dvfc.simulate(case)
+    assert sil.status == sampled.status == "behind_camera", (sil.status, sampled.status)
+    assert sil.message == sampled.message == "a feature point is behind the camera at t = 0 s"

@@ -9,7 +9,7 @@ import json
 import math
 import shutil
 import tomllib
-from dataclasses import astuple
+from dataclasses import astuple, replace
 from pathlib import Path
 
 import casadi as cs
@@ -31,6 +31,7 @@ from dvfc.analysis.synthesize import (
     SEARCH_STEPS,
     TARGET_MARGIN,
     Bounds,
+    CaseSynthesis,
     Outcome,
     Synthesis,
     designer,
@@ -39,6 +40,7 @@ from dvfc.analysis.synthesize import (
     scaled,
     scenario_text,
     search_within_limits,
+    synthesis_record,
     synthesize,
     synthesize_speed,
 )
@@ -521,3 +523,20 @@ def test_the_python_synthesis_refuses_a_loop_it_is_not_for_before_any_work(tmp_p
     result = CliRunner().invoke(app, ["synthesize", str(planar), "--out", str(target)])
     assert result.exit_code == 2 and "loop: gain synthesis is for the paper's loop" in result.output
     assert not target.parent.exists()
+
+
+def test_a_written_design_without_a_certified_target_speed_is_uncertified(result):
+    """A target-speed synthesis whose written design's envelope certifies no speed: its outcome is
+    ``uncertified`` (typed, not read from words), the JSON's status says why, ``max_target_speed`` is
+    null and the design is not counted as written (``dvfc synthesize`` exits 1); with a certified speed
+    the same record is ``ok`` and written."""
+    envelope = {"max_target_speed": None, "reason": "no theta_bar keeps the features in view"}
+    done = CaseSynthesis("s", "maximise the certified target speed (facts 7-8)", result, BOUNDS, None, None, None,
+                         "text", envelope, None, math.radians(3.0))  # fmt: skip
+    record = synthesis_record(done, Path("s.toml"), {}, 0.0)
+    assert record.outcome is Outcome.UNCERTIFIED and not record.written
+    assert record.status == "uncertified: no target speed certified for the written design (no theta_bar keeps the "\
+        "features in view)"
+    assert record.to_json()["max_target_speed"] is None and record.point["envelope"] is envelope
+    certified = synthesis_record(replace(done, envelope=envelope | {"max_target_speed": 0.2}), Path("s.toml"), {}, 0.0)
+    assert certified.outcome is Outcome.DESIGNED and certified.written and certified.status == "ok"

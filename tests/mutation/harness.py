@@ -1304,6 +1304,31 @@ MUTATIONS = (
           '    for p in []:'),),
         ('tests/test_hardware.py::test_the_grids_keep_the_latency_and_the_output_step_whole_periods_and_the_camera_exact',),
     ),
+    # --- typed results: one stop record, statuses from their producers -------------------------------------
+    Mutation(
+        'sil-stop-said-out-of-view',
+        'the program-in-the-loop run calls every lost image out_of_view (a point behind the camera included)',
+        'analysis/sil.py',
+        (('            stop = stop if lost is None else lost\n',
+          '            stop = stop if lost is None else Stop(RunStatus.OUT_OF_VIEW, lost.message)\n'),),
+        ('tests/test_sil.py::test_a_point_behind_the_camera_stops_both_loops_with_the_same_stop',),
+    ),
+    Mutation(
+        'absent-key-written',
+        'a key a result does not have is written (null) in its JSON',
+        'analysis/record.py',
+        (('                if not f.metadata.get("internal") and getattr(value, f.name) is not ABSENT}',
+          '                if not f.metadata.get("internal")}'),),
+        ('tests/test_records.py::test_an_absent_key_is_left_out_and_none_is_kept',
+         'tests/test_golden.py::test_each_commands_json_is_the_recorded_one[certify]'),
+    ),
+    Mutation(
+        'synthesis-uncertified-speed-passes',
+        'a target-speed synthesis whose written design has no certified speed says ok (exit 0)',
+        'analysis/synthesize.py',
+        (('                outcome = Outcome.UNCERTIFIED\n', '                pass\n'),),
+        ('tests/test_synthesize.py::test_a_written_design_without_a_certified_target_speed_is_uncertified',),
+    ),
 )
 
 
