@@ -116,16 +116,20 @@ def margins(case: Case, directory: str | Path, *, workers: int = 1, resume: bool
 
 
 def campaign(case: Case, directory: str | Path, runs: int = 100, *, seed: int = 0, workers: int = 1,
-             resume: bool = False, **statistics: float) -> CampaignResult:
+             resume: bool = False, confidence: float | None = None, p_fail: float | None = None,
+             quantile: float | None = None, search: int = 0) -> CampaignResult:
     """The case's ``[dispersion]`` as a campaign of ``runs`` runs of the loop as implemented, each judged
     by the margins criterion, stored in ``directory`` (``resume`` continues one); the failure probability's
-    bound at its confidence and the tracking error's tolerance bound (``statistics``: ``confidence``,
-    ``p_fail``, ``quantile``, ``search``, as :func:`dvfc.analysis.campaign.campaign`); ``.to_json()`` is
-    the JSON of ``dvfc campaign``."""
+    bound at ``confidence``, the zero-failure count for ``p_fail``, the tracking error's ``quantile``
+    (None: the command's defaults) and, with ``search`` runs, the worst case found
+    (:func:`dvfc.analysis.campaign.campaign`); ``.to_json()`` is the JSON of ``dvfc campaign``."""
+    from dvfc.analysis import campaign as defaults
     from dvfc.analysis.jobs import campaign as run
 
     return run(case, Path(directory), case.provenance(["dvfc.campaign"]), runs, seed=seed, workers=workers,
-               resume=resume, **statistics)  # type: ignore[arg-type]
+               resume=resume, confidence=defaults.CONFIDENCE if confidence is None else confidence,
+               p_fail=defaults.P_FAIL if p_fail is None else p_fail,
+               quantile=defaults.QUANTILE if quantile is None else quantile, search=search)
 
 
 def synthesize(case: Case, target: str | Path, *, resume: bool = False) -> SynthesisResult:

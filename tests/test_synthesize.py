@@ -537,6 +537,6 @@ def test_a_written_design_without_a_certified_target_speed_is_uncertified(result
     assert record.outcome is Outcome.UNCERTIFIED and not record.written
     assert record.status == "uncertified: no target speed certified for the written design (no theta_bar keeps the "\
         "features in view)"
-    assert record.to_json()["max_target_speed"] is None and record.point["envelope"] is envelope
+    assert record.to_json()["max_target_speed"] is None and record.point.envelope is envelope
     certified = synthesis_record(replace(done, envelope=envelope | {"max_target_speed": 0.2}), Path("s.toml"), {}, 0.0)
     assert certified.outcome is Outcome.DESIGNED and certified.written and certified.status == "ok"
