@@ -45,7 +45,7 @@ class BatchRun:
 
     def part(self, first: int) -> Path:
         """The Parquet file of the batch starting at item ``first`` (names sort by it)."""
-        return self.directory / self.folder / f"part-{first:09d}.parquet"
+        return self.directory / self.folder / f"part-{first:012d}.parquet"
 
     def saved(self) -> dict[str, Any] | None:
         """The saved state (None: none)."""

@@ -209,11 +209,6 @@ ENVELOPE_COLUMNS = ("rate", "max_target_speed")
 """Columns added when the scenario has an ``[envelope]`` (null where not certified)."""
 
 
-def part_path(directory: Path, start: int) -> Path:
-    """The Parquet file of the batch starting at point ``start`` (names sort by it)."""
-    return directory / POINTS / f"part-{start:012d}.parquet"
-
-
 def read_points(directory: Path) -> pa.Table:
     """Every point of a sweep in ``directory``, in index order."""
     return pq.read_table(directory / POINTS).sort_by("index")

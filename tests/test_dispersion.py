@@ -18,6 +18,7 @@ from pydantic import ValidationError
 from scipy import stats
 from typer.testing import CliRunner
 
+from dvfc.analysis import batches as batches_module
 from dvfc.analysis import campaign as campaign_module
 from dvfc.analysis.calibration import read_calibration
 from dvfc.analysis.campaign import (
@@ -223,7 +224,7 @@ def test_a_crash_between_a_batch_write_and_the_state_save_resumes_losslessly(tmp
     case = case_of(with_dispersion(SMALL), duration=1.0)
     spec = CampaignSpec.of(case, tracking_bound(case))
     run_campaign(spec, tmp_path / "whole", 6, batch_size=2)
-    real, calls = campaign_module.atomic_write, []
+    real, calls = batches_module.atomic_write, []
 
     def crashing(path: Path, write) -> None:
         real(path, write)
@@ -231,10 +232,10 @@ def test_a_crash_between_a_batch_write_and_the_state_save_resumes_losslessly(tmp
         if path.suffix == ".parquet" and calls.count(path.name) == 1 and len(calls) > 3:  # the second batch written
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(campaign_module, "atomic_write", crashing)
+    monkeypatch.setattr(batches_module, "atomic_write", crashing)
     with pytest.raises(KeyboardInterrupt):
         run_campaign(spec, tmp_path / "cut", 6, batch_size=2)
-    monkeypatch.setattr(campaign_module, "atomic_write", real)
+    monkeypatch.setattr(batches_module, "atomic_write", real)
     assert len(list((tmp_path / "cut" / "runs").glob("*.parquet"))) == 2  # written, not recorded as done
     run_campaign(spec, tmp_path / "cut", 6, batch_size=2, resume=True)
     whole, cut = (read_runs(tmp_path / d).drop_columns(["wall_time"]) for d in ("whole", "cut"))

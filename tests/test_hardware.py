@@ -48,7 +48,9 @@ class Threshold:
         confirmation = {"runs": budget.runs, "failures": 0 if holds else 3, "confidence": budget.confidence,
                         "p_fail_upper": 0.00997 if holds else 0.03, "statement": f"{budget.runs} runs"}  # fmt: skip
         synthesis = {"holds": holds, "limits": None if holds else f"too slow at {rate:g} Hz",
-                     "design": {"k_xi": [1.0] * 6} if holds else None, "confirmation": confirmation}  # fmt: skip
+                     "design": {"k_xi": [1.0] * 6} if holds else None, "confirmation": confirmation,
+                     "checks": None, "surrogate": None, "search": {"method": "a threshold on the control rate"},
+                     "tracking_bound": {}}  # every key of dvfc.analysis.cell.record  # fmt: skip
         return hw.Evaluation(synthesis, 1.0)
 
 
