@@ -45,7 +45,7 @@ from dvfc.models.lie import SO3
 from dvfc.models.loop import Weights
 from dvfc.models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, builtin_urdf
 
-from conftest import build_loop, run, scenario_dict
+from helpers import build_loop, run, scenario_dict
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
 

@@ -25,7 +25,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.verify import theorem_2
 from dvfc.analysis.windows import gain_windows
 
-from conftest import scenario_dict
+from helpers import scenario_dict
 
 WEIGHTS = {"output": {"xi": 0.5, "e_c": 2.0, "e_e": 1.0}, "disturbance": {"tau_d": 0.5, "translation": 2.0}}
 """A light joint-velocity output and torque channel, a heavy control error and target translation."""

@@ -25,7 +25,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, ScenarioError, bu
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.models.loop import Gains
 
-from conftest import (
+from helpers import (
     build_loop,
     cell_with_default_design,
     default_from_the_papers_start,

@@ -7,15 +7,13 @@ from __future__ import annotations
 import math
 import warnings
 
-from test_own_arm import five_joints
-
 from dvfc.analysis.case import Case
 from dvfc.analysis.linearize import linearize
 from dvfc.analysis.results import envelope_record
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.verify import SEARCH_STOPPED, adversarial_claim
 
-from conftest import scenario_dict
+from helpers import five_joints, scenario_dict
 
 
 def test_a_search_stopped_by_the_integrator_is_said_plainly_and_silently(capfd):

@@ -18,7 +18,7 @@ import pytest
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.models.lie import vee
 
-from conftest import build_loop, run, static_target
+from helpers import build_loop, run, static_target
 
 IDENTITY_TOL = 1e-6
 

@@ -30,7 +30,7 @@ from dvfc.analysis.sampled import SampledSimulator
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
 from dvfc.analysis.simulate import Trajectory
 
-from conftest import default_without_integral
+from helpers import default_without_integral
 from loop_reference import linearised_run
 
 XARM7_CELL = Path(__file__).parent.parent / "examples" / "xarm7_cell.toml"

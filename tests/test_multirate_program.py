@@ -16,7 +16,7 @@ from dvfc.analysis.controller import Layout, program_function
 from dvfc.analysis.multirate import _tangent, held_linearization, multirate_loop, program_monodromy, rest_model
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 
-from conftest import default_without_integral
+from helpers import default_without_integral
 
 
 def with_integral(case):

@@ -19,7 +19,7 @@ from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
 import reference as ref
-from test_cli import setter, write
+from helpers import setter, write
 
 REFERENCE = SE3.from_xyz_rpy([0.01, 0.02, 0.35], [0.2, -0.1, 0.3])
 gain = st.floats(0.6, 50.0)

@@ -27,7 +27,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
 from dvfc.reports.stages import CACHE
 
-from conftest import default_dict_without_integral
+from helpers import default_dict_without_integral
 
 pytestmark = pytest.mark.slow  # every test here reads the whole review of the default scenario (about a minute)
 

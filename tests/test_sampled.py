@@ -18,7 +18,7 @@ from dvfc.analysis.simulate import Simulator, identity_residuals
 from dvfc.analysis.verify import IMPLEMENTED_TOL, implemented, implemented_storage
 from dvfc.models.robot import Payload, Robot
 
-from conftest import build_loop, default_from_the_papers_start
+from helpers import build_loop, default_from_the_papers_start
 from loop_reference import held_period
 
 HORIZON = 0.1

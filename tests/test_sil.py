@@ -11,7 +11,7 @@ from dvfc.analysis.controller import Status
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.sil import compare_with_sampled, software_in_the_loop
 
-from conftest import CELL
+from helpers import CELL
 
 
 def by_the_virtual_machine(path):

@@ -20,7 +20,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.start import run_regions
 from dvfc.analysis.verify import envelope_claims
 
-from conftest import build_loop, default_dict_without_integral, default_without_integral, run, scenario_dict
+from helpers import build_loop, default_dict_without_integral, default_without_integral, run, scenario_dict
 
 
 def planned(duration: float = 2.0, observer: str = "scenario"):

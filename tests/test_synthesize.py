@@ -46,7 +46,7 @@ from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
 import reference as ref
-from conftest import scenario_dict
+from helpers import scenario_dict
 
 REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
 WEIGHTS = Weights(4.0, 1.0, 4.0, 1.0)

@@ -19,7 +19,7 @@ from dvfc.analysis.results import lower_bound_record
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.analysis.verify import ATTAINED, from_rest_claims, theorem_2
 
-from conftest import build_loop
+from helpers import build_loop
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ from dvfc.analysis.verify import (
 )
 from dvfc.models.loop import ClosedLoop
 
-from conftest import build_loop
+from helpers import build_loop
 
 
 def claims_of(loop, s0, settings):
