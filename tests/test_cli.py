@@ -490,6 +490,7 @@ def test_help_texts_print_every_bracketed_word():
     assert "[grid]" in " ".join(runner.invoke(full_app, ["certify", "--help"]).stdout.split())
 
 
+@pytest.mark.slow
 def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_path):
     """The written scenario is the user's file, comments and layout kept, with only the name and
     the gains changed (one line each, 3-8 significant figures, no ``19.99999997``); the gamma

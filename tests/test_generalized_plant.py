@@ -97,6 +97,7 @@ def test_light_xi_weight_opens_the_gain_window():
     assert light.lower == pytest.approx(np.full(6, 0.125 + 0.25 / 8))
 
 
+@pytest.mark.slow
 def test_certify_json_states_the_weights_of_the_plant(tmp_path):
     """``points[0].weights_of_plant``: the weights the certificate holds for, per channel."""
     path = tmp_path / "weighted.toml"

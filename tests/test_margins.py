@@ -57,6 +57,7 @@ def short_default(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_latency_margin_holds_below_and_breaks_above(short_default):
     """The measured latency margin brackets the breaking point: the loop holds at 0.8x the
     margin and breaks at 1.25x (latencies rounded to whole control periods, as the search's)."""
@@ -203,6 +204,7 @@ def test_the_error_envelope_grows_only_when_the_error_grows():
     assert envelope_growth(synthetic(t, (1.01 * GROWTH) ** (t / 2.5)), bound).growing
 
 
+@pytest.mark.slow
 def test_a_latency_where_the_linearised_loop_is_unstable_does_not_hold_though_its_run_does(default_case):
     """At 146 ms on the default over 4 s (73 control periods; fact 14's linear margin is 140 ms)
     the sampled loop linearised at rest is unstable (rho > 1): the point does not hold, for that

@@ -35,7 +35,9 @@ def strict_load(path: Path) -> object:
     return json.loads(path.read_text(), parse_constant=refuse)
 
 
-@pytest.mark.parametrize("command", ["simulate", "certify", "verify"])
+@pytest.mark.parametrize(
+    "command", ["simulate", *(pytest.param(c, marks=pytest.mark.slow) for c in ("certify", "verify"))]
+)
 def test_every_output_file_is_strict_json(command, tmp_path):
     """An uncertified design (k_xi <= 1/2): its claims without a number are null, not NaN."""
     out = tmp_path / "out"
@@ -113,8 +115,8 @@ WHY = "n = 5 < 6 joints: J_b pinv(J_b) != I, so Theorems 1-2 do not apply to the
 @pytest.mark.parametrize(("command", "status", "says"), [
     ("pose", 0, f"warning: {WHY}"),
     ("simulate", 0, f"warning: {WHY}"),
-    ("certify", 1, None),
-    ("verify", 1, f"warning: {WHY}"),
+    pytest.param("certify", 1, None, marks=pytest.mark.slow),
+    pytest.param("verify", 1, f"warning: {WHY}", marks=pytest.mark.slow),
     ("synthesize", 2, "error: loop: gain synthesis is for the paper's loop with n >= 6 joints (this is paper, n = 5)"),
     ("margins", 2, f"error: loop: dvfc margins needs the paper's equilibrium and Theorems 1-2; {WHY}"),
     ("report", 2, f"error: loop: dvfc report needs the paper's equilibrium and Theorems 1-2; {WHY}"),

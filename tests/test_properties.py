@@ -27,6 +27,7 @@ weight = st.floats(0.2, 8.0)
 unit_quaternion = st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1)
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(
     st.lists(gain, min_size=6, max_size=6),
