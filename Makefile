@@ -1,10 +1,14 @@
 # make demo: create .venv, install, run the default scenario end to end.
 # make test: same install plus the browser and PDF tools of the report tests, then ruff and every test (on both cores).
-# make check: ruff, mypy and the quick tier (every test not marked slow), for everyday work.
+# make check: ruff, mypy and the quick tier (every test not marked slow: at most about two minutes on two cores), for
+# everyday work.
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 PYTHON ?= python3
+PYTEST := $(BIN)/pytest -q -n 2 --dist worksteal
+# worksteal: each worker runs a contiguous half of the tests (a module's fixtures built once) and takes
+# half of the other's remaining tests when it runs out, so neither core idles behind one long file.
 
 .PHONY: install system-deps demo test check lint typecheck bench mutate clean
 
@@ -42,10 +46,10 @@ typecheck: install
 	$(BIN)/mypy
 
 test: lint typecheck system-deps
-	$(BIN)/pytest -q -n 2 --dist loadfile --durations=25 --nbmake tests notebooks
+	$(PYTEST) --durations=25 --nbmake tests notebooks
 
 check: lint typecheck
-	$(BIN)/pytest -q -n 2 --dist loadfile -m "not slow" tests
+	$(PYTEST) -m "not slow" tests
 
 # make mutate: break the code on purpose (tests/mutation/harness.py) and check every mutation is caught (~10 min).
 mutate: install

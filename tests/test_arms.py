@@ -154,6 +154,7 @@ def test_paper_law_on_two_joints_is_not_certified(tmp_path):
     assert "n = 2 < 6" in point["reason"]
 
 
+@pytest.mark.slow
 def test_paper_law_on_two_joints_fails_its_identities(tmp_path):
     """n = 2: ``J_b pinv(J_b) != I``, so Lemma 2's identity and (43) fail by far more than the
     integration error (residuals above 1e-3, over a thousand times the 1e-6 the identities meet

@@ -72,6 +72,7 @@ def nominal_design(case: Case, nominal: str) -> Case:
     return case.with_scenario(Scenario.model_validate(data))
 
 
+@pytest.mark.slow
 def test_each_shipped_cell_pins_the_envelope_of_its_nominal_design(each_cell):
     """The pinned ``[criterion]`` is the frictionless operating envelope's tracking bound (fact 7) of the
     nominal example's design on the cell, recomputed: the bound the campaign held that design to."""
@@ -82,6 +83,7 @@ def test_each_shipped_cell_pins_the_envelope_of_its_nominal_design(each_cell):
     assert (pinned.position, pinned.angle_deg) == pytest.approx((bound.position, bound.angle_deg), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_each_shipped_design_is_inside_its_windows_and_certified_as_its_comments_state(each_cell):
     """The shipped gains (the synthesis's output) lie inside every gain window with the windows' margins,
     Theorem 2 certifies them and fact 14 with the integral state certifies the loop as implemented locally

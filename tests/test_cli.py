@@ -23,34 +23,11 @@ from dvfc.analysis.output import interrupt_aware, interrupted
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.models.robot import Robot, builtin_urdf
 
-from conftest import scenario_dict
+from helpers import scenario_dict, setter, write
 
 runner = CliRunner()
 EXAMPLES = Path(__file__).parent.parent / "examples"
 DEFAULT_SCENARIO_TEXT = (Path(__file__).parent.parent / "analysis" / "scenarios" / "ur5_circle.toml").read_text()
-
-
-def write(tmp_path: Path, edit=None, name="s.toml") -> Path:
-    def short(data):
-        data["simulation"]["duration"] = 0.2
-        if edit is not None:
-            edit(data)
-
-    data = scenario_dict(short)
-    path = tmp_path / name
-    path.write_text(tomli_w.dumps(data))
-    return path
-
-
-def setter(path: str, value):
-    def edit(data):
-        *parents, key = path.split(".")
-        node = data
-        for p in parents:
-            node = node.setdefault(p, {})
-        node[key] = value
-
-    return edit
 
 
 def remover(path: str):
@@ -513,6 +490,7 @@ def test_help_texts_print_every_bracketed_word():
     assert "[grid]" in " ".join(runner.invoke(full_app, ["certify", "--help"]).stdout.split())
 
 
+@pytest.mark.slow
 def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_path):
     """The written scenario is the user's file, comments and layout kept, with only the name and
     the gains changed (one line each, 3-8 significant figures, no ``19.99999997``); the gamma

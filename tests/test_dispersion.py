@@ -282,6 +282,7 @@ def test_report_campaign_runs_is_a_strict_positive_integer(runs):
     assert Scenario.model_validate(data).report.campaign_runs == 7
 
 
+@pytest.mark.slow
 def test_a_worker_builds_one_simulator_for_every_batch_of_a_case():
     """Each batch reaches a worker as a pickled case; the copies of one case share the simulator
     built for the first (no batch rebuilds it)."""

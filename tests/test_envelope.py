@@ -45,7 +45,7 @@ from dvfc.models.lie import SO3
 from dvfc.models.loop import Weights
 from dvfc.models.robot import BUILTIN_ARMATURE, BUILTIN_CAMERA_FRAME, BUILTIN_URDF, Robot, builtin_urdf
 
-from conftest import build_loop, run, scenario_dict
+from helpers import build_loop, run, scenario_dict
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
 
@@ -267,6 +267,7 @@ CONTRACT = {"rate", "gamma_prime", "theta_bar_deg", "m_hi", "ultimate_V", "bound
             "depth_min", "start", "max_target_speed", "max_torque", "wbar"}  # fmt: skip
 
 
+@pytest.mark.slow
 def test_certify_reports_the_envelope_contract(tmp_path):
     """``dvfc certify --json``: ``points[0].envelope`` carries every key of the contract, with the
     bounds in SI units and degrees where the key says so, and the start covered for the
@@ -428,6 +429,7 @@ def test_a_design_whose_regions_reach_zero_depth_is_not_visible(default_loop):
     assert feature_boxes(design, loop.camera, desired, level).visible is False
 
 
+@pytest.mark.slow
 def test_certify_reports_the_inertia_matrices_of_the_rate():
     """``points[0].envelope.without_integral.inertia`` of the default example (its design without
     ``K_I``: the envelope of the law (42), fact 20.4): ``upper`` is ``diag(D_M)`` at the optimum,

@@ -178,6 +178,7 @@ def assert_check(case, exported, duration: float) -> None:
     assert result.passed
 
 
+@pytest.mark.slow
 def test_check_replays_a_short_sil_run_through_the_compiled_step(case, exported):
     """``--check`` on the default UR5 over 0.1 s (50 samples, the first image among them): every
     torque of the C step within 1e-12 relative of the Python step's, and the loop it closes equal."""

@@ -14,7 +14,7 @@ import pytest
 from dvfc.analysis.case import Case
 from dvfc.analysis.results import envelope_record, statements
 
-from conftest import build_loop, cell_with_default_design, run
+from helpers import build_loop, cell_with_default_design, run
 
 NOMINAL = np.concatenate([[1.0, 1.0, 1.0, 0.1, 0.1, 0.1], [3.0, 3.0, 3.0, 0.56, 0.56, 0.56], [0.05]])
 """``[b; c; eps]`` of ``examples/ur5_cell.toml``'s plant."""

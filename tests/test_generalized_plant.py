@@ -25,7 +25,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.verify import theorem_2
 from dvfc.analysis.windows import gain_windows
 
-from conftest import scenario_dict
+from helpers import scenario_dict
 
 WEIGHTS = {"output": {"xi": 0.5, "e_c": 2.0, "e_e": 1.0}, "disturbance": {"tau_d": 0.5, "translation": 2.0}}
 """A light joint-velocity output and torque channel, a heavy control error and target translation."""
@@ -97,6 +97,7 @@ def test_light_xi_weight_opens_the_gain_window():
     assert light.lower == pytest.approx(np.full(6, 0.125 + 0.25 / 8))
 
 
+@pytest.mark.slow
 def test_certify_json_states_the_weights_of_the_plant(tmp_path):
     """``points[0].weights_of_plant``: the weights the certificate holds for, per channel."""
     path = tmp_path / "weighted.toml"

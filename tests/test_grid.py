@@ -27,7 +27,7 @@ from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, axis_value, ga
 from dvfc.models.lie import SE3
 from dvfc.models.loop import PlantWeights, Weights
 
-from conftest import scenario_dict
+from helpers import scenario_dict
 
 REFERENCE = SE3.from_xyz_rpy([0.0, 0.0, 0.35], [0.0, 0.0, 0.0])
 runner = CliRunner()

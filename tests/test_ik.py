@@ -3,9 +3,6 @@ URDF's position limits, on every built-in arm, with no IPOPT text on the standar
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
-from importlib.metadata import distribution
-from pathlib import Path
 from types import SimpleNamespace
 
 import casadi as cs
@@ -18,7 +15,7 @@ from dvfc.analysis.ik import LIMIT_MARGIN, NoConfigurationError, _bounds, solve_
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build
 from dvfc.models.robot import BUILTIN_CAMERA_FRAME, Robot, builtin_urdf
 
-from conftest import scenario_dict
+from helpers import JACO2_CAMERA, Q_STAR, camera_at, limited_jaco2, scenario_dict
 
 START = {
     "ur5": [0.15, -1.45, 1.45, -1.70, -1.45, 0.20],
@@ -54,32 +51,6 @@ def test_auto_q0_reaches_the_reference_within_the_limits(name, capfd):
     reference = np.asarray(cs.DM(loop.reference.as_matrix()))
     assert np.linalg.norm(relative[:3, 3] - reference[:3, 3]) < 1e-6
     assert np.linalg.norm(relative[:3, :3] - reference[:3, :3]) < 1e-6
-
-
-JACO2_CAMERA = "j2s6s200_end_effector"
-Q_STAR = np.array([3.1, 2.9, 1.2, 3.1, 3.0, 3.1])
-"""A configuration of the limited Jaco2 below within its limits (joints 1, 4, 6 continuous)."""
-
-
-def limited_jaco2(folder: Path) -> Path:
-    """example-robot-data's Kinova Jaco2 (j2s6s200) with joints 2 and 3 limited to 0.15 rad either
-    side of 2.9 and 1.2 rad (and joint 5 to its own [0.52, 5.76])."""
-    urdf = Path(distribution("example-robot-data").locate_file(
-        "cmeel.prefix/share/example-robot-data/robots/kinova_description/robots/kinova.urdf"))  # fmt: skip
-    root = ET.parse(urdf).getroot()
-    for joint in root.findall("joint"):
-        centre = {"j2s6s200_joint_2": 2.9, "j2s6s200_joint_3": 1.2}.get(joint.get("name"))
-        if centre is not None:
-            joint.find("limit").set("lower", repr(centre - 0.15))
-            joint.find("limit").set("upper", repr(centre + 0.15))
-    path = folder / "jaco2.urdf"
-    path.write_text(ET.tostring(root, encoding="unicode"))
-    return path
-
-
-def camera_at(robot: Robot, q: np.ndarray) -> np.ndarray:
-    """``g_wc(q)`` by the arm's forward kinematics."""
-    return np.asarray(cs.Function("g", [robot.q], [robot.camera_pose.as_matrix()])(q))
 
 
 @pytest.mark.parametrize("offset", [0.0, pytest.param(0.03, marks=pytest.mark.slow)])

@@ -25,7 +25,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, ScenarioError, bu
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.models.loop import Gains
 
-from conftest import (
+from helpers import (
     build_loop,
     cell_with_default_design,
     default_from_the_papers_start,
@@ -320,6 +320,7 @@ def default_case() -> Case:
     return case
 
 
+@pytest.mark.slow
 def test_fact_20_6_until_integral_start_the_run_is_the_design_without_k_i(default_case):
     """Fact 20.6: before ``integral_start`` the loop with ``K_I`` and the one without are one ODE from
     one state, so their CVODES runs (rtol = atol = 1e-10) agree to the solver's tolerance up to it
@@ -338,6 +339,7 @@ def test_fact_20_6_until_integral_start_the_run_is_the_design_without_k_i(defaul
     assert gap[after].max() >= 1e-4  # the integral acts after it: the comparison can fail
 
 
+@pytest.mark.slow
 def test_fact_20_6_the_start_is_certified_until_integral_action_engages(default_case):
     """The envelope of a design with ``K_I`` is not certified (fact 20.4), but its start is, up to
     ``integral_start``: the planned start's statement of the same design without ``K_I``, said for

@@ -13,8 +13,7 @@ from typer.testing import CliRunner
 from dvfc.models.robot import Robot, builtin_urdf
 from dvfc.reports.cli import app
 
-from conftest import scenario_dict
-from test_cli import write
+from helpers import scenario_dict, write
 
 runner = CliRunner()
 Q0 = scenario_dict()["robot"]["q0"]

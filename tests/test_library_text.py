@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import warnings
 
-from test_own_arm import five_joints
+import pytest
 
 from dvfc.analysis.case import Case
 from dvfc.analysis.linearize import linearize
@@ -15,9 +15,10 @@ from dvfc.analysis.results import envelope_record
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.verify import SEARCH_STOPPED, adversarial_claim
 
-from conftest import scenario_dict
+from helpers import five_joints, scenario_dict
 
 
+@pytest.mark.slow
 def test_a_search_stopped_by_the_integrator_is_said_plainly_and_silently(capfd):
     """A torque bound of 10 kN m drives the UR5 out of every region within the first piece:
     CVODES fails there; the reason is ours and nothing reaches stdout or stderr."""

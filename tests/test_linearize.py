@@ -12,7 +12,7 @@ from dvfc.analysis.certify import GainPoint, certify, tight_gamma
 from dvfc.analysis.linearize import driven, equilibrium_state, linearize, sharpest_from_rest
 from dvfc.analysis.simulate import Settings, Simulator
 
-from conftest import build_loop
+from helpers import build_loop
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ import pytest
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.models.lie import vee
 
-from conftest import build_loop, run, static_target
+from helpers import build_loop, run, static_target
 
 IDENTITY_TOL = 1e-6
 
@@ -107,6 +107,7 @@ def test_theorem_1_error_state_converges(theorem1_run):
     assert np.linalg.norm(x[-1]) < 1e-3 * np.linalg.norm(x[0])
 
 
+@pytest.mark.slow
 def test_storage_rate_matches_trajectory_derivative():
     """The symbolic ``dV/dt`` (AD of (38) along (36)) equals the derivative of V along the
     integrated run, over the initial transient whose fastest mode (the wrist's joint
@@ -119,6 +120,7 @@ def test_storage_rate_matches_trajectory_derivative():
     assert np.abs(fd - vdot[2:-2]).max() <= 1e-4 * np.abs(vdot).max()
 
 
+@pytest.mark.slow
 def test_identity_with_disturbances():
     """(43)-(44) with w: moving target and torque noise plus a step:
     ``V(T) - V(0) = int (-nu^T K nu + x^T G w)``."""
@@ -138,6 +140,7 @@ def test_identity_with_disturbances():
     assert identity_residuals(traj)["dissipation"] <= IDENTITY_TOL
 
 
+@pytest.mark.slow
 def test_image_mode_converges():
     """With e_e from the image (21) the loop still converges on the default layout
     (static target: |x(T)| below 1e-3 of |x(0)| after 10 s)."""
@@ -190,6 +193,7 @@ def test_mapped_signals_equal_pointwise_evaluation():
                 assert np.array_equal(value, traj[name][k]), name
 
 
+@pytest.mark.slow
 def test_diverging_run_stops_with_a_status(rng):
     """Large open-loop inputs drive the arm away until it reaches a singularity, CVODES gives
     up or a feature point leaves the view: the run ends with a clear status and message,

@@ -30,7 +30,7 @@ from dvfc.analysis.sampled import SampledSimulator
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
 from dvfc.analysis.simulate import Trajectory
 
-from conftest import default_without_integral
+from helpers import default_without_integral
 from loop_reference import linearised_run
 
 XARM7_CELL = Path(__file__).parent.parent / "examples" / "xarm7_cell.toml"
@@ -89,6 +89,7 @@ def test_exact_and_image_e_e_have_the_same_linearisation_at_rest(default):
     assert np.abs(lin.c_image - lin.c).max() < 1e-8 * np.abs(lin.c).max()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("which", "rho", "control"), [("record", 0.936901, (45.0, 44.0)), ("shipped", 0.940603, (40.0, 39.0))]
 )
@@ -130,6 +131,7 @@ def run_at_rest(default, **change) -> Trajectory:
     return SampledSimulator(rest_model(loop), replace(settings, implementation=imp, jit=False, dt=0.02)).run(s)
 
 
+@pytest.mark.slow
 def test_certified_rate_matches_the_decay_of_the_nonlinear_sampled_loop(default, record):
     """From 0.01 rad off ``q_eq`` the nonlinear sampled loop with the target at rest decays at
     the certified local rate: ``|x|`` over [5, 10] s at 1.34 1/s against 1.30. The measured rate
@@ -179,6 +181,7 @@ def redundant():
     return loop, s0, settings, multirate_loop(loop, s0[: loop.robot.n], settings.implementation)
 
 
+@pytest.mark.slow
 def test_on_a_seven_joint_arm_pi_fixes_the_self_motion_and_rho_is_that_across_it(redundant):
     """On the xArm 7 the tangent of the equilibria's manifold, ``T = [null(J_b(q_eq)); 0]`` (one
     column), is fixed by the monodromy (``||Pi T - T|| < 1e-12 ||Pi||``), so ``Pi`` has the eigenvalue
@@ -200,6 +203,7 @@ def test_on_a_seven_joint_arm_pi_fixes_the_self_motion_and_rho_is_that_across_it
     assert record["rho"] == pytest.approx(np.sort(np.abs(full))[-2], abs=1e-9) and record["rho"] < 0.99
 
 
+@pytest.mark.slow
 def test_a_tangent_the_monodromy_does_not_fix_is_not_certified(redundant, monkeypatch):
     """Across a direction that is not the self-motion (joint 1 alone in place of ``null(J_b)``) the
     compression ``Q^T Pi Q`` has ``rho < 1`` and a Lyapunov check that passes, but it is no statement about
@@ -248,6 +252,7 @@ def test_lyapunov_check_certifies_only_a_decreasing_positive_definite_form():
     assert not check.certified and check.p_min < 0 and abs(check.margin - 1) < 1e-9
 
 
+@pytest.mark.slow
 def test_certify_reports_the_loop_as_implemented(tmp_path):
     """``dvfc certify --json -`` on the default: ``points[0].implemented`` with ``rho``, ``rate``,
     ``period``, ``lyapunov_margin``, ``scope`` and the three margins, each with value, unit,

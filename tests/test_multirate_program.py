@@ -16,7 +16,7 @@ from dvfc.analysis.controller import Layout, program_function
 from dvfc.analysis.multirate import _tangent, held_linearization, multirate_loop, program_monodromy, rest_model
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 
-from conftest import default_without_integral
+from helpers import default_without_integral
 
 
 def with_integral(case):
@@ -26,7 +26,6 @@ def with_integral(case):
     return case.with_scenario(Scenario.model_validate(data))
 
 
-@pytest.mark.slow
 def test_program_monodromy_squared_equals_a_sample_by_sample_simulation():
     """``Pi^2`` of the default UR5 with ``K_I = 10 K_xi`` against two common periods (50 samples)
     simulated in the program's own state (its ring by slot, its counter running, the captures of

@@ -17,12 +17,11 @@ from dvfc.analysis.calibration import read_calibration
 from dvfc.analysis.cli import app
 from dvfc.analysis.margins import TrackingBound, judge
 from dvfc.analysis.sampled import as_implemented
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build
+from dvfc.analysis.scenario import Scenario, build
 from dvfc.analysis.verify import implemented
 from dvfc.models.robot import Robot, RobotModelError, builtin_urdf
 
-from conftest import scenario_dict
-from test_cli import setter, write
+from helpers import Q0, as_a_ur5_runs_it, five_joints, on_urdf, setter, write
 
 runner = CliRunner()
 
@@ -36,7 +35,9 @@ def strict_load(path: Path) -> object:
     return json.loads(path.read_text(), parse_constant=refuse)
 
 
-@pytest.mark.parametrize("command", ["simulate", "certify", "verify"])
+@pytest.mark.parametrize(
+    "command", ["simulate", *(pytest.param(c, marks=pytest.mark.slow) for c in ("certify", "verify"))]
+)
 def test_every_output_file_is_strict_json(command, tmp_path):
     """An uncertified design (k_xi <= 1/2): its claims without a number are null, not NaN."""
     out = tmp_path / "out"
@@ -58,25 +59,6 @@ def ur5_with_limits(tmp_path: Path, joint: str, **limit: float) -> Path:
     path = tmp_path / f"ur5_{joint}.urdf"
     path.write_text(ET.tostring(root, encoding="unicode"))
     return path
-
-
-def on_urdf(urdf: Path):
-    """An edit running the scenario on ``urdf`` (the UR5's camera frame)."""
-
-    def edit(data: dict) -> None:
-        data["robot"].pop("model")
-        data["robot"].update(urdf=str(urdf), camera_frame="tool0")
-
-    return edit
-
-
-def as_a_ur5_runs_it(data: dict) -> None:
-    """An edit giving the idealised scenario the default example's gains and implementation."""
-    default = tomllib.loads(DEFAULT_SCENARIO.read_text())
-    data["gains"], data["implementation"] = default["gains"], default["implementation"]
-
-
-Q0 = scenario_dict()["robot"]["q0"]
 
 
 def test_q0_outside_its_position_limits_is_one_line_exit_2(tmp_path):
@@ -127,28 +109,14 @@ def test_a_margins_run_over_a_velocity_or_position_limit_does_not_hold(limit, re
     assert not holds and detail.startswith(reason), detail
 
 
-FIVE_JOINTS = Path(__file__).parent / "data" / "light_wrist5.urdf"
-
-
-def five_joints(data: dict) -> None:
-    """An edit running the scenario on a 5-joint arm, the target 0.35 m ahead of its camera."""
-    on_urdf(FIVE_JOINTS)(data)
-    as_a_ur5_runs_it(data)
-    data["robot"]["q0"] = Q0[:5]
-    data["gains"] = {"k_xi": 2.0, "k_c": 3.0, "k_e": 10.0}
-    for key in ("xyz", "rpy"):
-        data["target"].pop(key)
-    data["target"]["relative_to_camera"] = {"xyz": [0.0, 0.0, 0.35], "rpy": [0.0, 0.0, 0.0]}
-
-
 WHY = "n = 5 < 6 joints: J_b pinv(J_b) != I, so Theorems 1-2 do not apply to the paper's loop on this arm"
 
 
 @pytest.mark.parametrize(("command", "status", "says"), [
     ("pose", 0, f"warning: {WHY}"),
     ("simulate", 0, f"warning: {WHY}"),
-    ("certify", 1, None),
-    ("verify", 1, f"warning: {WHY}"),
+    pytest.param("certify", 1, None, marks=pytest.mark.slow),
+    pytest.param("verify", 1, f"warning: {WHY}", marks=pytest.mark.slow),
     ("synthesize", 2, "error: loop: gain synthesis is for the paper's loop with n >= 6 joints (this is paper, n = 5)"),
     ("margins", 2, f"error: loop: dvfc margins needs the paper's equilibrium and Theorems 1-2; {WHY}"),
     ("report", 2, f"error: loop: dvfc report needs the paper's equilibrium and Theorems 1-2; {WHY}"),

@@ -16,7 +16,7 @@ from dvfc.analysis.simulate import Simulator, dynamics_function
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Gains, Weights
 
-from conftest import build_loop
+from helpers import build_loop
 
 
 def other_design(loop):

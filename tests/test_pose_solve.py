@@ -12,7 +12,6 @@ import casadi as cs
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_ik import JACO2_CAMERA, Q_STAR, camera_at, limited_jaco2
 from typer.testing import CliRunner
 
 from dvfc.analysis.cli import app
@@ -20,7 +19,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.models.lie import SE3
 from dvfc.models.robot import Robot
 
-from test_cli import write
+from helpers import JACO2_CAMERA, Q_STAR, camera_at, limited_jaco2, write
 
 runner = CliRunner()
 PANDA = Path(__file__).parents[1] / "examples" / "panda_circle.toml"

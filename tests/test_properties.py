@@ -19,7 +19,7 @@ from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
 import reference as ref
-from test_cli import setter, write
+from helpers import setter, write
 
 REFERENCE = SE3.from_xyz_rpy([0.01, 0.02, 0.35], [0.2, -0.1, 0.3])
 gain = st.floats(0.6, 50.0)
@@ -27,6 +27,7 @@ weight = st.floats(0.2, 8.0)
 unit_quaternion = st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1)
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(
     st.lists(gain, min_size=6, max_size=6),

@@ -176,6 +176,7 @@ def test_weighted_certificate_is_sound_complete_and_minimal(drawn):
     check_reference_agrees(design, cert.gamma, cert.certified)
 
 
+@pytest.mark.slow
 @budget(10)
 @given(weighted_designs())
 def test_weighted_tight_certificate_agrees_with_the_reference(drawn):

@@ -26,10 +26,9 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO
 from dvfc.reports.cli import app
 from dvfc.reports.stages import CACHE
 
-from conftest import default_dict_without_integral
+from helpers import default_dict_without_integral
 
-pytestmark = pytest.mark.slow  # every test here reads the whole review of the default scenario (about a minute)
-
+# The tests marked slow read the whole review of the default scenario (about a minute) or make reports of their own.
 EXAMPLES = Path(__file__).parent.parent / "examples"
 CHROMIUM = shutil.which("chromium")
 POPPLER = shutil.which("pdftoppm")
@@ -64,11 +63,13 @@ def certified_gamma(html: str) -> str:
     return match.group(1)
 
 
+@pytest.mark.slow
 def test_paths_printed(report):
     html, pdf, stdout = report
     assert str(html) in stdout and str(pdf) in stdout
 
 
+@pytest.mark.slow
 def test_gamma_is_the_certificates(report, tmp_path):
     """The gamma in the verdict is the one ``dvfc certify`` certifies for the same scenario."""
     runner = CliRunner()
@@ -78,6 +79,7 @@ def test_gamma_is_the_certificates(report, tmp_path):
     assert certified_gamma(report[0].read_text()) == f"{gamma:.6g}"
 
 
+@pytest.mark.slow
 def test_html_self_contained(report):
     """Nothing is fetched: references are in-page anchors or data URIs; no link, no script;
     every figure is inline SVG."""
@@ -88,6 +90,7 @@ def test_html_self_contained(report):
         assert re.search(rf'<figure id="{figure}"><svg', html), figure
 
 
+@pytest.mark.slow
 def test_every_claim_listed(report):
     """The checklist has a row per claim of ``verify`` (16 of the paper, the singularity
     check, the run from rest reaching the lower bound, 3 measurements of the image loop,
@@ -99,6 +102,7 @@ def test_every_claim_listed(report):
     assert len(rows) == 35 and rows.count("MEASURED") == 6 and rows.count("PASS") == 29
 
 
+@pytest.mark.slow
 def test_banner_carries_the_failed_checks(report, tmp_path):
     """The verdict on page 1 is the certificate AND the checks: with one claim failing (its
     stored verification edited), the banner is not green, names the claim with its reason,
@@ -122,6 +126,7 @@ def test_banner_carries_the_failed_checks(report, tmp_path):
     assert f"FAIL {claim['paper']}: {claim['claim']}" in result.stdout
 
 
+@pytest.mark.slow
 def test_lemma_2_caption_holds_for_the_run_shown(report):
     """With a moving target and torque noise (w != 0) int u^T nu falls below -V(0) (so (37),
     stated for w = 0, is not what the run shows); the figure's caption states what holds:
@@ -136,6 +141,7 @@ def test_lemma_2_caption_holds_for_the_run_shown(report):
     assert "stated for w = 0" in caption
 
 
+@pytest.mark.slow
 def test_html_renders_in_chromium(report, tmp_path):
     """Headless Chromium loads the page with no console error and no failed request, every
     figure draws at a real size with content, and the screenshot is not blank."""
@@ -173,6 +179,7 @@ def test_html_renders_in_chromium(report, tmp_path):
     assert pixels.std() > 0.05 and (pixels < 0.5).mean() > 0.005
 
 
+@pytest.mark.slow
 def test_pdf_renders(report, tmp_path):
     """Every page of the PDF rasterises, not blank; the page count is plausible; the text
     holds the certified gamma printed in the HTML."""
@@ -201,6 +208,7 @@ def test_bad_scenario_writes_nothing(tmp_path):
     assert not (tmp_path / "out" / "report.html").exists() and not (tmp_path / "out" / "report.pdf").exists()
 
 
+@pytest.mark.slow
 def test_grid_scenario_maps_its_first_two_axes(tmp_path):
     """With a [grid], the map is gamma over its first two axes (the others at the design),
     with the certified region outlined: its edge is drawn when some cells are not certified."""
@@ -215,6 +223,7 @@ def test_grid_scenario_maps_its_first_two_axes(tmp_path):
     assert "edge of the certified region" in figure
 
 
+@pytest.mark.slow
 def test_interrupted_report_resumes(tmp_path):
     """SIGINT while the margins are being measured (after the simulation, certificate and
     verification stages): exit 130 with one line naming --resume; the resumed report redoes
@@ -248,6 +257,7 @@ def test_interrupted_report_resumes(tmp_path):
         assert after[name][: len(lines)] == lines and len(values) == len(set(values)), name
 
 
+@pytest.mark.slow
 def test_as_implemented_section_states_the_limits(report):
     """Section "As implemented": the sampled run of the default example (500 Hz, 60 Hz camera,
     20 ms, RK4 between samples), labelled as a measurement, per joint its peak torque and speed against the URDF's
@@ -266,6 +276,7 @@ def test_as_implemented_section_states_the_limits(report):
     assert re.search(r'<figure id="fig-implemented"><svg', section)
 
 
+@pytest.mark.slow
 def test_as_implemented_section_embeds_the_measured_margins(report):
     """Section "As implemented" shows the margins measured for the report (its cached stage):
     a row per parameter with the scenario's value, holds-at and breaks-at values and unit as
@@ -291,6 +302,7 @@ def test_as_implemented_section_embeds_the_measured_margins(report):
     assert "not measured" in linear
 
 
+@pytest.mark.slow
 def test_page_one_gives_every_statement_its_own_status(report):
     """Page 1 lists every statement with the loop it is about and its own status (never one word
     for all): the L2 gain, the envelope's rate, visibility, the target's own speed, the start,
@@ -311,6 +323,7 @@ def test_page_one_gives_every_statement_its_own_status(report):
     assert ('class="verdict pass"' in html) == green and green
 
 
+@pytest.mark.slow
 def test_banner_gives_the_best_certified_bound_and_its_certificate(report, tmp_path):
     """The banner's bound is the smallest certified one, with the certificate that gives it: the
     scaled storage's ``gamma_tight`` when below the paper's ``gamma`` (fact 4)."""
@@ -323,6 +336,7 @@ def test_banner_gives_the_best_certified_bound_and_its_certificate(report, tmp_p
     assert ("scaled storage" in best.group(2)) == (point["gamma_tight"] < point["gamma"])
 
 
+@pytest.mark.slow
 def test_as_implemented_section_says_which_statement_covers_which_part(report):
     """Section "As implemented" names the statement of each part: facts 7 and 10 for the ideal
     loop, fact 14 (local) for the sampled loop, measured margins and runs for the rest."""
@@ -334,6 +348,7 @@ def test_as_implemented_section_says_which_statement_covers_which_part(report):
     assert "measured margins and runs of this section, which are measurements, not certificates" in coverage
 
 
+@pytest.mark.slow
 def test_dispersions_section_states_the_campaigns_statement(tmp_path):
     """A scenario with a [dispersion] (the cell example over 2 s, 6 runs): the report's section
     "Dispersions" has its four figures, and its statement, the same on page 1's row "dispersion
@@ -359,6 +374,7 @@ def test_dispersions_section_states_the_campaigns_statement(tmp_path):
     assert row and row.group(1) == statement
 
 
+@pytest.mark.slow
 def test_dispersions_section_sets_the_design_before_the_synthesis_beside_this_one(tmp_path):
     """The cell example (2 s, 6 runs) names the design it was synthesised from ([synthesized_from]): the
     section "Dispersions" has both columns, each equal to ``dvfc campaign`` on that design's scenario with
@@ -394,6 +410,7 @@ def test_dispersions_section_sets_the_design_before_the_synthesis_beside_this_on
     assert re.search(r'<figure id="fig-campaign-before"><svg', html)
 
 
+@pytest.mark.slow
 def test_scenario_table_describes_the_loop_that_was_run(report):
     """The scenario table's simulation row of the default example names the loop as implemented
     (500 Hz, 60 Hz camera, 20 ms, e_e from the image, RK4) and the paper's continuous loop of
@@ -450,6 +467,7 @@ def cell(html: str, name: str) -> str:
     return " ".join(unescape(re.sub(r"<[^>]+>", "", found.group(1))).split())
 
 
+@pytest.mark.slow
 def test_a_solved_q0_is_shown_as_the_configuration_run_and_said_to_be_solved(solved):
     """``q0 = "auto"``: the scenario table gives the configuration inverse kinematics solved for
     (the one the run starts from) and says it was solved, in the HTML and the PDF."""
@@ -461,6 +479,7 @@ def test_a_solved_q0_is_shown_as_the_configuration_run_and_said_to_be_solved(sol
     assert 'solved (robot.q0 = "auto")' in " ".join(text.split())
 
 
+@pytest.mark.slow
 def test_the_camera_row_states_the_calibrated_intrinsics(solved):
     """The camera row gives fx, fy, the principal point, the distortion coefficients, the image
     size and the calibration file they came from (never a focal length of "-")."""
@@ -471,6 +490,7 @@ def test_the_camera_row_states_the_calibrated_intrinsics(solved):
     assert "focal length" not in row
 
 
+@pytest.mark.slow
 def test_what_acts_on_the_plant_is_listed_among_the_disturbances(solved):
     """With ``[plant]`` friction and a payload the disturbances row names them as what acts on the
     plant (with their values), besides the target's motion, never "none"."""
@@ -481,11 +501,13 @@ def test_what_acts_on_the_plant_is_listed_among_the_disturbances(solved):
     assert "none" not in row
 
 
+@pytest.mark.slow
 def test_the_observer_row_says_where_its_start_came_from(solved):
     """With ``[start] observer = "image"`` the [observer] error is unused: the row says so."""
     assert "gbar(0) from the first image" in cell(solved[0], "observer")
 
 
+@pytest.mark.slow
 def test_the_controller_section_states_the_exports_digest_replay_step_times_and_coverage(report, tmp_path):
     """Section 7 of the report: the program's SHA-256 equal to ``dvfc export``'s for the same
     scenario, the replay over its 10 s (5000 samples at 500 Hz) identical to the bit, the compiled

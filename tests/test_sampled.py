@@ -18,7 +18,7 @@ from dvfc.analysis.simulate import Simulator, identity_residuals
 from dvfc.analysis.verify import IMPLEMENTED_TOL, implemented, implemented_storage
 from dvfc.models.robot import Payload, Robot
 
-from conftest import build_loop, default_from_the_papers_start
+from helpers import build_loop, default_from_the_papers_start
 from loop_reference import held_period
 
 HORIZON = 0.1
@@ -35,6 +35,7 @@ def sampled_run(loop, s0, settings, **implementation):
     return as_implemented(loop, replace(settings, implementation=imp)).run(s0)
 
 
+@pytest.mark.slow
 def test_sampled_run_converges_to_continuous_at_first_order(default):
     """A torque held over ``h`` departs from (35) by ``O(h)``, so the state's error after a
     fixed time falls like ``h``: halving the period halves the error. Tolerance on the

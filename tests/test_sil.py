@@ -11,7 +11,7 @@ from dvfc.analysis.controller import Status
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.sil import compare_with_sampled, software_in_the_loop
 
-from conftest import CELL
+from helpers import CELL
 
 
 def by_the_virtual_machine(path):
@@ -37,7 +37,6 @@ def test_software_in_the_loop_is_the_sampled_simulator_bit_for_bit(path):
     assert comparison.max_torque_difference == 0.0
 
 
-@pytest.mark.slow
 def test_sil_hands_the_program_the_images_of_the_schedule():
     """Over 0.1 s at 500 Hz, 60 Hz, 20 ms latency: images captured at samples 0, 9, 17 arrive at 10,
     19, 27 (the first control sample at or after each camera tick, plus 10 periods), each once."""

@@ -15,7 +15,7 @@ from dvfc.analysis.results import verification_result
 from dvfc.analysis.scenario import ScenarioError, build, load
 from dvfc.analysis.simulate import Simulator, conditioning_of
 
-from conftest import build_loop
+from helpers import build_loop
 
 EXAMPLE = Path(__file__).parent.parent / "examples" / "planar2dd_reduced.toml"
 

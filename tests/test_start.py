@@ -20,7 +20,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.start import run_regions
 from dvfc.analysis.verify import envelope_claims
 
-from conftest import build_loop, default_dict_without_integral, default_without_integral, run, scenario_dict
+from helpers import build_loop, default_dict_without_integral, default_without_integral, run, scenario_dict
 
 
 def planned(duration: float = 2.0, observer: str = "scenario"):
@@ -177,6 +177,7 @@ def test_the_arm_is_held_until_the_first_image_arrives():
     assert qd[held].max() < 1e-9 and qd[traj.t > 0.05].max() > 1e-6
 
 
+@pytest.mark.slow
 def test_a_start_the_planned_reference_does_not_certify_is_inside_in_no_output(tmp_path):
     """One decision about the start (docs/math.md, fact 16b): with gains unequal across the axes of
     ``K_c`` (``(3, 3, 3, 3, 3, 2.9)``) on the default example, the planned reference's rate along the

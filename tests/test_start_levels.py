@@ -21,7 +21,7 @@ from dvfc.analysis.envelope import THETA_GRID, design_of, disturbance_bounds, en
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 
 import reference as ref
-from conftest import scenario_dict
+from helpers import scenario_dict
 
 
 def from_rest(start: dict):

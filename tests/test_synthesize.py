@@ -49,7 +49,7 @@ from dvfc.models.lie import SE3
 from dvfc.models.loop import Weights
 
 import reference as ref
-from conftest import scenario_dict
+from helpers import scenario_dict
 
 REFERENCE = SE3.from_xyz_rpy([0.02, -0.01, 0.35], [0.1, -0.2, 0.3])
 WEIGHTS = Weights(4.0, 1.0, 4.0, 1.0)
@@ -337,6 +337,7 @@ def test_design_respecting_limits_runs_within_them_where_the_optimum_does_not(li
     assert _worst(json.loads(result.stdout)["limits"]) <= 1
 
 
+@pytest.mark.slow
 def test_design_respecting_limits_certifies_no_better_gamma_than_the_optimum(limited):
     """The constrained design's gamma is at least the unconstrained one's (its box lies inside the
     bounds; both are rounded to within 0.1% of their box's optimum, so allowed 1e-3), and it is
@@ -348,6 +349,7 @@ def test_design_respecting_limits_certifies_no_better_gamma_than_the_optimum(lim
     assert again.exit_code == 0 and json.loads(again.stdout)["points"][0]["gamma"] == bound["point"]["gamma"]
 
 
+@pytest.mark.slow
 def test_the_next_bracket_point_above_the_chosen_design_exceeds_a_limit(limited, tmp_path):
     """Maximality to the bisection's resolution: the design of the box one step (1/64 of the
     bracket) above the chosen alpha, synthesised and written again here and simulated by

@@ -19,7 +19,7 @@ from dvfc.analysis.results import lower_bound_record
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.analysis.verify import ATTAINED, from_rest_claims, theorem_2
 
-from conftest import build_loop
+from helpers import build_loop
 
 
 @pytest.fixture(scope="module")
@@ -70,6 +70,7 @@ def test_verify_claims_hold_at_gamma_and_fail_below_the_measured_gain(worst):
     assert [c.passed for c in wrong] == [False, False, False, True]
 
 
+@pytest.mark.slow
 def test_verify_runs_theorem_2_from_rest(worst):
     """``verify``'s own run (the linearisation's worst sinusoid from rest, 20 s or longer until
     its gain converges) attains 95% of the H-infinity norm and its claims fail for a gamma 5%

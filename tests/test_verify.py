@@ -25,7 +25,7 @@ from dvfc.analysis.verify import (
 )
 from dvfc.models.loop import ClosedLoop
 
-from conftest import build_loop
+from helpers import build_loop
 
 
 def claims_of(loop, s0, settings):
@@ -74,6 +74,7 @@ def light_wrist(data):
     data["robot"]["urdf"] = str(LIGHT_WRIST)
 
 
+@pytest.mark.slow
 def test_lyapunov_derivative_resolves_a_light_wrist():
     """(39)-(40) on an arm whose velocity error decays in ~25 us (M^-1 K_xi with k_xi = 20):
     the difference step follows the loop's fastest time scale, so the symbolic dV/dt is

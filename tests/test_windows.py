@@ -160,6 +160,7 @@ def test_synthesis_defaults_to_the_windows_and_says_when_one_is_empty(tmp_path):
     assert result.exit_code == 2 and "synthesize.k_xi: 5 intervals for 6 joints" in result.stderr
 
 
+@pytest.mark.slow
 def test_a_light_wrist_weight_opens_the_window_and_synthesis_writes_a_certified_design(tmp_path):
     """Fact 17 on the light wrist at 500 Hz: with wrist 3's output and torque weights 0.5
     (``[performance]``), its certificate bound drops from 1/2 to ``0.5^2/2 = 0.125``, below its
