@@ -48,9 +48,10 @@ class Settings:
         within milliseconds, so the default (about a tenth of the built-in arms' values in
         their working poses) catches it at the output step before the integrator collapses.
     chunk
-        Output steps of the first CVODES call; later calls are sized to take about
-        :data:`CHUNK_SECONDS` of wall time each (CVODES restarts at every call, so
-        fewer calls are faster; the calls are where progress is shown and checked).
+        Output steps of the first CVODES call; each later call is :data:`CHUNK_GROWTH` times
+        the one before (CVODES restarts at every call, so fewer calls are faster; the calls are
+        where progress is shown and checked). The calls depend on the step count only, never on
+        the machine's speed, so that a run is the same run wherever it is made.
     implementation, plant
         The loop as it runs on the robot (:func:`dvfc.analysis.sampled.as_implemented`): the
         digital controller (None: the paper's continuous loop), the arm as it really is
@@ -91,8 +92,8 @@ class Settings:
         return self.implementation
 
 
-CHUNK_SECONDS = 0.5
-"""Target wall time of one integration call after the first."""
+CHUNK_GROWTH = 4
+"""Each CVODES call of a continuous run this many times the output steps of the one before."""
 
 CONDITION_MAX = 1e6
 """In image mode a run stops when the condition number of the image Jacobian the law
@@ -347,7 +348,6 @@ class Simulator:
         while k < steps:
             count = min(size, steps - k)
             integrator = self.integrator(count)
-            chunk_start = time.perf_counter()
             try:
                 result = integrator(x0=states[:, k], p=np.concatenate([t[k : k + 1], *self.design]))
             except RuntimeError as exc:
@@ -364,8 +364,7 @@ class Simulator:
                             f"reached (the run diverges or is too stiff); at t = {t[k]:.4g} s sigma_min({arm}) = "
                             f"{sigma[0]:.3g}, cond({image}) = {cond[0]:.3g}")  # fmt: skip
                 break
-            per_step = (time.perf_counter() - chunk_start) / count
-            size = 1 if refining else max(st.chunk, int(CHUNK_SECONDS / max(per_step, 1e-9)) // st.chunk * st.chunk)
+            size = 1 if refining else CHUNK_GROWTH * size
             n_steps += int(integrator.stats().get("nsteps", 0))
             xf = np.asarray(result["xf"])[:, :count]
             qf = np.asarray(result["qf"])[:, :count]
