@@ -15,7 +15,7 @@ import pytest
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify, tight_gamma
 from dvfc.analysis.linearize import FROM_REST_HORIZON, linearize, peak_sinusoid, run_from_rest, sharpest_from_rest
-from dvfc.analysis.results import lower_bound_record
+from dvfc.analysis.results import CertificatePoint, lower_bound_record
 from dvfc.analysis.simulate import identity_residuals
 from dvfc.analysis.verify import ATTAINED, from_rest_claims, theorem_2
 
@@ -114,7 +114,10 @@ def test_certified_lower_bound_is_the_gain_verify_checks(worst):
     short = replace(worst["settings"], duration=1.0, jit=False)
     claims = theorem_2(loop, s0, short, worst["paper"].gamma)
     gain = next(c for c in claims if c.name == "measured gain sqrt(int |x|^2 / int |w|^2) <= gamma")
-    record = lower_bound_record(loop, s0, {"gamma": worst["paper"].gamma})
+    point = CertificatePoint(gains={}, weights={}, weights_of_plant={}, certified=True, gamma=worst["paper"].gamma,
+                             method="-", margin=None, reason=None, worst_rotation=None, gamma_worst_found=None,
+                             gap=None)  # fmt: skip
+    record = lower_bound_record(loop, s0, point)
     assert record["gamma_lower_nonlinear"] == pytest.approx(gain.value, rel=1e-6)
     assert record["worst_disturbance"]["converged"]
 
