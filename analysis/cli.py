@@ -156,8 +156,8 @@ def warn_windows(case: Case) -> None:
 def require_six(case: Case, command: str) -> None:
     """Refuse ``command`` (status 2, before any work) when it rests on Theorems 1-2 and they do
     not apply (:attr:`Case.theorems_do_not_apply`)."""
-    if (why := case.theorems_do_not_apply) is not None:
-        raise fail(f"loop: dvfc {command} needs the paper's equilibrium and Theorems 1-2; {why}")
+    with library_errors({}):
+        jobs.require_theorems(case, command)
 
 
 def hint(command: str) -> None:

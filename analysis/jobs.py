@@ -154,6 +154,13 @@ def certify_grid(case: Case, directory: Path, provenance: dict, *, workers: int 
     return grid_result(spec, grid, state, files, provenance, time.perf_counter() - start)
 
 
+def require_theorems(case: Case, command: str) -> None:
+    """Refuse ``command`` (a ``ScenarioError`` naming the loop) when it rests on Theorems 1-2 and they do
+    not apply (:attr:`Case.theorems_do_not_apply`)."""
+    if (why := case.theorems_do_not_apply) is not None:
+        raise ScenarioError(f"loop: dvfc {command} needs the paper's equilibrium and Theorems 1-2; {why}")
+
+
 def campaign_bound(case: Case, purpose: str) -> TrackingBound:
     """The criterion of ``case``'s campaign, for the ``purpose`` that needs one (a ``ScenarioError``
     unless it can run: a ``[dispersion]``, an ``[implementation]``, the paper's loop)."""
@@ -243,8 +250,7 @@ def margins(case: Case, directory: Path, provenance: dict, *, workers: int = 1, 
     pass (its log in ``directory`` too). The scenario's own run failing is a result without margins."""
     if case.settings.implementation is None:
         raise ScenarioError("implementation: margins are of the loop as implemented; add an [implementation] section")
-    if (why := case.theorems_do_not_apply) is not None:
-        raise ScenarioError(f"loop: dvfc margins needs the paper's equilibrium and Theorems 1-2; {why}")
+    require_theorems(case, "margins")
     if what:
         campaign_bound(case, "what would pass")
     log = directory / "what_would_pass.jsonl"
