@@ -42,7 +42,7 @@ from dvfc.analysis.campaign import CampaignSpec, campaign_batch, clopper_pearson
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify
 from dvfc.analysis.margins import TrackingBound, tracking_bound
-from dvfc.analysis.multirate import lyapunov_check, multirate_loop, spectral_radius
+from dvfc.analysis.multirate import DeclaredPlant, lyapunov_check, multirate_loop, spectral_radius
 from dvfc.analysis.synthesize import scenario_text
 from dvfc.analysis.tasks import run_tasks
 from dvfc.analysis.windows import case_windows
@@ -190,7 +190,8 @@ def candidate_case(case: Case, design: Design, *, horizon: float | None = None) 
 
 
 def checks(case: Case, design: Design) -> Checks:
-    """The windows, Theorem 2 and fact 14 (with the integral state) of ``design`` on ``case``."""
+    """The windows, Theorem 2 and fact 14 (with the integral state, for the case's plant as declared) of
+    ``design`` on ``case``."""
     windows = case_windows(replace_gains(case, design))
     outside = tuple(windows.breaks()) if windows is not None else ()
     point = GainPoint(design.k_xi, design.k_c, design.k_e, case.point.weights, case.point.plant)
@@ -202,7 +203,7 @@ def checks(case: Case, design: Design) -> Checks:
     loop = replace(case.loop, gains=Gains(design.k_xi, design.k_c, design.k_e, design.k_i_factor * design.k_xi))
     imp = case.settings.sampled
     try:
-        system = multirate_loop(loop, case.s0[: loop.robot.n], imp)
+        system = multirate_loop(loop, case.s0[: loop.robot.n], imp, DeclaredPlant.of(case.settings))
         with np.errstate(over="ignore", invalid="ignore"):
             pi = system.monodromy(imp)[0]
     except ValueError:

@@ -36,6 +36,7 @@ import numpy as np
 from dvfc.analysis.case import Case
 from dvfc.analysis.multirate import (
     RHO_MARGIN,
+    DeclaredPlant,
     MultirateLoop,
     NotApplicableError,
     implemented_record,
@@ -390,7 +391,8 @@ class LinearCheck:
         """The check of a case from its fact-14 record (:func:`implemented_record`)."""
         if record["margins"] is None:
             return LinearCheck(None, None, record["reason"])
-        system = multirate_loop(case.loop, case.s0[: case.loop.robot.n], case.settings.sampled)
+        plant = DeclaredPlant.of(case.settings)
+        system = multirate_loop(case.loop, case.s0[: case.loop.robot.n], case.settings.sampled, plant)
         return LinearCheck(system, record["margins"], None)
 
     def rho(self, name: str, value: float) -> float | None:

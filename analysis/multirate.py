@@ -54,9 +54,11 @@ import scipy.linalg
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.linearize import _quaternion_product, equilibrium_configuration
 from dvfc.analysis.simulate import Settings
+from dvfc.models.camera import Camera
+from dvfc.models.errors import PlantErrors, controller_features, true_features
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import PlanarLoop
-from dvfc.models.robot import spans_the_task
+from dvfc.models.robot import Robot, spans_the_task
 from dvfc.models.target import TargetMotion
 
 LYAPUNOV_MARGIN = 0.5
@@ -115,6 +117,9 @@ class HeldLinearization:
     self_motion
         An orthonormal basis (``n x (n - 6)``) of ``null(J_b(q_eq))``: the tangent of the
         equilibria's manifold in ``dq`` (no columns on a 6-joint arm).
+    state, e_eq
+        The state ``[q; qd; pbar; quat; z_I]`` and the held ``e`` at the equilibrium (None: the model's,
+        ``gbar = g_d``, ``e = 0``).
     """
 
     a: np.ndarray
@@ -132,6 +137,8 @@ class HeldLinearization:
     xi: np.ndarray | None = None
     xi_e: np.ndarray | None = None
     self_motion: np.ndarray = field(default_factory=lambda: np.zeros((6, 0)))
+    state: np.ndarray | None = None
+    e_eq: np.ndarray | None = None
 
     def flow(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(Phi, G_tau, G_e, G_o)``: the held flow over ``h``, the first block row of
@@ -163,21 +170,87 @@ class HeldLinearization:
         a_z, a_e = self.period_map(h)
         return np.linalg.solve(np.eye(len(a_z)) - a_z - a_e @ c, self.flow(h)[1] @ tau_d)
 
-    def with_friction(self, slope: np.ndarray) -> HeldLinearization:
+    def with_friction(self, slope: np.ndarray | None) -> HeldLinearization:
         """The same loop with the plant's joint friction linearised at ``qd = 0``: ``slope = b + c/eps``
         per joint, ``A -> A - B_tau diag(slope) S_qd`` (``tanh`` is odd and smooth: the equilibrium
-        does not move, and this is its exact linearisation; fact 21)."""
+        does not move, and this is its exact linearisation; fact 21). None: no friction, ``self``."""
+        if slope is None:
+            return self
         n = self.b_tau.shape[1]
         a = self.a.copy()
         a[:, n : 2 * n] -= self.b_tau @ np.diag(slope)
         return replace(self, a=a)
 
 
-def rest_model(loop: ClosedLoop) -> ClosedLoop:
+class NotApplicableError(ValueError):
+    """The statement of fact 14 does not apply to this loop (the message says why)."""
+
+
+@dataclass(frozen=True)
+class DeclaredPlant:
+    """The plant a scenario declares where it differs from the controller's model (docs/math.md,
+    fact 14 for the plant as it is): its masses (``robot``: a payload, a mass scale; None: the
+    model's) and what :class:`~dvfc.models.errors.PlantErrors` holds (camera mount, intrinsics,
+    distortion, feature points, joint friction; None: none). The controller keeps its model."""
+
+    robot: Robot | None = None
+    errors: PlantErrors | None = None
+
+    @staticmethod
+    def of(settings: Settings) -> DeclaredPlant:
+        """The plant of a scenario's settings (``plant`` and ``errors``)."""
+        return DeclaredPlant(settings.plant, settings.errors)
+
+    def camera_errors(self, camera: Camera) -> np.ndarray | None:
+        """The plant's :meth:`~dvfc.models.errors.PlantErrors.camera_vector` where it differs from the
+        nominal camera's, else None."""
+        if self.errors is None:
+            return None
+        vector = self.errors.camera_vector(camera)
+        nominal = PlantErrors.none(camera, len(self.errors.viscous)).camera_vector(camera)
+        return None if np.array_equal(vector, nominal) else vector
+
+    @property
+    def friction_slope(self) -> np.ndarray | None:
+        """``b + c/eps`` per joint, the slope of the plant's friction at ``qd = 0`` (None: no friction)."""
+        e = self.errors
+        if e is None or not (np.any(e.viscous) or np.any(e.coulomb)):
+            return None
+        return np.asarray(e.viscous, dtype=float) + np.asarray(e.coulomb, dtype=float) / e.smoothing
+
+    def masses_differ(self) -> bool:
+        """Whether the plant's masses differ from the model's (a payload or a mass scale)."""
+        r = self.robot
+        return r is not None and (r.mass_scale != 1.0 or (r.payload is not None and r.payload.mass != 0.0))
+
+    def differs(self, camera: Camera) -> bool:
+        """Whether the plant differs from the controller's model in anything the linearisation sees."""
+        return self.masses_differ() or self.camera_errors(camera) is not None or self.friction_slope is not None
+
+    def words(self, camera: Camera) -> str:
+        """Which plant a statement is about, in words."""
+        if not self.differs(camera):
+            return "the plant equal to the controller's model"
+        parts = []
+        if self.masses_differ():
+            assert self.robot is not None, "masses_differ"
+            payload = self.robot.payload
+            if payload is not None and payload.mass:
+                parts.append(f"payload {payload.mass:.4g} kg")
+            if self.robot.mass_scale != 1.0:
+                parts.append(f"link masses x{self.robot.mass_scale:.4g}")
+        if self.camera_errors(camera) is not None:
+            parts.append("its camera (mount, intrinsics, distortion, feature points as declared)")
+        if self.friction_slope is not None:
+            parts.append("joint friction linearised at qd = 0 (slope b + c/eps)")
+        return "the plant as declared: " + ", ".join(parts)
+
+
+def rest_model(loop: ClosedLoop, plant: Robot | None = None) -> ClosedLoop:
     """The sampled loop with its exogenous inputs at zero: target at rest at its start
-    pose, no torque disturbance, the plant the law's model, the constant reference ``g_d`` (where
-    a planned one ends)."""
-    return replace(loop, target=TargetMotion(loop.target.start), disturbances=[], sampled=True, plant=None,
+    pose, no torque disturbance, the constant reference ``g_d`` (where a planned one ends); the
+    joints moved by ``plant`` (None: the law's model)."""
+    return replace(loop, target=TargetMotion(loop.target.start), disturbances=[], sampled=True, plant=plant,
                    plan=None)  # fmt: skip
 
 
@@ -188,51 +261,111 @@ def rest_state(loop: ClosedLoop, q_eq: np.ndarray) -> np.ndarray:
     return np.concatenate([q_eq, np.zeros(loop.robot.n), loop.reference.position_quaternion(), z_i])
 
 
-def held_linearization(loop: ClosedLoop, q0: np.ndarray) -> HeldLinearization:
-    """Linearise the sampled loop at its equilibrium (configuration by Newton from ``q0``),
-    by CasADi's automatic differentiation."""
-    q_eq = equilibrium_configuration(loop, q0)
+EQUILIBRIUM_TOLERANCE = 1e-10
+"""Largest residual ``|R|`` (rates of ``qd``, the observer, and ``xi``) accepted at an equilibrium of the plant
+as it is (Newton's method stops at ``1e-13`` where it converges)."""
+
+
+def _product(p: cs.SX, q: cs.SX) -> cs.SX:
+    """The quaternion product ``p (x) q`` of ``[w; x; y; z]`` columns."""
+    return cs.vertcat(p[0] * q[0] - cs.dot(p[1:4], q[1:4]), p[0] * q[1:4] + q[0] * p[1:4] + cs.cross(p[1:4], q[1:4]))
+
+
+def _solve(residual: cs.Function, y0: np.ndarray, iterations: int = 60) -> tuple[np.ndarray, float]:
+    """Newton's method with the least-norm step (``pinv`` of the Jacobian: on a manifold of solutions, a
+    nearby one) on ``residual(y) = (R, dR/dy)`` from ``y0``; the point and ``|R|`` there."""
+    y = np.array(y0, dtype=float)
+    for _ in range(iterations):
+        r, jac = (np.asarray(v) for v in residual(y))
+        if not np.isfinite(r).all() or np.linalg.norm(r) < 1e-13:
+            break
+        y = y - np.linalg.pinv(jac) @ r.ravel()
+    return y, float(np.linalg.norm(np.asarray(residual(y)[0])))
+
+
+def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | None = None) -> HeldLinearization:
+    """Linearise the sampled loop at its equilibrium, by CasADi's automatic differentiation: the plant
+    the controller's model (configuration by Newton from ``q0``, the camera at the reference), or
+    ``plant`` as declared, its equilibrium found by Newton from the model's (a mount error or a
+    payload moves it; :data:`EQUILIBRIUM_TOLERANCE`), its features those of its true camera."""
+    plant = plant or DeclaredPlant()
+    q_nom = equilibrium_configuration(loop, q0)
     n, task = loop.robot.n, loop.task_dim
-    model = rest_model(loop)
+    model = rest_model(loop, plant.robot)
     tau, e, observer = model.hold[:n], model.hold[n : n + task], model.hold[n + task :]
     dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
     dz_i = cs.SX.sym("dz_I", n if loop.integral else 0)
     z = cs.vertcat(dq, dqd, dp, dth, dz_i)
-    s_eq = rest_state(loop, q_eq)
-    state = cs.vertcat(
-        s_eq[: 2 * n] + cs.vertcat(dq, dqd),
-        s_eq[2 * n : 2 * n + 3] + dp,
-        _quaternion_product(s_eq[2 * n + 3 : 2 * n + 7], cs.vertcat(1, dth / 2)),
-        dz_i,
-    )
+    point = cs.SX.sym("point", loop.n_state)  # the state linearised at
+    o = 2 * n + 3
+    state = cs.vertcat(point[: 2 * n] + cs.vertcat(dq, dqd), point[2 * n : o] + dp,
+                       _product(point[o : o + 4], cs.vertcat(1, dth / 2)),
+                       point[o + 4 :] + dz_i)  # fmt: skip
     held = cs.DM.zeros(dz_i.shape[0])  # z_I is held over the period
     rate = cs.vertcat(model.qd, model.qdd, model.observer_rate[0:3], model.observer_velocity[3:6], held)
     # the law and the observer's inputs at the sample read neither the held torque nor those inputs
     at_sample = cs.substitute([model.tau, cs.vertcat(model.camera_velocity, model.u[n + task : n + 2 * task])],
                               [model.hold], [cs.vertcat(cs.DM.zeros(n), e, cs.DM.zeros(2 * task))])  # fmt: skip
-    exprs = [rate, *at_sample, model.e_e, model.e_e_image, model.xi]
+    camera = plant.camera_errors(loop.camera)
+    if camera is None:
+        e_image = model.e_e_image
+    else:  # the true camera's image read with the nominal intrinsics (models/errors.py)
+        pixels = true_features(loop.camera, model.relative_pose, cs.DM(camera))[1]
+        e_image = model.image_estimate(controller_features(loop.camera, pixels))
+    exprs = [rate, *at_sample, model.e_e, e_image, model.xi]
     rate, law, inputs, e_exact, e_image, xi = cs.substitute(exprs, [model.state], [state])
-    jac = cs.Function("held", [z, tau, e, observer, model.t],
+    s_eq = rest_state(loop, q_nom)
+    if plant.differs(loop.camera):
+        exprs = (rate, law, inputs, e_exact, e_image, xi)
+        s_eq = _plant_equilibrium(loop, s_eq, (z, point, model.hold, model.t), exprs)
+    jac = cs.Function("held", [z, tau, e, observer, model.t, point],
                       [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau), cs.jacobian(rate, e),
                        cs.jacobian(rate, observer), cs.jacobian(law, z), cs.jacobian(law, e), cs.jacobian(inputs, z),
                        cs.jacobian(inputs, e), cs.jacobian(e_exact, z), cs.jacobian(e_image, z), cs.jacobian(xi, z),
-                       cs.jacobian(xi, e)])  # fmt: skip
-    zero_z, zero_e, zero_o = np.zeros(z.shape[0]), np.zeros(task), np.zeros(2 * task)
-    tau_eq = np.asarray(jac(zero_z, np.zeros(n), zero_e, zero_o, 0.0)[0]).ravel()
-    values = [np.asarray(m) for m in jac(zero_z, tau_eq, zero_e, zero_o, 0.0)]
-    residual = np.abs(values[1]).max()
+                       cs.jacobian(xi, e), e_exact, e_image, inputs, xi])  # fmt: skip
+    zero_z, zero_o = np.zeros(z.shape[0]), np.zeros(2 * task)
+    e_used = np.zeros(task)
+    if plant.differs(loop.camera):  # e at the plant's equilibrium: the mode's (exact (15), or (21))
+        values = jac(zero_z, np.zeros(n), e_used, zero_o, 0.0, s_eq)
+        e_used = np.asarray(values[15 if loop.mode == "image" else 14]).ravel()
+    tau_eq = np.asarray(jac(zero_z, np.zeros(n), e_used, zero_o, 0.0, s_eq)[0]).ravel()
+    o_eq = np.asarray(jac(zero_z, tau_eq, e_used, zero_o, 0.0, s_eq)[16]).ravel()
+    values = [np.asarray(m) for m in jac(zero_z, tau_eq, e_used, o_eq, 0.0, s_eq)]
+    residual = max(np.abs(values[1]).max(), np.abs(values[17]).max() if loop.integral else 0.0)
     if residual > 1e-8:
         raise ValueError(f"the linearisation point is not an equilibrium (|dz/dt| = {residual:.2e})")
-    a, b_tau, b_e, b_o, f, f_e, o, o_e, c, c_image = values[2:12]
-    integral = values[12:] if loop.integral else [None, None]
+    a, b_tau, b_e, b_o, f, f_e, o_mat, o_e, c, c_image = values[2:12]
+    integral = values[12:14] if loop.integral else [None, None]
+    q_eq = s_eq[:n]
     jacobian = np.asarray(cs.Function("body_jacobian", [loop.robot.q], [loop.robot.body_jacobian])(q_eq))
-    return HeldLinearization(a, b_tau, b_e, b_o, f, f_e, o, o_e, c, c_image, q_eq=q_eq, tau_eq=tau_eq,
-                             xi=integral[0], xi_e=integral[1],
-                             self_motion=scipy.linalg.null_space(jacobian))  # fmt: skip
+    return HeldLinearization(a, b_tau, b_e, b_o, f, f_e, o_mat, o_e, c, c_image, q_eq=q_eq, tau_eq=tau_eq,
+                             xi=integral[0], xi_e=integral[1], self_motion=scipy.linalg.null_space(jacobian),
+                             state=s_eq, e_eq=e_used)  # fmt: skip
 
 
-class NotApplicableError(ValueError):
-    """The statement of fact 14 does not apply to this loop (the message says why)."""
+def _plant_equilibrium(loop: ClosedLoop, s_nom: np.ndarray, symbols: tuple, exprs: tuple) -> np.ndarray:
+    """The state at rest of the sampled loop with the plant as declared (``qd = 0``; the joints'
+    accelerations, the observer's rate and, with integral action, ``xi`` zero), by :func:`_solve` from the
+    model's equilibrium ``s_nom``; :class:`NotApplicableError` when none is found."""
+    z, point, hold, _ = symbols
+    rate, law, inputs, e_exact, e_image, xi = exprs
+    n = loop.robot.n
+    e = hold[n : n + loop.task_dim]
+    e_used = e_image if loop.mode == "image" else e_exact
+    law, inputs, xi = cs.substitute([law, inputs, xi], [e], [e_used])
+    rate = cs.substitute(rate, hold, cs.vertcat(law, e_used, inputs))
+    residual = cs.vertcat(rate[n : 2 * n + 6], xi if loop.integral else cs.DM.zeros(0))
+    y = cs.vertcat(z[:n], z[2 * n :])  # at rest: dqd = 0
+    at_rest = cs.substitute(residual, cs.vertcat(z[n : 2 * n], point), cs.vertcat(cs.DM.zeros(n), cs.DM(s_nom)))
+    y_eq, size = _solve(cs.Function("equilibrium", [y], [at_rest, cs.jacobian(at_rest, y)]), np.zeros(y.shape[0]))
+    if not size < EQUILIBRIUM_TOLERANCE:
+        raise NotApplicableError(f"no equilibrium of the plant as declared found near the model's (Newton's "
+                                 f"residual {size:.2e} > {EQUILIBRIUM_TOLERANCE:g})")  # fmt: skip
+    o = 2 * n + 3
+    dq, dp, dth, dz_i = y_eq[:n], y_eq[n : n + 3], y_eq[n + 3 : n + 6], y_eq[n + 6 :]
+    quat = np.asarray(_quaternion_product(s_nom[o : o + 4], cs.DM(np.concatenate([[1.0], dth / 2])))).ravel()
+    return np.concatenate([s_nom[:n] + dq, np.zeros(n), s_nom[2 * n : o] + dp, quat / np.linalg.norm(quat),
+                           s_nom[o + 4 :] + dz_i])  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -403,17 +536,20 @@ class MultirateLoop:
         return spectral_radius(self.transverse(pi).pi) if np.isfinite(pi).all() else math.inf
 
 
-def multirate_loop(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> MultirateLoop:
-    """The linearised sampled loop of a scenario's loop and implementation."""
-    return MultirateLoop(held_linearization(loop, q0), imp, loop.mode, {})
+def multirate_loop(loop: ClosedLoop, q0: np.ndarray, imp: Implementation,
+                   plant: DeclaredPlant | None = None) -> MultirateLoop:  # fmt: skip
+    """The linearised sampled loop of a scenario's loop and implementation, with the plant as declared
+    (``plant``; None: the controller's model)."""
+    lin = held_linearization(loop, q0, plant)
+    return MultirateLoop(lin.with_friction(plant.friction_slope if plant else None), imp, loop.mode, {})
 
 
 def applicability(loop: ClosedLoop, settings: Settings) -> str | None:
     """Why the statement does not apply to the scenario's loop as implemented, or None:
     it needs an equilibrium (isolated for ``n = 6``, the self-motion's manifold for ``n > 6``;
-    ``n < 6`` has none with ``J_b`` invertible), which exists only with zero quantization and the
-    plant equal to the model (the latency and the rates are checked by :func:`schedule`,
-    saturation by :func:`implemented_record`)."""
+    ``n < 6`` has none with ``J_b`` invertible), which exists only with zero quantization (the
+    latency and the rates are checked by :func:`schedule`, the plant's equilibrium by
+    :func:`held_linearization`, saturation by :func:`implemented_record`)."""
     imp = settings.implementation
     if imp is None:
         return "the scenario has no [implementation]: the loop is the paper's continuous one"
@@ -423,8 +559,6 @@ def applicability(loop: ClosedLoop, settings: Settings) -> str | None:
         return f"the arm has {loop.robot.n} joints: with n < 6 J_b is not invertible (no equilibrium of the law)"
     if imp.quantization > 0:
         return f"quantization {imp.quantization:g} px: the image estimate is not 0 at the equilibrium (no fixed point)"
-    if settings.plant is not None:
-        return "the plant differs from the model (payload or mass scale): the equilibrium moves"
     return None
 
 
@@ -475,27 +609,32 @@ def not_applicable(reason: str) -> dict:
 
 
 def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> dict:
-    """Fact 14 for the scenario's loop as implemented (JSON-ready): the monodromy's spectral
-    radius, the certified local rate, the common period, the Lyapunov check, the scope and
-    the linear margins; or why the statement does not apply."""
+    """Fact 14 for the scenario's loop as implemented and its plant as declared (JSON-ready,
+    :class:`DeclaredPlant`: ``plant`` names it): the monodromy's spectral radius, the certified
+    local rate, the common period, the Lyapunov check, the scope, the declared effects it does not
+    cover and the linear margins; or why the statement does not apply."""
     start = time.perf_counter()
+    plant = DeclaredPlant.of(settings)
+    words = {"plant": plant.words(loop.camera)}
     reason = applicability(loop, settings)
     if reason is not None:
-        return not_applicable(reason)
+        return {**not_applicable(reason), **words}
     imp = settings.implementation
     assert imp is not None, "applicability: the loop as implemented"
     try:
-        system = multirate_loop(loop, s0[: loop.robot.n], imp)
+        frictionless = held_linearization(loop, s0[: loop.robot.n], plant)
+        system = MultirateLoop(frictionless.with_friction(plant.friction_slope), imp, loop.mode, {})
         with np.errstate(over="ignore", invalid="ignore"):
             pi, sched = system.monodromy(imp)
-    except ValueError as exc:  # NotApplicableError, or no equilibrium configuration
-        return not_applicable(str(exc))
+    except ValueError as exc:  # NotApplicableError, no equilibrium configuration, or none of the plant
+        return {**not_applicable(str(exc)), **words}
     lin = system.lin
     effort = imp.limits(loop.robot.limits).effort
     if imp.saturate and not np.all(np.abs(lin.tau_eq) < effort):
-        return not_applicable("saturation is active at the equilibrium (|g(q_eq)| not strictly inside the efforts)")
+        reason = "saturation is active at the equilibrium (|tau_eq| not strictly inside the efforts)"
+        return {**not_applicable(reason), **words}
     if not np.isfinite(pi).all():
-        return {**not_applicable(""), "applies": True, "reason": "the period map overflows: far from stable"}
+        return {**not_applicable(""), **words, "applies": True, "reason": "the period map overflows: far from stable"}
     across = system.transverse(pi)
     rho = spectral_radius(across.pi)
     check = lyapunov_check(across.pi)
@@ -505,7 +644,9 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
               f"({across.residual:.2g}) fails")  # fmt: skip
     gap = float(np.abs(lin.c_image - lin.c).max())
     return {
-        **_integral_and_friction(loop, settings, system),
+        "integral_state": loop.integral,
+        **_friction_record(plant, MultirateLoop(frictionless, imp, loop.mode, {})),
+        **words,
         "applies": True,
         "certified": certified,
         "reason": None if certified else reason,
@@ -526,8 +667,9 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
         "image_linearisation_gap": gap,
         "q_eq": lin.q_eq.tolist(),
         "scope": SCOPE.format(gap=gap) + (SELF_MOTION_SCOPE.format(m=across.dimension) if across.dimension else ""),
+        "not_covered": not_covered(settings, system),
         "margins": linear_margins(system),
-        **program_record(loop, s0, imp),
+        **program_record(loop, s0, imp, plant),
         "seconds": time.perf_counter() - start,
     }
 
@@ -541,22 +683,36 @@ def self_motion_record(across: Transverse) -> dict | None:
             "statement": SELF_MOTION_SCOPE.format(m=across.dimension).removeprefix("; ")}  # fmt: skip
 
 
-def _integral_and_friction(loop: ClosedLoop, settings: Settings, system: MultirateLoop) -> dict:
-    """The record's entries for integral action and the plant's friction (fact 21): whether
-    ``z_I`` is in the monodromy and, when the plant has friction, ``rho`` with its slope
-    ``b + c/eps`` at ``qd = 0`` (the headline ``rho`` is the frictionless plant's)."""
-    out: dict = {"integral_state": loop.integral}
-    errors = settings.errors
-    if errors is None or not (np.any(errors.viscous) or np.any(errors.coulomb)):
-        return out
-    slope = np.asarray(errors.viscous, dtype=float) + np.asarray(errors.coulomb, dtype=float) / errors.smoothing
-    with_friction = MultirateLoop(system.lin.with_friction(slope), system.implementation, system.mode, {})
-    out["friction_slope"] = {
+def _friction_record(plant: DeclaredPlant, frictionless: MultirateLoop) -> dict:
+    """The record's ``friction_slope`` when the plant has friction (fact 21): its slope ``b + c/eps`` at
+    ``qd = 0``, which the headline ``rho`` includes, and ``rho`` of the same plant without friction."""
+    slope = plant.friction_slope
+    if slope is None:
+        return {}
+    return {"friction_slope": {
         "slope": slope.tolist(),
-        "rho": with_friction.rho(),
+        "rho_without_friction": frictionless.rho(),
         "scope": ("the plant's friction b qd + c tanh(qd/eps) linearised at qd = 0 (slope b + c/eps, the "
                   "simulator's smoothed Coulomb model: a real joint sticks at rest); local, target at rest"),
-    }  # fmt: skip
+    }}  # fmt: skip
+
+
+def not_covered(settings: Settings, system: MultirateLoop) -> list[str]:
+    """The effects the scenario declares that the monodromy leaves out, each in words (the latency
+    jitter with ``rho`` at each fixed latency it allows: switching among them is not certified)."""
+    imp = settings.sampled
+    out = []
+    if imp.latency_jitter:
+        lags = range(imp.latency_steps, imp.latency_steps + imp.latency_jitter + 1)
+        worst = max(system.rho(latency=k / imp.control_rate) for k in lags)
+        out.append(f"latency jitter of up to {imp.latency_jitter} control periods (each fixed latency of "
+                   f"{lags[0]}-{lags[-1]} periods: rho <= {worst:.6g}; switching among them is not certified)")
+    if imp.frame_drop:
+        out.append(f"frame drops (probability {imp.frame_drop:g})")
+    if imp.outlier_probability:
+        out.append(f"outlier detections (probability {imp.outlier_probability:g})")
+    if imp.pixel_noise and system.mode == "image":
+        out.append(f"pixel noise ({imp.pixel_noise:g} px)")
     return out
 
 
@@ -572,16 +728,21 @@ def margin_text(label: str, margin: dict, sign: str, scale: float, unit: str) ->
 def implemented_text(record: dict) -> str:
     """Fact 14's record in one line of words."""
     if record["rho"] is None:  # does not apply, or the period map overflows
-        return f"local certificate of the loop as implemented (fact 14): {record['reason']}"
+        plant = f", for {record['plant']}" if "plant" in record else ""
+        return f"local certificate of the loop as implemented (fact 14{plant}): {record['reason']}"
     m = record["margins"]
     margins = ", ".join(margin_text(label, m[name], sign, scale, unit) for name, label, sign, scale, unit in (
         ("latency", "latency", "<=", 1e3, "ms"), ("camera_rate", "camera", ">=", 1.0, "Hz"),
         ("control_rate", "control", ">=", 1.0, "Hz")))  # fmt: skip
     verdict = "CERTIFIED" if record["certified"] else f"NOT CERTIFIED ({record['reason']})"
     rate = "-" if record["rate"] is None else f"{record['rate']:.4g}"
-    return (f"loop as implemented, linearised at rest (fact 14, local): {verdict}: rho = {record['rho']:.6g} over "
-            f"{record['period'] * 1e3:.4g} ms, rate {rate} 1/s, Lyapunov margin "
-            f"{record['lyapunov_margin']:.3g}; linear margins {margins}")  # fmt: skip
+    friction = record.get("friction_slope")
+    without = "" if friction is None else f" (without the friction slope: rho = {friction['rho_without_friction']:.6g})"
+    left = record.get("not_covered")
+    uncovered = f"; not covered: {'; '.join(left)}" if left else ""
+    return (f"loop as implemented, linearised at rest (fact 14, local): {verdict} for {record['plant']}: rho = "
+            f"{record['rho']:.6g} over {record['period'] * 1e3:.4g} ms{without}, rate {rate} 1/s, Lyapunov margin "
+            f"{record['lyapunov_margin']:.3g}; linear margins {margins}{uncovered}")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -615,12 +776,15 @@ def _tangent(quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return embed, project
 
 
-def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> ProgramMonodromy:
+def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation,
+                      plant: DeclaredPlant | None = None) -> ProgramMonodromy:  # fmt: skip
     """:class:`ProgramMonodromy` of a scenario's loop and implementation (fact 14's applicability and
-    :func:`schedule`; the plant's period map from :func:`held_linearization`)."""
+    :func:`schedule`; the plant's period map from :func:`held_linearization`, with the plant as declared:
+    its equilibrium, friction slope and true camera)."""
     from dvfc.analysis.controller import Layout, program_function  # the program needs the loop's models
 
-    lin = held_linearization(loop, q0)
+    plant = plant or DeclaredPlant()
+    lin = held_linearization(loop, q0, plant).with_friction(plant.friction_slope)
     sched = schedule(imp)
     n, m, h = loop.robot.n, loop.camera.m, imp.period
     ring = imp.latency_steps + imp.latency_jitter + 1
@@ -631,10 +795,14 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> 
     jacobian = cs.Function("program_jacobian", [t, q, qd, f, c, x],
                            [tau, x_next, cs.jacobian(cs.vertcat(tau, x_next), cs.vertcat(q, qd, f, x))])  # fmt: skip
     rest = rest_model(loop)
-    features = cs.Function("features", [rest.q], [cs.substitute(rest.features, rest.t, 0), cs.jacobian(
-        cs.substitute(rest.features, rest.t, 0), rest.q)])  # fmt: skip
+    seen, errors = rest.features, plant.camera_errors(loop.camera)
+    if errors is not None:  # the true camera's pixels read with the nominal intrinsics (models/errors.py)
+        seen = controller_features(loop.camera, true_features(loop.camera, rest.relative_pose, cs.DM(errors))[1])
+    seen = cs.substitute(seen, rest.t, 0)
+    features = cs.Function("features", [rest.q], [seen, cs.jacobian(seen, rest.q)])
     f_eq, f_q = (np.asarray(v) for v in features(lin.q_eq))
-    gbar_eq = loop.reference.position_quaternion()
+    at = rest_state(loop, lin.q_eq) if lin.state is None else lin.state
+    gbar_eq = at[2 * n : 2 * n + 7]
     embed, project = _tangent(gbar_eq[3:])
     late = 1e3  # s: past the planned reference, the ramp and integral_start
     first = ring * (sched.lag + 1)  # a counter (a multiple of the ring) with every capture >= 0
@@ -643,6 +811,9 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> 
     for j in range(ring):
         x_eq[layout.slot(j)] = gbar_eq
     x_eq[layout.q_last] = lin.q_eq
+    x_eq[layout.integral] = at[loop.integral_slice]
+    if lin.e_eq is not None:
+        x_eq[layout.e_e] = lin.e_eq
     phi, g_tau, *_ = lin.flow(h)
     phi, g_tau = phi[: 2 * n, : 2 * n], g_tau[: 2 * n]
     z_i = n if loop.integral else 0
@@ -701,10 +872,11 @@ PROGRAM_LOOP = (
 )
 
 
-def program_record(loop: ClosedLoop, s0: np.ndarray, imp: Implementation) -> dict:
+def program_record(loop: ClosedLoop, s0: np.ndarray, imp: Implementation, plant: DeclaredPlant) -> dict:
     """``program_rho`` (the spectral radius of :func:`program_monodromy`) and ``program_loop`` (what it
     is), for :func:`implemented_record`; None with the reason when its linearisation fails."""
     try:
-        return {"program_rho": program_monodromy(loop, s0[: loop.robot.n], imp).rho, "program_loop": PROGRAM_LOOP}
+        rho = program_monodromy(loop, s0[: loop.robot.n], imp, plant).rho
+        return {"program_rho": rho, "program_loop": PROGRAM_LOOP}
     except ValueError as exc:
         return {"program_rho": None, "program_loop": f"not computed: {exc}"}
