@@ -38,6 +38,7 @@ from dvfc.analysis.multirate import (
     RHO_MARGIN,
     DeclaredPlant,
     MultirateLoop,
+    NoEquilibriumError,
     NotApplicableError,
     implemented_record,
     implemented_text,
@@ -79,6 +80,11 @@ LINEAR = ("latency", "camera_rate")
 """The searched parameters fact 14 has a linear margin for (its control-rate margin has no
 measured twin: the control rate is not searched)."""
 
+PLANT = ("payload_mass", "torque_scale", "mount_rotation", "focal_length_error", "friction_scale")
+"""The searched parameters that change the plant fact 14 linearises (:class:`DeclaredPlant`): at each
+of their search points the plant as declared with the value is linearised anew, and a point where its
+monodromy has ``rho >= 1`` (or the plant has no equilibrium, or saturates there) does not hold."""
+
 PAYLOAD_FACTOR = 0.5
 """The payload's searched range ends at this times the URDF's total link mass (no rated
 payload is known for an arm): 10.5 kg on the UR5 (20.99 kg of links; rated 5 kg)."""
@@ -90,7 +96,10 @@ STEADY = (
 )
 LINEAR_CLAUSE = (
     "where fact 14 applies, a latency or camera rate at which the sampled loop linearised at rest is unstable "
-    "(rho >= 1) does not hold, and a measured margin is never reported beyond fact 14's linear one"
+    "(rho >= 1) does not hold, and a measured margin is never reported beyond fact 14's linear one; at a payload, "
+    "torque scale, mount rotation, focal-length error or friction scale the plant as declared with the value is "
+    "linearised anew, and a point where its monodromy has rho >= 1 (or it has no equilibrium, or saturates there) "
+    "does not hold"
 )
 """Added to :data:`CRITERION` for the margins' runs (a campaign's runs are judged on their own horizon)."""
 
@@ -378,13 +387,15 @@ def shared_simulator(case: Case, errors: bool) -> SampledSimulator:
 
 @dataclass(frozen=True)
 class LinearCheck:
-    """Fact 14 beside the measured searches: the sampled loop linearised at rest (``system``)
-    and its linear margins (``margins``, :func:`dvfc.analysis.multirate.linear_margins`), or,
-    where the statement does not apply, ``reason``."""
+    """Fact 14 beside the measured searches: the sampled loop linearised at rest for the plant as
+    declared (``system``), its linear margins (``margins``, :func:`dvfc.analysis.multirate.linear_margins`)
+    and the case (``case``: a plant parameter's value changes the plant, linearised anew), or, where the
+    statement does not apply, ``reason``."""
 
     system: MultirateLoop | None
     margins: dict | None
     reason: str | None
+    case: Case | None = None
 
     @staticmethod
     def of(case: Case, record: dict) -> LinearCheck:
@@ -393,16 +404,28 @@ class LinearCheck:
             return LinearCheck(None, None, record["reason"])
         plant = DeclaredPlant.of(case.settings)
         system = multirate_loop(case.loop, case.s0[: case.loop.robot.n], case.settings.sampled, plant)
-        return LinearCheck(system, record["margins"], None)
+        return LinearCheck(system, record["margins"], None, case)
 
     def rho(self, name: str, value: float) -> float | None:
-        """``rho(Pi)`` with ``name = value`` (a value of :func:`grid_value`); None where not
-        checked (not a parameter of :data:`LINEAR`, the statement does not apply, no exact
-        schedule)."""
-        if self.system is None or name not in LINEAR:
+        """``rho(Pi)`` with ``name = value`` (a value of :func:`grid_value`): of the schedule for
+        :data:`LINEAR`, of the plant as declared with the value for :data:`PLANT`, ``inf`` where that
+        plant has no equilibrium near the model's or saturates there; None where not checked (not a
+        parameter of either, the statement does not apply, no exact schedule)."""
+        if self.system is None or name not in LINEAR + PLANT:
             return None
         try:
-            return self.system.rho(**{name: value})
+            if name in LINEAR:
+                return self.system.rho(**{name: value})
+            assert self.case is not None, "LinearCheck.of"
+            case = self.case
+            changed = with_value(case.loop, case.settings, name, value)
+            imp = changed.sampled
+            system = multirate_loop(case.loop, case.s0[: case.loop.robot.n], imp, DeclaredPlant.of(changed))
+            if imp.saturate and not np.all(np.abs(system.lin.tau_eq) < imp.limits(case.loop.robot.limits).effort):
+                return math.inf
+            return system.rho()
+        except NoEquilibriumError:
+            return math.inf
         except NotApplicableError:
             return None
 
@@ -460,30 +483,35 @@ def trial(
 
 
 def linear_statement(name: str, value: float | None, linear: LinearCheck | None) -> dict:
-    """A measured margin against fact 14's linear one: ``{"checked", "linear_margin", "value",
-    "clipped", "statement"}``, ``value`` the margin to report (``value`` itself unless it lies
-    beyond the linear margin: then the linear margin, ``clipped``), ``linear_margin`` fact 14's
-    (None where not checked or stable over its whole range). ``value`` None: the loop holds over
-    the whole searched range."""
+    """A measured margin against fact 14: ``{"basis", "checked", "linear_margin", "value", "clipped",
+    "statement"}``. ``basis`` says what bounds it: ``"linear margin"`` (:data:`LINEAR`: ``value`` itself
+    unless it lies beyond fact 14's linear margin, then that margin, ``clipped``; ``linear_margin`` None
+    where stable over its whole range), ``"plant linearised at each point"`` (:data:`PLANT`: a search point
+    whose plant's monodromy has ``rho >= 1`` does not hold) or ``"measured only"``. ``value`` None: the loop
+    holds over the whole searched range."""
     p = PARAMETERS[name]
-    if name not in LINEAR or linear is None or linear.margins is None:
-        why = ("fact 14 has no linear margin for this parameter" if name not in LINEAR
-               else "fact 14 not consulted" if linear is None else f"fact 14: {linear.reason}")  # fmt: skip
-        return {"checked": False, "linear_margin": None, "value": value, "clipped": False,
-                "statement": f"not checked against a linear margin: {why}"}  # fmt: skip
+    if linear is None or linear.margins is None or name not in LINEAR + PLANT:
+        why = ("fact 14 has no linear check for this parameter (it does not enter the linearised loop)"
+               if name not in LINEAR + PLANT else "fact 14 not consulted" if linear is None
+               else f"fact 14: {linear.reason}")  # fmt: skip
+        return {"basis": "measured only", "checked": False, "linear_margin": None, "value": value, "clipped": False,
+                "statement": f"measured only, not checked against fact 14: {why}"}  # fmt: skip
+    if name in PLANT:
+        return {"basis": "plant linearised at each point", "checked": True, "linear_margin": None, "value": value,
+                "clipped": False, "statement": "at each search point fact 14 linearised the plant as declared with "
+                "the value: a point where its monodromy has rho >= 1 does not hold"}  # fmt: skip
     m = linear.margins[name]
     beyond = lambda v: v is None or (v > m["stable_at"] if p.worse == "up" else v < m["stable_at"])  # noqa: E731
+    out = {"basis": "linear margin", "checked": True, "linear_margin": m["value"], "value": value, "clipped": False}
     if m["value"] is None:
-        return {"checked": True, "linear_margin": None, "value": value, "clipped": False,
-                "statement": f"fact 14: the linearised loop is stable throughout its searched range (to "
-                             f"{m['range'][1]:g} {p.unit}): no linear margin to clip to"}  # fmt: skip
+        return {**out, "statement": f"fact 14: the linearised loop is stable throughout its searched range (to "
+                                    f"{m['range'][1]:g} {p.unit}): no linear margin to clip to"}  # fmt: skip
     if beyond(value):
         measured = "holds over the whole searched range" if value is None else f"the measured {value:.4g} {p.unit}"
-        return {"checked": True, "linear_margin": m["value"], "value": m["value"], "clipped": True,
+        return {**out, "value": m["value"], "clipped": True,
                 "statement": f"{measured} lies beyond fact 14's linear margin {m['value']:.4g} {p.unit} (unstable at "
                              f"{m['unstable_at']:.4g} {p.unit}): clipped to it"}  # fmt: skip
-    return {"checked": True, "linear_margin": m["value"], "value": value, "clipped": False,
-            "statement": f"within fact 14's linear margin {m['value']:.4g} {p.unit}"}  # fmt: skip
+    return {**out, "statement": f"within fact 14's linear margin {m['value']:.4g} {p.unit}"}
 
 
 def search(case: Case, name: str, bound: TrackingBound, log: str | None = None,

@@ -186,6 +186,10 @@ class NotApplicableError(ValueError):
     """The statement of fact 14 does not apply to this loop (the message says why)."""
 
 
+class NoEquilibriumError(NotApplicableError):
+    """The plant as declared has no equilibrium near the model's: the loop does not come to rest."""
+
+
 @dataclass(frozen=True)
 class DeclaredPlant:
     """The plant a scenario declares where it differs from the controller's model (docs/math.md,
@@ -359,7 +363,7 @@ def _plant_equilibrium(loop: ClosedLoop, s_nom: np.ndarray, symbols: tuple, expr
     at_rest = cs.substitute(residual, cs.vertcat(z[n : 2 * n], point), cs.vertcat(cs.DM.zeros(n), cs.DM(s_nom)))
     y_eq, size = _solve(cs.Function("equilibrium", [y], [at_rest, cs.jacobian(at_rest, y)]), np.zeros(y.shape[0]))
     if not size < EQUILIBRIUM_TOLERANCE:
-        raise NotApplicableError(f"no equilibrium of the plant as declared found near the model's (Newton's "
+        raise NoEquilibriumError(f"no equilibrium of the plant as declared found near the model's (Newton's "
                                  f"residual {size:.2e} > {EQUILIBRIUM_TOLERANCE:g})")  # fmt: skip
     o = 2 * n + 3
     dq, dp, dth, dz_i = y_eq[:n], y_eq[n : n + 3], y_eq[n + 3 : n + 6], y_eq[n + 6 :]

@@ -336,7 +336,9 @@ def linear_text(margin: dict) -> str:
     if linear is None:
         return "-"
     if not linear["checked"]:
-        return "not checked"
+        return "measured only"
+    if linear["basis"] == "plant linearised at each point":
+        return "rho < 1 at each point"
     if linear["linear_margin"] is None:
         return "stable over its range"
     return f"{'clipped to' if linear['clipped'] else 'within'} {linear['linear_margin']:.4g} {margin['unit']}"

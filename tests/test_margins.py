@@ -270,7 +270,7 @@ def test_a_measured_margin_beyond_the_linear_one_is_clipped_to_it():
     linear = LinearCheck(None, margins, None)
     clipped = linear_statement("latency", 0.152, linear)
     assert clipped["clipped"] and clipped["value"] == 0.13 and "clipped to it" in clipped["statement"]
-    assert linear_statement("latency", 0.12, linear) | {"statement": ""} == {
+    assert linear_statement("latency", 0.12, linear) | {"statement": ""} == {"basis": "linear margin",
         "checked": True, "linear_margin": 0.13, "value": 0.12, "clipped": False, "statement": ""}  # fmt: skip
     assert linear_statement("camera_rate", 8.0, linear)["value"] == 10.0
     assert linear_statement("camera_rate", 12.0, linear)["value"] == 12.0
@@ -278,7 +278,7 @@ def test_a_measured_margin_beyond_the_linear_one_is_clipped_to_it():
     for name, check in (("pixel_noise", linear), ("latency", LinearCheck(None, None, "does not apply: n = 7"))):
         record = linear_statement(name, 3.0, check)
         assert not record["checked"] and record["value"] == 3.0
-        assert record["statement"].startswith("not checked against a linear margin")
+        assert record["basis"] == "measured only" and record["statement"].startswith("measured only")
 
 
 def test_a_linear_margin_stable_over_the_whole_range_reads_as_such():
@@ -286,6 +286,7 @@ def test_a_linear_margin_stable_over_the_whole_range_reads_as_such():
     words, not "<= none in range"."""
     margin = lambda value, end: {"value": value, "stable_at": end, "unstable_at": None, "range": [0, end]}  # noqa: E731
     record = {"rho": 0.9, "certified": True, "reason": None, "rate": 1.0, "period": 0.05, "lyapunov_margin": 1.0,
+              "plant": "the plant equal to the controller's model",
               "margins": {"latency": margin(None, 0.25), "camera_rate": margin(None, 1.0),
                           "control_rate": margin(47.0, 10.0)}}  # fmt: skip
     text = implemented_text(record)
@@ -338,3 +339,20 @@ def test_replaying_a_failed_campaign_run_reports_the_failure_and_exits_1(tmp_pat
     assert f"campaign run 0: FAILS by the margins criterion ({recorded['reason']})" in result.stderr
     row = json.loads(result.stdout)["campaign_row"]
     assert row["holds"] is False and row["reason"] == recorded["reason"]
+
+
+@pytest.mark.slow
+def test_a_plant_parameter_is_checked_on_the_plant_linearised_at_its_value(default_case):
+    """A payload, mount rotation, focal-length error or friction scale changes the plant fact 14 linearises: at
+    each search point the check's rho is that of the plant as declared with the value (equal to fact 14's
+    record for that plant to 1e-12, not the scenario's rho), and a point whose plant has rho >= 1 does not
+    hold whatever its run (a focal length twice the controller's: no equilibrium near the model's)."""
+    case, bound, linear = default_case
+    for name, value in (("payload_mass", 6.0), ("focal_length_error", 0.5), ("friction_scale", 10.0)):
+        changed = with_value(case.loop, case.settings, name, value)
+        record = implemented_record(case.loop, case.s0, changed)
+        assert linear.rho(name, value) == pytest.approx(record["rho"], abs=1e-12), name
+        assert abs(record["rho"] - linear.system.rho()) > 1e-4, name
+    assert linear.rho("focal_length_error", 1.0) == math.inf
+    point = trial(case, "focal_length_error", 1.0, bound, linear)
+    assert not point["holds"] and point["linear"] == {"rho": math.inf, "stable": False}

@@ -45,6 +45,29 @@ class Mutation:
 
 
 MUTATIONS = (
+    # --- fact 14 for the plant as declared ---------------------------------------------
+    Mutation(
+        "fact-14-for-the-model-not-the-plant",
+        "fact 14 linearises the controller's model while the scenario declares another plant",
+        "analysis/multirate.py",
+        (("    plant = DeclaredPlant.of(settings)\n    words = ", "    plant = DeclaredPlant()\n    words = "),),
+        ("tests/test_multirate_statements.py::test_fact_14_is_stated_for_the_plant_as_declared",),
+    ),
+    Mutation(
+        "true-camera-ignored-at-the-equilibrium",
+        "the plant's equilibrium and linearisation read the nominal camera's image, not the true camera's",
+        "analysis/multirate.py",
+        (("    camera = plant.camera_errors(loop.camera)\n", "    camera = None\n"),),
+        ("tests/test_multirate_statements.py::test_the_sampled_loop_settles_at_the_equilibrium_of_the_plant_as_declared",),
+    ),
+    Mutation(
+        "plant-margin-not-linearised",
+        "a payload, mount, focal-length or friction margin judged by its runs alone (no plant linearised at its value)",
+        "analysis/margins.py",
+        (("        if self.system is None or name not in LINEAR + PLANT:\n",
+          "        if self.system is None or name not in LINEAR:\n"),),
+        ("tests/test_margins.py::test_a_plant_parameter_is_checked_on_the_plant_linearised_at_its_value",),
+    ),
     # --- the seven of the audit --------------------------------------------------------
     Mutation(
         "grid-kmin-max",
