@@ -34,6 +34,7 @@ from dvfc.analysis.batches import BatchRun
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import INPUTS, MASSES, Dispersion, base_values, with_values
 from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_bound, tracking_error
+from dvfc.analysis.multirate import RHO_MARGIN, DeclaredPlant, applicability
 from dvfc.analysis.output import write_json
 from dvfc.analysis.parametric import parametrised
 from dvfc.analysis.record import ABSENT, Absent, Record
@@ -120,6 +121,11 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
     """One run's dataset row: outcome, tracking error, peak ratios, drawn values, wall time."""
     loop = spec.case.loop
     holds, reason = judge(traj, loop, settings, spec.bound)
+    rho = local_rho(spec.case, settings)
+    if rho is not None and rho >= 1 - RHO_MARGIN:  # a failure whatever its run shows
+        reason = (f"fact 14 for this draw's plant: rho = {rho:.6g} >= 1 (not locally stable at rest); "
+                  + ("its run held: the horizon is too short to show it" if holds else reason))  # fmt: skip
+        holds = False
     position, angle = tracking_error(traj)
     completed = traj.status is RunStatus.OK
     ratio = max(position / spec.bound.position, angle / spec.bound.angle_deg) if completed else math.inf
@@ -132,12 +138,35 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
         "tracking_position": position, "tracking_angle_deg": angle, "tracking_ratio": ratio,
         "peak_torque_ratio": max(record["torque_commanded_ratio"]), "peak_speed_ratio": max(record["speed_ratio"]),
         "position_ratio": max(record["position_ratio"]), "closeness": max(ratio, *limits),
-        "end_time": float(traj.t[-1]), "wall_time": traj.wall_time,
+        "end_time": float(traj.t[-1]), "wall_time": traj.wall_time, "local_rho": rho,
     }  # fmt: skip
     for key in spec.dispersion.keys:
         columns = spec.dispersion.columns_of(key)
         out.update(zip(columns, map(float, values[key]), strict=True))
     return out
+
+
+def local_rho(case: Case, settings: Settings) -> float | None:
+    """``rho`` of fact 14 for one run's plant as drawn (its masses, camera, friction; at the scenario's
+    latency and rates: docs/math.md, fact 14 for the plant as declared), None where the statement does not
+    apply to the loop."""
+    if applicability(case.loop, settings) is not None:
+        return None
+    return DeclaredPlant.of(settings).rho(case.loop, case.s0[: case.loop.robot.n], settings.sampled)
+
+
+def local_summary(data: dict) -> dict:
+    """How many runs' plants fact 14 certifies locally (``rho < 1``), the largest ``rho`` and the runs whose
+    ``rho >= 1`` (failures whatever their runs show)."""
+    rho = [(run, r) for run, r in zip(data["run"], data.get("local_rho", [None] * len(data["run"])), strict=True)
+           if r is not None]  # fmt: skip
+    unstable = [int(run) for run, r in rho if r >= 1 - RHO_MARGIN]
+    largest = max((r for _, r in rho), default=None)
+    return {"computed": len(rho), "certified": len(rho) - len(unstable), "largest_rho": largest,
+            "unstable_runs": unstable,
+            "statement": (f"{len(rho) - len(unstable)} of {len(data['run'])} draws locally certified (fact 14 for "
+                          f"each draw's plant, linearised at rest, at the scenario's latency and rates: rho < 1), "
+                          f"largest rho {'-' if largest is None else f'{largest:.6g}'}")}  # fmt: skip
 
 
 def simulate_run(spec: CampaignSpec, run: int, simulator: SampledSimulator | None = None) -> tuple[dict, Trajectory]:
@@ -285,6 +314,7 @@ def summarize(spec: CampaignSpec, table: pa.Table, confidence: float, p: float, 
                          "statement": f"{zero_failure_runs(p, confidence)} runs without a failure bound P(fail) by "
                                       f"{p:g} at {confidence:.0%} confidence"},
         "tolerance": tolerance, "sensitivity": drivers, "sensitivity_floor": floor, "worst": worst,
+        "local": local_summary(data),
         "seed": spec.seed,
         "wall_time_per_run": float(np.mean(data["wall_time"])) if n else None,
     }  # fmt: skip
@@ -383,7 +413,7 @@ def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] 
 class CampaignResult(Record):
     """``dvfc campaign`` (docs/cli.md): the campaign's statistics (:func:`summarize`: the failure
     probability's bound at its confidence, the zero-failure count, the tracking error's tolerance bound,
-    the drivers, the worst runs), its dataset; the worst case found (with ``search``), what would pass
+    the drivers, the worst runs, the draws fact 14 certifies locally), its dataset; the worst case found (with ``search``), what would pass
     (``--what-would-pass``; None: no run fails) and provenance, when made."""
 
     scenario: str
@@ -402,6 +432,7 @@ class CampaignResult(Record):
     worst: list[dict[str, Any]]
     seed: int
     wall_time_per_run: float | None
+    local: dict[str, Any]
     dataset: str
     worst_case_search: dict[str, Any] | Absent = ABSENT
     what_would_pass: dict[str, Any] | Absent | None = ABSENT

@@ -38,7 +38,6 @@ from dvfc.analysis.multirate import (
     RHO_MARGIN,
     DeclaredPlant,
     MultirateLoop,
-    NoEquilibriumError,
     NotApplicableError,
     implemented_record,
     implemented_text,
@@ -417,15 +416,8 @@ class LinearCheck:
             if name in LINEAR:
                 return self.system.rho(**{name: value})
             assert self.case is not None, "LinearCheck.of"
-            case = self.case
-            changed = with_value(case.loop, case.settings, name, value)
-            imp = changed.sampled
-            system = multirate_loop(case.loop, case.s0[: case.loop.robot.n], imp, DeclaredPlant.of(changed))
-            if imp.saturate and not np.all(np.abs(system.lin.tau_eq) < imp.limits(case.loop.robot.limits).effort):
-                return math.inf
-            return system.rho()
-        except NoEquilibriumError:
-            return math.inf
+            loop, changed = self.case.loop, with_value(self.case.loop, self.case.settings, name, value)
+            return DeclaredPlant.of(changed).rho(loop, self.case.s0[: loop.robot.n], changed.sampled)
         except NotApplicableError:
             return None
 

@@ -202,8 +202,26 @@ class DeclaredPlant:
 
     @staticmethod
     def of(settings: Settings) -> DeclaredPlant:
-        """The plant of a scenario's settings (``plant`` and ``errors``)."""
-        return DeclaredPlant(settings.plant, settings.errors)
+        """The plant of a scenario's settings (``plant`` and ``errors``; a run's masses from ``inputs``, as a
+        campaign draws them)."""
+        robot, inputs = settings.plant, settings.inputs
+        if robot is not None and inputs is not None:
+            robot = Robot(robot.urdf, robot.frame, robot.mount, robot.armature, inputs.payload, inputs.mass_scale)
+        return DeclaredPlant(robot, settings.errors)
+
+    def rho(self, loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> float | None:
+        """``rho`` of fact 14's monodromy for this plant (across the self-motion on a redundant arm): ``inf``
+        where it has no equilibrium near the model's or saturates there, None where the statement does not
+        apply (:func:`applicability` is the caller's)."""
+        try:
+            system = multirate_loop(loop, q0, imp, self)
+        except NoEquilibriumError:
+            return math.inf
+        except NotApplicableError:
+            return None
+        if imp.saturate and not np.all(np.abs(system.lin.tau_eq) < imp.limits(loop.robot.limits).effort):
+            return math.inf
+        return system.rho()
 
     def camera_errors(self, camera: Camera) -> np.ndarray | None:
         """The plant's :meth:`~dvfc.models.errors.PlantErrors.camera_vector` where it differs from the

@@ -423,6 +423,9 @@ def show_campaign(result: CampaignResult) -> None:
     out.print(result.statement, markup=False, soft_wrap=True)
     out.print(f"criterion: {result.criterion}", markup=False, soft_wrap=True)
     out.print(result.zero_failure["statement"], markup=False, soft_wrap=True)
+    unstable = result.local["unstable_runs"]
+    out.print(f"local: {result.local['statement']}" + (f"; rho >= 1 for runs {unstable}" if unstable else ""),
+              markup=False, soft_wrap=True)  # fmt: skip
     out.print(f"tolerance: {tolerance_text(result.tolerance)}", markup=False, soft_wrap=True)
     table = Table(title="Drivers of the closeness to failing (PAWN, Spearman; measured)")
     for name in ("quantity", "entry", "PAWN", "above floor", "spearman", "failure rate per quartile"):
