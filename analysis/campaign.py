@@ -413,7 +413,8 @@ def worst_case(spec: CampaignSpec, budget: int, progress: Callable[[int], None] 
 class CampaignResult(Record):
     """``dvfc campaign`` (docs/cli.md): the campaign's statistics (:func:`summarize`: the failure
     probability's bound at its confidence, the zero-failure count, the tracking error's tolerance bound,
-    the drivers, the worst runs, the draws fact 14 certifies locally), its dataset; the worst case found (with ``search``), what would pass
+    the drivers, the worst runs, the draws fact 14 certifies locally), its dataset; the worst case found (with
+    ``search``), what would pass
     (``--what-would-pass``; None: no run fails) and provenance, when made."""
 
     scenario: str
