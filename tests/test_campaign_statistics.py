@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from dvfc.analysis.campaign import tolerance_rank, zero_failure_runs
+from dvfc.analysis.campaign import local_summary, tolerance_rank, zero_failure_runs
 from dvfc.analysis.dispersion import Dispersion
 from dvfc.analysis.schema import DistributionSection
 
@@ -112,3 +112,13 @@ def test_a_probability_drawn_beyond_one_is_clipped_to_one():
                    "implementation.frame_drop", 4000)  # fmt: skip
     assert values.min() >= 0.3 - 1e-12 and values.max() == 1.0
     assert abs(np.mean(values == 1.0) - 0.3) <= 4 * np.sqrt(0.3 * 0.7 / len(values))
+
+
+def test_the_local_summary_counts_the_draws_fact_14_certifies_and_names_the_unstable_ones():
+    """Of the runs whose plant fact 14 linearised (``local_rho`` not None), those with ``rho < 1`` are
+    locally certified; the largest rho is reported and the runs with ``rho >= 1`` named (failures whatever
+    their runs show)."""
+    data = {"run": [0, 1, 2, 3], "local_rho": [0.9, None, 1.0002, 0.95]}
+    local = local_summary(data)
+    assert local["computed"] == 3 and local["certified"] == 2 and local["unstable_runs"] == [2]
+    assert local["largest_rho"] == 1.0002 and "2 of 4 draws locally certified" in local["statement"]
