@@ -1329,6 +1329,41 @@ MUTATIONS = (
         (('                outcome = Outcome.UNCERTIFIED\n', '                pass\n'),),
         ('tests/test_synthesize.py::test_a_written_design_without_a_certified_target_speed_is_uncertified',),
     ),
+    # --- issue 39: tests with teeth ---
+    Mutation(
+        'check-torque-relative-to-peak',
+        'export --check measures each torque difference relative to the run\'s peak torque, not to that torque',
+        'analysis/export.py',
+        (('        scale = np.maximum(np.abs(reference.tau), np.finfo(float).tiny)\n',
+          '        scale = np.maximum(np.abs(reference.tau).max(), np.finfo(float).tiny)\n'),),
+        ('tests/test_export.py::test_each_torque_is_compared_relative_to_itself',),
+    ),
+    Mutation(
+        'check-early-stop-counted-zero',
+        'export --check counts a closed loop that stopped early as no difference (0) from the Python step\'s',
+        'analysis/export.py',
+        (('if same_length else float("inf")', 'if same_length else 0.0'),),
+        ('tests/test_export.py::test_the_closed_loop_is_the_same_only_when_both_runs_complete_alike',),
+    ),
+    Mutation(
+        'program-statement-on-replay-alone',
+        'page 1\'s "the exported program is the simulated controller" passes on the torque replay alone',
+        'analysis/results.py',
+        (('    status = StatementStatus.PASS if check["passed"] else StatementStatus.FAIL\n',
+          '    status = StatementStatus.PASS if check["max_rel_torque_difference"] <= tolerance["torque_relative"] '
+          'else StatementStatus.FAIL\n'),),
+        ('tests/test_report_text.py::test_the_programs_statement_needs_both_the_replay_and_the_closed_loop',),
+    ),
+    Mutation(
+        'check-passes-on-replay-alone',
+        'export --check passes when the torques agree, whatever the loop the compiled step closes',
+        'analysis/export.py',
+        (('        return (self.max_rel_torque_difference <= TORQUE_TOLERANCE\n'
+          '                and self.closed_loop_max_state_difference <= CLOSED_LOOP_TOLERANCE)  # fmt: skip\n',
+          '        return self.max_rel_torque_difference <= TORQUE_TOLERANCE\n'),),
+        ('tests/test_report_text.py::test_the_programs_statement_needs_both_the_replay_and_the_closed_loop',
+         'tests/test_export.py::test_the_closed_loop_is_the_same_only_when_both_runs_complete_alike'),
+    ),
 )
 
 
