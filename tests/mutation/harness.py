@@ -1364,6 +1364,22 @@ MUTATIONS = (
         ('tests/test_report_text.py::test_the_programs_statement_needs_both_the_replay_and_the_closed_loop',
          'tests/test_export.py::test_the_closed_loop_is_the_same_only_when_both_runs_complete_alike'),
     ),
+    Mutation(
+        'stopped-run-claim-passes',
+        'verify gives PASS to a claim measured on a run that stopped out of view, diverged or singular '
+        '(INCONCLUSIVE only when it ran out of time or the integrator failed)',
+        'analysis/verify.py',
+        (('    if traj.status is not RunStatus.OK:\n',
+          '    if traj.status in (RunStatus.TIME_BUDGET, RunStatus.INTEGRATOR_FAILURE):\n'),),
+        ('tests/test_verify.py::test_a_claim_holding_on_a_run_that_stopped_early_is_inconclusive_and_so_is_the_verdict',),
+    ),
+    Mutation(
+        'verdict-ignores-inconclusive',
+        'the verdict says every check passes with a check INCONCLUSIVE',
+        'analysis/results.py',
+        (('    if inconclusive:\n', '    if False:\n'),),
+        ('tests/test_verify.py::test_a_claim_holding_on_a_run_that_stopped_early_is_inconclusive_and_so_is_the_verdict',),
+    ),
 )
 
 
