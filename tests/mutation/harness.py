@@ -1380,6 +1380,43 @@ MUTATIONS = (
         (('    if inconclusive:\n', '    if False:\n'),),
         ('tests/test_verify.py::test_a_claim_holding_on_a_run_that_stopped_early_is_inconclusive_and_so_is_the_verdict',),
     ),
+    Mutation(
+        'synthesis-margin-full-hold-limit',
+        'a gain up to its full hold limit is inside the synthesis\' margins (the 0.8 dropped)',
+        'analysis/windows.py',
+        (('if k > UPPER_FRACTION * up]', 'if k > up]'),
+         ('            if self.held > UPPER_FRACTION * (2 - self.margin) and not found:\n',
+          '            if self.held > 2 - self.margin and not found:\n')),
+        ('tests/test_synthesize.py::test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept',),
+    ),
+    Mutation(
+        'synthesis-margin-joint-unnamed',
+        'a gain above 0.8 of its hold limit is said only of the gains together, the joint not named',
+        'analysis/windows.py',
+        (('if k > UPPER_FRACTION * up]', 'if k > up]'),),
+        ('tests/test_synthesize.py::test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept',),
+    ),
+    Mutation(
+        'synthesis-margin-lower-end',
+        'a gain just above its window\'s lower end is inside the synthesis\' margins (the 1.1 dropped)',
+        'analysis/windows.py',
+        (('if k < LOWER_FACTOR * low]', 'if k < low]'),),
+        ('tests/test_synthesize.py::test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept',),
+    ),
+    Mutation(
+        'synthesis-margin-rho-below-one',
+        'a design with 0.99 < rho < 1 is inside the synthesis\' margins (fact 14 without its margin)',
+        'analysis/synthesize.py',
+        (('if implemented["rho"] > RHO_MAX:', 'if implemented["rho"] >= 1:'),),
+        ('tests/test_synthesize.py::test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept',),
+    ),
+    Mutation(
+        'synthesis-runs-scenario-integral-gain',
+        'the synthesis runs a design with K_I = k_i_factor times the scenario\'s K_xi, not the design\'s',
+        'analysis/synthesize.py',
+        (('integral_gain(case.scenario.gains, point.k_xi)', 'integral_gain(case.scenario.gains, case.point.k_xi)'),),
+        ('tests/test_synthesize.py::test_the_synthesis_runs_each_design_with_its_own_integral_gain',),
+    ),
 )
 
 
