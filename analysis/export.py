@@ -84,6 +84,22 @@ class Check:
     max_rel_torque_difference: float
     closed_loop_max_state_difference: float
 
+    @classmethod
+    def of(cls, inputs: Path, reference: SilRun, taus: np.ndarray, closed: SilRun) -> Check:
+        """The check of the torques ``taus`` the compiled step gave on the inputs of ``reference`` (the
+        run with the Python step) and of ``closed``, the loop the compiled step closed: each torque's
+        difference relative to that torque, and the largest difference of the plant's joint positions
+        and speeds (infinite when one run stopped before the other: they are not the same loop)."""
+        difference = np.abs(taus - reference.tau)
+        scale = np.maximum(np.abs(reference.tau), np.finfo(float).tiny)
+        joints = np.hstack([reference.q, reference.qd]), np.hstack([closed.q, closed.qd])
+        same_length = len(joints[0]) == len(joints[1])  # a run cut short by one step only: a difference
+        state_difference = float(np.abs(joints[0] - joints[1]).max()) if same_length else float("inf")
+        return cls(inputs=inputs, samples=len(reference.tau),
+                   max_abs_torque_difference=float(difference.max(initial=0.0)),
+                   max_rel_torque_difference=float((difference / scale).max(initial=0.0)),
+                   closed_loop_max_state_difference=state_difference)  # fmt: skip
+
     @property
     def passed(self) -> bool:
         """Both within :data:`TORQUE_TOLERANCE` and :data:`CLOSED_LOOP_TOLERANCE`."""
@@ -315,20 +331,8 @@ def check(case: Case, export: Export, duration: float | None = None) -> tuple[Ch
     c_step = compiled_controller(case, export)
     taus, _ = replay(c_step.step, reference, c_step.initial_state())
     write_inputs(reference, export.directory / "sil_inputs.csv")
-    difference = np.abs(taus - reference.tau)
-    scale = np.maximum(np.abs(reference.tau), np.finfo(float).tiny)
     closed = software_in_the_loop(case, c_step.step, duration=duration, controller=controller)
-    joints = np.hstack([reference.q, reference.qd]), np.hstack([closed.q, closed.qd])
-    same_length = len(joints[0]) == len(joints[1])  # a run cut short by one step only: a difference
-    state_difference = float(np.abs(joints[0] - joints[1]).max()) if same_length else float("inf")
-    result = Check(
-        inputs=export.directory / "sil_inputs.csv",
-        samples=len(reference.tau),
-        max_abs_torque_difference=float(difference.max(initial=0.0)),
-        max_rel_torque_difference=float((difference / scale).max(initial=0.0)),
-        closed_loop_max_state_difference=state_difference,
-    )
-    return result, reference
+    return Check.of(export.directory / "sil_inputs.csv", reference, taus, closed), reference
 
 
 def timing(

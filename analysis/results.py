@@ -160,6 +160,13 @@ class ClaimsSummary(Record):
     inconclusive: int
     seconds: float
 
+    @classmethod
+    def of(cls, claims: list[Claim], seconds: float) -> ClaimsSummary:
+        """The counts of ``claims`` (:attr:`Claim.status`), checked in ``seconds``."""
+        count = lambda status: sum(c.status is status for c in claims)  # noqa: E731
+        return cls(claims=count(ClaimStatus.PASS) + count(ClaimStatus.FAIL), failed=count(ClaimStatus.FAIL),
+                   inconclusive=count(ClaimStatus.INCONCLUSIVE), seconds=seconds)  # fmt: skip
+
 
 @dataclass(frozen=True, kw_only=True)
 class VerificationResult(Record):
@@ -514,11 +521,9 @@ def verification_result(
         gamma = None if not np.isfinite(gamma) else gamma
     envelope = envelope_record(case, search=False) if envelope is None else envelope
     claims = verify(loop, case.s0, case.settings, gamma, envelope, implemented_run, rest, paper_run)
-    count = lambda status: sum(c.status is status for c in claims)  # noqa: E731
-    summary_ = ClaimsSummary(claims=count(ClaimStatus.PASS) + count(ClaimStatus.FAIL), failed=count(ClaimStatus.FAIL),
-                             inconclusive=count(ClaimStatus.INCONCLUSIVE), seconds=time.perf_counter() - start)
     return VerificationResult(scenario=spec.name, gamma=gamma, gamma_certified=cert.certified, claims=claims,
-                              summary=summary_, provenance=provenance)  # fmt: skip
+                              summary=ClaimsSummary.of(claims, time.perf_counter() - start),
+                              provenance=provenance)  # fmt: skip
 
 
 def best_gamma(point: dict) -> tuple[float | None, str]:

@@ -56,7 +56,7 @@ from dvfc.analysis.scenario import Scenario, ScenarioError, integral_gain
 from dvfc.analysis.windows import GainWindows, WindowSpec, case_window_spec, case_windows
 from dvfc.models.inertia import MassBounds
 from dvfc.models.lie import SE3
-from dvfc.models.loop import Gains, PlantWeights, Weights
+from dvfc.models.loop import ClosedLoop, Gains, PlantWeights, Weights
 from dvfc.models.robot import spans_the_task
 
 TARGET_MARGIN = 1e-4
@@ -568,23 +568,24 @@ def search_within_limits(
     return done(lo, good, bad)
 
 
-def designed_gains(case: Case, point: GainPoint) -> Gains:
-    """The gains of (42) of a design ``point`` on ``case``, with the case's integral action
-    (docs/math.md, fact 20): ``K_I = k_i_factor K_xi`` at the design's ``K_xi`` when the scenario
-    gives a factor, its fixed ``k_i`` otherwise, none without."""
-    return Gains(point.k_xi, point.k_c, point.k_e, integral_gain(case.scenario.gains, point.k_xi))
+def designed_loop(case: Case, point: GainPoint) -> ClosedLoop:
+    """The case's loop with a design ``point``: its gains of (42) and weights, with the case's integral
+    action (docs/math.md, fact 20): ``K_I = k_i_factor K_xi`` at the design's ``K_xi`` when the scenario
+    gives a factor, its fixed ``k_i`` otherwise, none without (the loop of the scenario written with
+    the design)."""
+    gains = Gains(point.k_xi, point.k_c, point.k_e, integral_gain(case.scenario.gains, point.k_xi))
+    return replace(case.loop, gains=gains, weights=point.weights)
 
 
 def design_runner(case: Case) -> Callable[[GainPoint], dict]:
     """Runs of designs (gains and weights) of one case as implemented (its controller,
     plant and image; each design runs once, so without compiling): for a design, the run's
     status and, per joint, the peak torques and speed against the URDF's limits."""
-    loop, settings = case.loop, replace(case.settings, jit=False)
-    limits = robot_limits(loop, settings)
+    settings = replace(case.settings, jit=False)
+    limits = robot_limits(case.loop, settings)
 
     def run(point: GainPoint) -> dict:
-        designed = replace(loop, gains=designed_gains(case, point), weights=point.weights)
-        traj = as_implemented(designed, settings).run(case.s0)
+        traj = as_implemented(designed_loop(case, point), settings).run(case.s0)
         return {"status": traj.status, "message": traj.message, **limit_record(traj, limits)}
 
     return run
@@ -708,8 +709,7 @@ def design_checker(case: Case, run: Callable[[GainPoint], dict]) -> Callable[[Ga
         record = dict(run(point))
         implemented = None
         if case.settings.implementation is not None:
-            designed = replace(case.loop, gains=designed_gains(case, point), weights=point.weights)
-            implemented = implemented_record(designed, case.s0, case.settings)
+            implemented = implemented_record(designed_loop(case, point), case.s0, case.settings)
         windows = None if spec is None else spec.of(point.k_xi)
         return {**record, "implemented": implemented, "sampled": sampled_shortfall(windows, implemented)}
 

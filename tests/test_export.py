@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import shutil
 import subprocess
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +25,7 @@ from dvfc.analysis.export import (
     CLOSED_LOOP_TOLERANCE,
     NO_COMPILER,
     TORQUE_TOLERANCE,
+    Check,
     build,
     check,
     compiled_controller,
@@ -32,7 +35,8 @@ from dvfc.analysis.export import (
     running_controller,
 )
 from dvfc.analysis.scenario import DEFAULT_SCENARIO
-from dvfc.analysis.sil import software_in_the_loop
+from dvfc.analysis.sil import SilRun, software_in_the_loop
+from dvfc.analysis.simulate import RunStatus
 from dvfc.models.robot import builtin_urdf
 
 runner = CliRunner()
@@ -176,6 +180,59 @@ def assert_check(case, exported, duration: float) -> None:
     assert result.max_rel_torque_difference <= TORQUE_TOLERANCE
     assert result.closed_loop_max_state_difference <= CLOSED_LOOP_TOLERANCE
     assert result.passed
+
+
+def sil_run(samples: int, tau: np.ndarray, status: RunStatus = RunStatus.OK) -> SilRun:
+    """A stand-in software-in-the-loop run of two joints at 500 Hz: ``samples`` control samples with
+    the torques ``tau`` (``samples x 2``), smooth joints at every sample ``k <= samples`` (one more when
+    it completes), no image."""
+    t = np.arange(samples + (status is RunStatus.OK)) / 500.0
+    q = np.column_stack([np.sin(t), 0.5 * np.cos(2 * t)])
+    return SilRun(t=t, q=q, qd=np.gradient(q, t, axis=0), tau=tau[:samples], captures=np.full(samples, -1),
+                  features=np.zeros((samples, 8)), states=np.zeros((samples, 3)), status=status,
+                  message="" if status is RunStatus.OK else "stopped")  # fmt: skip
+
+
+STAND_IN_TORQUES = np.column_stack([100.0 * np.cos(np.arange(50) / 10), 0.01 + 0.005 * np.sin(np.arange(50) / 7)])
+"""50 samples of two joints' torques: one of up to 100 N m, one of 0.005 to 0.015 N m (1e-4 of the peak)."""
+
+
+@pytest.mark.parametrize(("off", "passes"), [(3e-13, True), (1e-11, False)], ids=["3e-13", "1e-11"])
+def test_each_torque_is_compared_relative_to_itself(off, passes):
+    """The replay's statistic (``dvfc export --check``): a compiled step whose torque on the small joint is
+    off by ``off`` of that torque, the loop it closes the same. 3e-13 of each torque (a thousand ulps)
+    is within the tolerance; 1e-11 is not, though it is 1e-15 of the run's peak torque: a small
+    torque is the program's as much as a large one."""
+    reference = sil_run(50, STAND_IN_TORQUES)
+    compiled = STAND_IN_TORQUES * [1.0, 1.0 + off]
+    check = Check.of(Path("inputs.csv"), reference, compiled, reference)
+    assert check.max_rel_torque_difference == pytest.approx(off, rel=1e-3)
+    assert check.max_abs_torque_difference == pytest.approx(off * np.abs(STAND_IN_TORQUES[:, 1]).max(), rel=1e-3)
+    assert check.samples == 50 and check.closed_loop_max_state_difference == 0.0
+    assert check.passed is passes and (check.max_rel_torque_difference <= TORQUE_TOLERANCE) is passes
+
+
+@pytest.mark.parametrize(
+    ("stopped", "shift", "difference"),
+    [("closed", (0.0, 0.0), math.inf), ("reference", (0.0, 0.0), math.inf), (None, (0.0, 2e-9), 2e-9),
+     (None, (5e-10, 0.0), 5e-10)],
+    ids=["the compiled step's loop stops early", "the Python step's loop stops early", "speeds off 2e-9",
+         "positions off 5e-10"],
+)  # fmt: skip
+def test_the_closed_loop_is_the_same_only_when_both_runs_complete_alike(stopped, shift, difference):
+    """The closed loop's statistic: the largest difference of the joint positions and speeds between the
+    loop the compiled step closes and the Python step's, with the torques replayed identical. A loop
+    that stopped early (a feature out of view) where the other went on is not the same loop: its
+    difference is infinite, never the 0 of the samples both have; a difference in the speeds alone
+    counts as one in the positions, against :data:`CLOSED_LOOP_TOLERANCE` (1e-9)."""
+    complete = sil_run(50, STAND_IN_TORQUES)
+    early = sil_run(40, STAND_IN_TORQUES, RunStatus.OUT_OF_VIEW)
+    reference = early if stopped == "reference" else complete
+    closed = early if stopped == "closed" else replace(complete, q=complete.q + shift[0], qd=complete.qd + shift[1])
+    check = Check.of(Path("inputs.csv"), reference, reference.tau, closed)
+    assert check.max_rel_torque_difference == 0.0
+    assert check.closed_loop_max_state_difference == pytest.approx(difference, rel=1e-6)
+    assert check.passed is (difference <= CLOSED_LOOP_TOLERANCE)
 
 
 @pytest.mark.slow

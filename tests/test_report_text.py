@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from dvfc.analysis.export import NO_COMPILER
+from dvfc.analysis.export import CLOSED_LOOP_TOLERANCE, NO_COMPILER, TORQUE_TOLERANCE, Check
+from dvfc.analysis.results import program_statement, verdict
 from dvfc.models.camera import Camera
 from dvfc.reports.document import _number, _vector, camera_facts, plant_text
 
@@ -61,7 +64,7 @@ def test_the_verdict_names_every_statement_not_certified_or_not_applying():
     """A certified design whose claims all pass, with two statements of the review not certified
     and one not applying: the verdict passes (the design's exit 0), and its headline counts the
     three and lists them; the certified and measured statements are not listed."""
-    from dvfc.analysis.results import Statement, StatementStatus, verdict
+    from dvfc.analysis.results import Statement, StatementStatus
 
     certificate = {"points": [{"certified": True}]}
     verification = {"claims": [{"status": "PASS"}], "summary": {"claims": 1}}
@@ -91,11 +94,33 @@ def test_the_programs_statement_is_the_replays_outcome(record, status):
     """Page 1's statement on the program that runs: PASS exactly when the replay of the compiled step
     stayed within its tolerances, FAIL otherwise, INCONCLUSIVE without a C compiler, DOES NOT APPLY
     when the loop has no program; a failed replay fails the verdict (the report's exit status)."""
-    from dvfc.analysis.results import program_statement, verdict
-
     record = record | {"sha256": "0" * 64, "tolerances": {"torque_relative": 1e-12, "closed_loop": 1e-9}}
     row = program_statement(record)
     assert row.statement.startswith("the exported program") and row.status == status
     certificate = {"points": [{"certified": True}]}
     verification = {"claims": [{"status": "PASS"}], "summary": {"claims": 1}}
     assert verdict(certificate, verification, [row]).passed == (status != "FAIL")
+
+
+@pytest.mark.parametrize(("torque", "closed_loop", "status"), [
+    (0.0, 0.0, "PASS"),
+    (1e-9, 0.0, "FAIL"),
+    (0.0, 2e-9, "FAIL"),
+    (0.0, float("inf"), "FAIL"),
+], ids=["both agree", "a torque off 1e-9", "the closed loop off 2e-9", "the closed loop stopped early"])  # fmt: skip
+def test_the_programs_statement_needs_both_the_replay_and_the_closed_loop(torque, closed_loop, status):
+    """Page 1's "the exported program is the simulated controller" stands on both halves of ``dvfc export
+    --check`` (:class:`~dvfc.analysis.export.Check`): every torque of the replay within 1e-12 of the
+    Python step's, relative, AND the loop the compiled step closes within 1e-9 of the Python step's.
+    The replay alone agreeing is not enough: a closed loop off by 2e-9, or stopped early, FAILS the
+    statement and the verdict."""
+    check = Check(Path("sil_inputs.csv"), 5000, torque * 30.0, torque, closed_loop)
+    record = {"sha256": "0" * 64, "check": check.as_dict(),
+              "tolerances": {"torque_relative": TORQUE_TOLERANCE, "closed_loop": CLOSED_LOOP_TOLERANCE}}  # fmt: skip
+    row = program_statement(record)
+    assert row.status == status, row.detail
+    certificate = {"points": [{"certified": True}]}
+    verification = {"claims": [{"status": "PASS"}], "summary": {"claims": 1}}
+    outcome = verdict(certificate, verification, [row])
+    assert outcome.passed is (status == "PASS")
+    assert ("every check passes" in outcome.headline) is (status == "PASS")

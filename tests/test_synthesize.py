@@ -34,15 +34,19 @@ from dvfc.analysis.synthesize import (
     CaseSynthesis,
     Outcome,
     Synthesis,
+    design_runner,
+    designed_loop,
     designer,
     logged_runs,
     rounded,
+    sampled_shortfall,
     scaled,
     scenario_text,
     search_within_limits,
     synthesis_record,
     synthesize,
     synthesize_speed,
+    written_case,
 )
 from dvfc.analysis.windows import HOLD_MARGIN, WindowSpec, case_window_spec, case_windows
 from dvfc.models.lie import SE3
@@ -542,3 +546,70 @@ def test_a_written_design_without_a_certified_target_speed_is_uncertified(result
     assert record.to_json()["max_target_speed"] is None and record.point.envelope is envelope
     certified = synthesis_record(replace(done, envelope=envelope | {"max_target_speed": 0.2}), Path("s.toml"), {}, 0.0)
     assert certified.outcome is Outcome.DESIGNED and certified.written and certified.status == "ok"
+
+
+TWO_JOINTS = WindowSpec(np.diag([0.5, 0.02]), 500.0, None)
+"""Two joints of inertia 0.5 and 0.02 kg m^2, uncoupled, held at 500 Hz, any finite gamma: each gain's
+window is ``(1/2, (2 - HOLD_MARGIN) 500 m_i)`` whatever the other gain within its own."""
+HOLD_LIMITS = (2 - HOLD_MARGIN) * 500.0 * np.array([0.5, 0.02])
+
+
+def fact_14(rho: float, slowest: float | None) -> dict:
+    """A stand-in of fact 14's record at 500 Hz: certified, with ``rho`` and the linearised loop stable
+    down to ``slowest`` Hz (None: over the whole range searched)."""
+    control = {"value": slowest, "unstable_at": None if slowest is None else slowest - 1.0, "range": [500.0, 10.0]}
+    return {"applies": True, "certified": True, "reason": None, "rho": rho, "margins": {"control_rate": control}}
+
+
+@pytest.mark.parametrize(
+    ("hold", "lower", "rho", "slowest", "shortfall"),
+    [
+        (0.5, 2.0, 0.9, None, None),
+        (0.79, 1.11, 0.985, 395.0, None),
+        (0.81, 2.0, 0.9, None, "gain window: joint 1 k_xi"),
+        (1.0, 2.0, 0.9, None, "gain window: joint 1 k_xi"),
+        (0.5, 1.09, 0.9, None, "gain window: joint 2 k_xi"),
+        (0.5, 1.001, 0.9, None, "gain window: joint 2 k_xi"),
+        (0.5, 2.0, 0.995, None, "fact 14: rho"),
+        (0.5, 2.0, 0.9999, None, "fact 14: rho"),
+        (0.5, 2.0, 0.9, 405.0, "fact 14: the linearised loop is stable only down to"),
+    ],
+    ids=["well inside", "just inside every margin", "0.81 of a hold limit", "at a hold limit", "1.09 x a lower end",
+         "just above a lower end", "rho 0.995", "rho 0.9999", "stable only down to 0.81 x the control rate"],
+)  # fmt: skip
+def test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept(hold, lower, rho, slowest, shortfall):
+    """The synthesis' margins (docs/math.md, "Gain windows"; fact 14 with margin): joint 1's gain at ``hold``
+    of its hold limit and joint 2's at ``lower`` times its window's lower end, fact 14 certifying ``rho``
+    and the linear control-rate margin ``slowest``. Inside exactly when every gain is at most 0.8 of its
+    hold limit and at least 1.1 x its lower end, ``rho <= 0.99`` and the loop stays stable down to 0.8 of
+    the control rate; a design short of one is said to be, naming the joint or the statement: a gain on
+    its full hold limit, one just above its lower end, a ``rho`` between 0.99 and 1 are not inside."""
+    k_xi = np.array([hold * HOLD_LIMITS[0], lower * 0.5])
+    windows = TWO_JOINTS.of(k_xi)
+    assert windows.upper == pytest.approx(HOLD_LIMITS, rel=1e-12) and np.all(windows.lower == 0.5)
+    found = sampled_shortfall(windows, fact_14(rho, slowest))
+    assert found is None if shortfall is None else found is not None and found.startswith(shortfall), found
+
+
+@pytest.mark.parametrize("factor", [0.5, 2.0])
+def test_the_synthesis_runs_each_design_with_its_own_integral_gain(tmp_path, factor):
+    """The default example (``K_I = 10 K_xi``, engaging from t = 0 here, 0.1 s): the synthesis' run of a
+    design with ``factor`` times the scenario's ``K_xi`` is the run of the scenario file written with that
+    design, whose ``K_I`` is 10 times the design's ``K_xi``, not the scenario's: the limits it is
+    judged by are the written design's (the peaks of the two runs the same to 1e-12, measured the same to
+    the bit; with the scenario's ``K_I`` up to 3e-3 apart)."""
+    data = tomllib.loads((EXAMPLES / "ur5_circle.toml").read_text())
+    data["simulation"].update(duration=0.1, jit=False)
+    data["gains"]["integral_start"] = 0.0
+    path = tmp_path / "s.toml"
+    path.write_text(tomli_w.dumps(data))
+    case = Case.load(path)
+    given = case.point
+    point = GainPoint(factor * given.k_xi, given.k_c, given.k_e, given.weights, given.plant)
+    assert designed_loop(case, point).gains.k_i == pytest.approx(10.0 * point.k_xi, rel=1e-15)
+    target = tmp_path / "out" / "syn.toml"
+    text = scenario_text(path.read_text(), point, name="syn", weights=False, source=tmp_path, target=target)
+    written = written_case(case, text, target)
+    measured, own = design_runner(case)(point), design_runner(written)(written.point)
+    for key in ("peak_torque_commanded", "peak_speed"):
+        assert np.asarray(measured[key]) == pytest.approx(np.asarray(own[key]), rel=1e-12, abs=0.0), key

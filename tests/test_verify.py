@@ -11,15 +11,18 @@ import numpy as np
 import pytest
 
 from dvfc.analysis.certify import GainPoint, certify
-from dvfc.analysis.simulate import Trajectory
+from dvfc.analysis.results import ClaimsSummary, VerificationResult, verdict
+from dvfc.analysis.simulate import RunStatus, Trajectory
 from dvfc.analysis.verify import (
     Claim,
+    ClaimStatus,
     fastest_rate,
     feature_region_claim,
     from_rest_claims,
     kinematic_claims,
     lemma_2,
     lyapunov_derivative,
+    on_run,
     storage_floor,
     verify_paper,
 )
@@ -178,3 +181,30 @@ def test_feature_box_claim_tolerates_round_off_of_the_pixels_and_no_more(outside
     env = {"boxes_px": boxes.tolist(), "level": 1.0, "visible": True}
     claim = feature_region_claim(traj, np.array([640.0, 512.0]), env)
     assert claim.passed is holds, claim.to_json()
+
+
+EARLY_STOPS = [status for status in RunStatus if status is not RunStatus.OK]
+
+
+@pytest.mark.parametrize("stop", EARLY_STOPS, ids=str)
+def test_a_claim_holding_on_a_run_that_stopped_early_is_inconclusive_and_so_is_the_verdict(stop):
+    """A run that stopped before its horizon (out of view, diverged, singular, out of time, ...) says
+    nothing of the time it did not run: a claim that holds on the part that ran is INCONCLUSIVE with the
+    stop's reason, never PASS, and the verdict then does not say every check passes; a claim broken on
+    that part FAILS (a violation is one wherever it happens). Theorem 2's checks from rest, which hold
+    on the completed run, are each INCONCLUSIVE on the same run stopped early."""
+    complete = from_rest(0.0, 0.0)
+    stopped = replace(complete, status=stop, message=f"{stop} at t = 2 s")
+    held = on_run("V non-increasing", "Theorem 1, (43)", stopped, 0.0, "<= 1e-9", True)
+    assert held.status is ClaimStatus.INCONCLUSIVE and stopped.message in held.detail, held.to_json()
+    assert on_run("V non-increasing", "Theorem 1, (43)", stopped, 1.0, "<= 1e-9", False).status is ClaimStatus.FAIL
+    checks = [from_rest_claims(run, 1.0, 1.0)[:3] for run in (complete, stopped)]
+    assert [c.status for c in checks[0]] == [ClaimStatus.PASS] * 3, [c.to_json() for c in checks[0]]
+    assert [c.status for c in checks[1]] == [ClaimStatus.INCONCLUSIVE] * 3, [c.to_json() for c in checks[1]]
+    claims = [*checks[1], held]
+    result = VerificationResult(scenario="s", gamma=1.0, gamma_certified=True, claims=claims,
+                                summary=ClaimsSummary.of(claims, 0.0), provenance={})  # fmt: skip
+    assert not result.passed and result.summary.inconclusive == 4
+    outcome = verdict({"points": [{"certified": True}]}, result.to_json())
+    assert not outcome.passed and "every check passes" not in outcome.headline
+    assert "4 check(s) INCONCLUSIVE" in outcome.headline and len(outcome.inconclusive) == 4

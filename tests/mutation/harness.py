@@ -1352,6 +1352,94 @@ MUTATIONS = (
         (('                outcome = Outcome.UNCERTIFIED\n', '                pass\n'),),
         ('tests/test_synthesize.py::test_a_written_design_without_a_certified_target_speed_is_uncertified',),
     ),
+    # --- issue 39: tests with teeth ---
+    Mutation(
+        'check-torque-relative-to-peak',
+        'export --check measures each torque difference relative to the run\'s peak torque, not to that torque',
+        'analysis/export.py',
+        (('        scale = np.maximum(np.abs(reference.tau), np.finfo(float).tiny)\n',
+          '        scale = np.maximum(np.abs(reference.tau).max(), np.finfo(float).tiny)\n'),),
+        ('tests/test_export.py::test_each_torque_is_compared_relative_to_itself',),
+    ),
+    Mutation(
+        'check-early-stop-counted-zero',
+        'export --check counts a closed loop that stopped early as no difference (0) from the Python step\'s',
+        'analysis/export.py',
+        (('if same_length else float("inf")', 'if same_length else 0.0'),),
+        ('tests/test_export.py::test_the_closed_loop_is_the_same_only_when_both_runs_complete_alike',),
+    ),
+    Mutation(
+        'program-statement-on-replay-alone',
+        'page 1\'s "the exported program is the simulated controller" passes on the torque replay alone',
+        'analysis/results.py',
+        (('    status = StatementStatus.PASS if check["passed"] else StatementStatus.FAIL\n',
+          '    status = StatementStatus.PASS if check["max_rel_torque_difference"] <= tolerance["torque_relative"] '
+          'else StatementStatus.FAIL\n'),),
+        ('tests/test_report_text.py::test_the_programs_statement_needs_both_the_replay_and_the_closed_loop',),
+    ),
+    Mutation(
+        'check-passes-on-replay-alone',
+        'export --check passes when the torques agree, whatever the loop the compiled step closes',
+        'analysis/export.py',
+        (('        return (self.max_rel_torque_difference <= TORQUE_TOLERANCE\n'
+          '                and self.closed_loop_max_state_difference <= CLOSED_LOOP_TOLERANCE)  # fmt: skip\n',
+          '        return self.max_rel_torque_difference <= TORQUE_TOLERANCE\n'),),
+        ('tests/test_report_text.py::test_the_programs_statement_needs_both_the_replay_and_the_closed_loop',
+         'tests/test_export.py::test_the_closed_loop_is_the_same_only_when_both_runs_complete_alike'),
+    ),
+    Mutation(
+        'stopped-run-claim-passes',
+        'verify gives PASS to a claim measured on a run that stopped out of view, diverged or singular '
+        '(INCONCLUSIVE only when it ran out of time or the integrator failed)',
+        'analysis/verify.py',
+        (('    if traj.status is not RunStatus.OK:\n',
+          '    if traj.status in (RunStatus.TIME_BUDGET, RunStatus.INTEGRATOR_FAILURE):\n'),),
+        ('tests/test_verify.py::test_a_claim_holding_on_a_run_that_stopped_early_is_inconclusive_and_so_is_the_verdict',),
+    ),
+    Mutation(
+        'verdict-ignores-inconclusive',
+        'the verdict says every check passes with a check INCONCLUSIVE',
+        'analysis/results.py',
+        (('    if inconclusive:\n', '    if False:\n'),),
+        ('tests/test_verify.py::test_a_claim_holding_on_a_run_that_stopped_early_is_inconclusive_and_so_is_the_verdict',),
+    ),
+    Mutation(
+        'synthesis-margin-full-hold-limit',
+        'a gain up to its full hold limit is inside the synthesis\' margins (the 0.8 dropped)',
+        'analysis/windows.py',
+        (('if k > UPPER_FRACTION * up]', 'if k > up]'),
+         ('            if self.held > UPPER_FRACTION * (2 - self.margin) and not found:\n',
+          '            if self.held > 2 - self.margin and not found:\n')),
+        ('tests/test_synthesize.py::test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept',),
+    ),
+    Mutation(
+        'synthesis-margin-joint-unnamed',
+        'a gain above 0.8 of its hold limit is said only of the gains together, the joint not named',
+        'analysis/windows.py',
+        (('if k > UPPER_FRACTION * up]', 'if k > up]'),),
+        ('tests/test_synthesize.py::test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept',),
+    ),
+    Mutation(
+        'synthesis-margin-lower-end',
+        'a gain just above its window\'s lower end is inside the synthesis\' margins (the 1.1 dropped)',
+        'analysis/windows.py',
+        (('if k < LOWER_FACTOR * low]', 'if k < low]'),),
+        ('tests/test_synthesize.py::test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept',),
+    ),
+    Mutation(
+        'synthesis-margin-rho-below-one',
+        'a design with 0.99 < rho < 1 is inside the synthesis\' margins (fact 14 without its margin)',
+        'analysis/synthesize.py',
+        (('if implemented["rho"] > RHO_MAX:', 'if implemented["rho"] >= 1:'),),
+        ('tests/test_synthesize.py::test_a_design_is_inside_the_synthesis_margins_only_with_every_margin_kept',),
+    ),
+    Mutation(
+        'synthesis-runs-scenario-integral-gain',
+        'the synthesis runs a design with K_I = k_i_factor times the scenario\'s K_xi, not the design\'s',
+        'analysis/synthesize.py',
+        (('integral_gain(case.scenario.gains, point.k_xi)', 'integral_gain(case.scenario.gains, case.point.k_xi)'),),
+        ('tests/test_synthesize.py::test_the_synthesis_runs_each_design_with_its_own_integral_gain',),
+    ),
 )
 
 
