@@ -1329,6 +1329,14 @@ MUTATIONS = (
         (('                outcome = Outcome.UNCERTIFIED\n', '                pass\n'),),
         ('tests/test_synthesize.py::test_a_written_design_without_a_certified_target_speed_is_uncertified',),
     ),
+    # --- issue 39: the start's statements ---
+    Mutation(
+        "ramp-level-without-limit",
+        "fact 16a.3's level the recursion's largest bound, without the last step's limit b/k",
+        "analysis/start.py",
+        (("    level = float(max(*bound, b[j] / k[j]))\n", "    level = float(max(*bound))\n"),),
+        ("tests/test_start_levels.py::test_ramp_level_covers_the_limit_its_recursion_rises_to",),
+    ),
 )
 
 
