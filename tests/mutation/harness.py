@@ -1337,6 +1337,14 @@ MUTATIONS = (
         (("    level = float(max(*bound, b[j] / k[j]))\n", "    level = float(max(*bound))\n"),),
         ("tests/test_start_levels.py::test_ramp_level_covers_the_limit_its_recursion_rises_to",),
     ),
+    Mutation(
+        "integral-start-visible-after-t-i",
+        "fact 20.6's start keeps the ramp's visibility time past integral_start (certified from after T_I)",
+        "analysis/start.py",
+        (('    if (record.get("visible_from_s") or 0.0) > t_i:',
+          '    if (record.get("visible_from_s") or 0.0) > math.inf:'),),
+        ("tests/test_start.py::test_every_time_a_start_statement_names_lies_before_integral_action_engages",),
+    ),
 )
 
 
