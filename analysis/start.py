@@ -379,19 +379,32 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
         else:
             record["visible_from_s"] = None
         if not record["visible"]:
-            record["reason"] = (f"visibility NOT certified from t = 0: the bound on V reaches {level:.4g} above the "
-                                f"visible level {c_vis:.4g} of fact 16.0 (a sublevel set about the fixed g_d); "
-                                + ("certified from t = " f"{record['visible_from_s']:.3g} s"
-                                   if record["visible_from_s"] is not None else "not certified at all"))
+            record["reason"] = _ramp_visibility(record)
     record["statement"] = _ramp_statement(record)
     return record
+
+
+def _ramp_visibility(record: dict) -> str:
+    """Why a ramp's record does not certify visibility from ``t = 0``, and from when it does
+    (``visible_from_s``); with ``until_s`` (:func:`until_integral`) a time past it is not certified."""
+    since, until = record["visible_from_s"], record.get("until_s")
+    if since is not None:
+        when = f"certified from t = {since:.3g} s"
+    elif until is None:
+        when = "not certified at all"
+    else:
+        when = f"not certified up to T_I = {until:.4g} s (integral action engages), and not certified after T_I"
+    return (f"visibility NOT certified from t = 0: the bound on V reaches {record['level']:.4g} above the visible "
+            f"level {record['visible_level']:.4g} of fact 16.0 (a sublevel set about the fixed g_d); {when}")
 
 
 def until_integral(start: dict, t_i: float) -> dict:
     """The start record of a design without ``K_I`` as the statement of the same design with it,
     up to ``t_i`` (``integral_start``; docs/math.md, fact 20.6): ``z_I`` stays 0 until then, so the
-    two loops are one ODE from one state and every bound of the start holds for ``0 <= t <= t_i``.
-    ``inside`` false (with the reason) when the start is not certified or ``t_i = 0``."""
+    two loops are one ODE from one state and every bound of the start holds for ``0 <= t <= t_i``,
+    and nothing after: a ramp's visibility from a time past ``t_i`` is not certified
+    (``visible_from_s`` None), every time the statement names lies in ``[0, t_i]``. ``inside`` false
+    (with the reason) when the start is not certified or ``t_i = 0``."""
     record = {**start, "until_s": t_i}
     if t_i <= 0:
         reason = ("integral action from t = 0 (integral_start = 0): no time before z_I moves, so the start of the "
@@ -399,6 +412,9 @@ def until_integral(start: dict, t_i: float) -> dict:
         return {**record, "inside": False, "level": None, "reason": reason}
     if not start["inside"]:
         return record
+    if (record.get("visible_from_s") or 0.0) > t_i:  # visibility only after T_I: not certified up to it
+        record["visible_from_s"] = None
+        record["reason"] = _ramp_visibility(record)
     method = start.get("method", "constant")
     if method == "planned":
         told = _statement(record)

@@ -4,6 +4,7 @@ the observer from the first image, and the start statement checked on runs from 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 
 import casadi as cs
@@ -203,3 +204,33 @@ def test_a_start_the_planned_reference_does_not_certify_is_inside_in_no_output(t
     verification = {"summary": {"claims": 0, "failed": 0, "inconclusive": 0}}
     row = next(r for r in statements(certificate, verification) if r.statement == "the start")
     assert row.status == "NOT CERTIFIED" and "inside the certified set" not in row.detail
+
+
+def ramp_then_integral(data: dict) -> None:
+    """An edit: the idealised scenario with a 0.5 s ramp of ``u_d`` and integral action
+    (``k_i_factor = 10``) from the ramp's end."""
+    data["start"] = {"ramp": 0.5}
+    data["gains"]["k_i_factor"] = 10.0
+
+
+TIME = re.compile(r"\bt (?:=|<=|>=) (\d+(?:\.\d*)?(?:e[-+]?\d+)?) s\b")
+"""A time a statement names: ``t = 0.97 s``, ``0 <= t <= 0.5 s``."""
+
+
+def test_every_time_a_start_statement_names_lies_before_integral_action_engages():
+    """Fact 20.6: the start of a design with ``K_I`` is the start of the design without it on
+    ``0 <= t <= T_I`` and says nothing after. With a 0.5 s ramp and ``k_i_factor = 10`` on the
+    idealised scenario (``T_I = 0.5 s``, the ramp's end), the design without ``K_I`` sees every
+    feature only from a later time (0.97 s): the start with ``K_I`` names no time past ``T_I`` (each
+    printed to at most 4 significant figures: 5e-4 relative), its record's ``visible_from_s`` is none
+    or within ``[0, T_I]``, and it says that visibility is not certified after ``T_I``."""
+    case = Case(Scenario.model_validate(scenario_dict(ramp_then_integral)), DEFAULT_SCENARIO.parent)
+    env = envelope_record(case, search=False)
+    start, own = env["start"], env["without_integral"]["start"]
+    t_i = start["until_s"]
+    assert t_i == 0.5 and start["inside"] and own["visible_from_s"] > t_i  # the case in point
+    assert start.get("visible_from_s") is None or 0 <= start["visible_from_s"] <= t_i
+    times = [float(x) for x in TIME.findall(start["statement"] + " " + str(start.get("reason")))]
+    assert times and all(0 <= x <= t_i * (1 + 5e-4) for x in times), start["statement"]
+    assert "not certified after T_I" in start["statement"]
+

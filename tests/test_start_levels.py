@@ -3,10 +3,10 @@ checked against their statements: the envelope's level covers ``V(0)`` and lies 
 self-consistent level ``min(w_rc, w_re)(1 - cos theta_bar)`` (fact 7, first exit); the planned
 start's level does too, strictly at the boundary; the path's Lipschitz slack is the stated ``L``
 over half a cell, and ``L`` bounds the variation of ``Ad_(g^-1) Ad_(g^-1)^T`` (16b.2); the ramp's
-level bounds every step of its recursion and its visibility time never precedes the last step
-above the visible level (16a.3). The idealised UR5 (``ur5_paper_ideal``) from rest with the planned
-reference or the ramp; the statement functions are called directly (the tube form, which is
-checked elsewhere, is left out of the planned start to keep these short)."""
+level bounds every step of its recursion and the limit ``b/k`` it rises to, and its visibility time
+never precedes the last step above the visible level (16a.3). The idealised UR5 (``ur5_paper_ideal``)
+from rest with the planned reference or the ramp; the statement functions are called directly (the
+tube form, which is checked elsewhere, is left out of the planned start to keep these short)."""
 
 from __future__ import annotations
 
@@ -187,3 +187,24 @@ def test_ramp_visibility_never_starts_before_the_last_step_above_the_visible_lev
     assert "not certified at all" in below["reason"]
     above = ramp_runs["above_last"]
     assert above["visible_from_s"] == pytest.approx(above["steps"] * above["step_s"], rel=1e-12)
+
+
+@pytest.mark.slow
+def test_ramp_level_covers_the_limit_its_recursion_rises_to():
+    """(16a.3): ``V(t) <= c`` for all ``t >= 0``, after the recursion's last step too, where fact 7's
+    first exit keeps ``V <= max(Vbar_last, b/k)``, ``b/k`` the last step's limit: ``c`` takes it. From
+    ``V(0) = 0`` (at rest at the reference, with the ramp) ``Vbar`` rises to within 1% of its limit (the
+    stopping rule): no step's bound lies above the last (probed as visibility from ``t = 0`` against a
+    visible level 1e-12 above it, relative), and a rising step moves ``Vbar`` strictly toward ``b/k``,
+    so ``b/k`` lies above the last bound: ``Vbar_last < c <= Vbar_last / 0.99``."""
+    i = statement_inputs(from_rest({"ramp": 0.5}))
+    env = envelope(i["design"], i["camera"], i["disturbance"], {**i["start"], "V0": 0.0}, search=False)
+    args = (i["design"], i["camera"], i["disturbance"], env, i["ramp"])
+    record = start_module.ramp_start(*args)
+    last = record["ultimate_V_ramp"]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(start_module, "visible_level", lambda *a, **k: last * (1 + 1e-12))
+        probe = start_module.ramp_start(*args)
+    assert probe["visible_from_s"] == 0.0  # every step's bound at most the last: Vbar rose to it
+    assert record["inside"] and record["V0"] == 0.0
+    assert last < record["level"] <= last / 0.99

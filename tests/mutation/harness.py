@@ -1352,7 +1352,7 @@ MUTATIONS = (
         (('                outcome = Outcome.UNCERTIFIED\n', '                pass\n'),),
         ('tests/test_synthesize.py::test_a_written_design_without_a_certified_target_speed_is_uncertified',),
     ),
-    # --- issue 39: tests with teeth ---
+    # --- claims, checks and designs that say no more than they measured ---
     Mutation(
         'check-torque-relative-to-peak',
         'export --check measures each torque difference relative to the run\'s peak torque, not to that torque',
@@ -1439,6 +1439,22 @@ MUTATIONS = (
         'analysis/synthesize.py',
         (('integral_gain(case.scenario.gains, point.k_xi)', 'integral_gain(case.scenario.gains, case.point.k_xi)'),),
         ('tests/test_synthesize.py::test_the_synthesis_runs_each_design_with_its_own_integral_gain',),
+    ),
+    # --- the start's statements ---
+    Mutation(
+        "ramp-level-without-limit",
+        "fact 16a.3's level the recursion's largest bound, without the last step's limit b/k",
+        "analysis/start.py",
+        (("    level = float(max(*bound, b[j] / k[j]))\n", "    level = float(max(*bound))\n"),),
+        ("tests/test_start_levels.py::test_ramp_level_covers_the_limit_its_recursion_rises_to",),
+    ),
+    Mutation(
+        "integral-start-visible-after-t-i",
+        "fact 20.6's start keeps the ramp's visibility time past integral_start (certified from after T_I)",
+        "analysis/start.py",
+        (('    if (record.get("visible_from_s") or 0.0) > t_i:',
+          '    if (record.get("visible_from_s") or 0.0) > math.inf:'),),
+        ("tests/test_start.py::test_every_time_a_start_statement_names_lies_before_integral_action_engages",),
     ),
 )
 
