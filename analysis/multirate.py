@@ -334,11 +334,10 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
     else:  # the true camera's image read with the nominal intrinsics (models/errors.py)
         pixels = true_features(loop.camera, model.relative_pose, cs.DM(camera))[1]
         e_image = model.image_estimate(controller_features(loop.camera, pixels))
-    exprs = [rate, *at_sample, model.e_e, e_image, model.xi]
-    rate, law, inputs, e_exact, e_image, xi = cs.substitute(exprs, [model.state], [state])
+    exprs = tuple(cs.substitute([rate, *at_sample, model.e_e, e_image, model.xi], [model.state], [state]))
+    rate, law, inputs, e_exact, e_image, xi = exprs
     s_eq = rest_state(loop, q_nom)
     if plant.differs(loop.camera):
-        exprs = (rate, law, inputs, e_exact, e_image, xi)
         s_eq = _plant_equilibrium(loop, s_eq, (z, point, model.hold, model.t), exprs)
     jac = cs.Function("held", [z, tau, e, observer, model.t, point],
                       [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau), cs.jacobian(rate, e),
@@ -799,14 +798,14 @@ def _tangent(quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation,
-                      plant: DeclaredPlant | None = None) -> ProgramMonodromy:  # fmt: skip
+                      as_declared: DeclaredPlant | None = None) -> ProgramMonodromy:  # fmt: skip
     """:class:`ProgramMonodromy` of a scenario's loop and implementation (fact 14's applicability and
-    :func:`schedule`; the plant's period map from :func:`held_linearization`, with the plant as declared:
-    its equilibrium, friction slope and true camera)."""
+    :func:`schedule`; the plant's period map from :func:`held_linearization`, with the plant as declared,
+    ``as_declared``: its equilibrium, friction slope and true camera)."""
     from dvfc.analysis.controller import Layout, program_function  # the program needs the loop's models
 
-    plant = plant or DeclaredPlant()
-    lin = held_linearization(loop, q0, plant).with_friction(plant.friction_slope)
+    declared = as_declared or DeclaredPlant()
+    lin = held_linearization(loop, q0, declared).with_friction(declared.friction_slope)
     sched = schedule(imp)
     n, m, h = loop.robot.n, loop.camera.m, imp.period
     ring = imp.latency_steps + imp.latency_jitter + 1
@@ -817,7 +816,7 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation,
     jacobian = cs.Function("program_jacobian", [t, q, qd, f, c, x],
                            [tau, x_next, cs.jacobian(cs.vertcat(tau, x_next), cs.vertcat(q, qd, f, x))])  # fmt: skip
     rest = rest_model(loop)
-    seen, errors = rest.features, plant.camera_errors(loop.camera)
+    seen, errors = rest.features, declared.camera_errors(loop.camera)
     if errors is not None:  # the true camera's pixels read with the nominal intrinsics (models/errors.py)
         seen = controller_features(loop.camera, true_features(loop.camera, rest.relative_pose, cs.DM(errors))[1])
     seen = cs.substitute(seen, rest.t, 0)
