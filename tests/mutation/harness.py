@@ -1228,8 +1228,8 @@ MUTATIONS = (
         'synthesis-drops-integral-action',
         "the gain synthesis runs and checks its designs without the scenario's integral action",
         'analysis/synthesize.py',
-        (('    return Gains(point.k_xi, point.k_c, point.k_e, integral_gain(case.scenario.gains, point.k_xi))',
-          '    return Gains(point.k_xi, point.k_c, point.k_e)'),),
+        (('    gains = Gains(point.k_xi, point.k_c, point.k_e, integral_gain(case.scenario.gains, point.k_xi))',
+          '    gains = Gains(point.k_xi, point.k_c, point.k_e)'),),
         ('tests/test_cli.py::test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains',),
     ),
     Mutation(
