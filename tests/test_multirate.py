@@ -13,6 +13,7 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 import pytest
+import scipy
 from typer.testing import CliRunner
 
 from dvfc.analysis import multirate
@@ -216,6 +217,42 @@ def test_a_tangent_the_monodromy_does_not_fix_is_not_certified(redundant, monkey
     record = implemented_record(loop, s0, settings)
     assert record["rho"] < 1 and record["lyapunov_margin"] > 0.5 and record["self_motion"]["tangent_residual"] > 1
     assert not record["certified"] and "self-motion's residual" in record["reason"]
+
+
+def moving_the_self_motion(by: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """A monodromy of a 7-joint arm's loop (``dq``, ``dqd``: 14 states) with a one-dimensional self-motion
+    ``T`` (a unit direction of ``dq``, zero in ``dqd``): ``Pi = T T^T + Q A Q^T + e u T^T`` in an orthonormal
+    basis ``[T, Q]``, ``A`` stable (``rho`` about 0.8) and ``u = Q v`` a unit direction across ``T``, so
+    ``Pi`` moves ``T`` by ``||Pi T - T|| = e``, ``by`` times the tolerance on ``Pi`` of the Lyapunov
+    check of ``A``, and its compression across ``T`` is ``A`` whatever ``e``. Returns ``(Pi, T's dq,
+    e)``."""
+    draw = np.random.default_rng(7)
+    tangent = np.zeros((14, 1))
+    tangent[:7, 0] = draw.normal(size=7)
+    tangent /= np.linalg.norm(tangent)
+    across = scipy.linalg.null_space(tangent.T)
+    a = 0.6 * np.eye(13) + 0.05 * draw.normal(size=(13, 13))
+    assert spectral_radius(a) < 0.9
+    away = across @ (v := draw.normal(size=(13, 1))) / np.linalg.norm(v)
+    moved = by * lyapunov_check(a).tolerance
+    return tangent @ tangent.T + across @ a @ across.T + moved * away @ tangent.T, tangent[:7], moved
+
+
+@pytest.mark.parametrize(("by", "certified"), [(0.0, True), (0.5, True), (0.9, True), (1.1, False), (2.0, False),
+                                               (9.0, False)])  # fmt: skip
+def test_the_self_motion_is_fixed_only_within_the_lyapunov_checks_tolerance(by, certified):
+    """Fact 14 on a 7-joint arm: the Lyapunov check across the self-motion ``T`` speaks of the loop only if
+    the computed ``Pi`` fixes ``T``, to within the tolerance on ``Pi`` that check allows (a ``Pi`` moving
+    ``T`` by more may be the computed image of a true monodromy that does not fix it: ``T`` is then not
+    shown to be the self-motion). With the same stable compression across ``T`` (its check certifies,
+    margin 1), a ``Pi`` moving ``T`` by ``by`` times that tolerance is certified exactly when ``by < 1``."""
+    pi, self_motion, moved = moving_the_self_motion(by)
+    across = multirate.transverse(pi, self_motion)
+    check = lyapunov_check(across.pi)
+    assert across.dimension == 1 and check.certified and check.margin == pytest.approx(1.0, abs=1e-9)
+    assert across.residual == pytest.approx(moved, rel=1e-6, abs=1e-15)
+    assert moved == pytest.approx(by * check.tolerance, rel=1e-6)
+    assert across.certified(check) is certified
 
 
 @pytest.mark.slow
