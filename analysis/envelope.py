@@ -830,6 +830,15 @@ class FrictionBound:
         return FrictionBound(np.abs(c - ch) + ch * shape, np.abs(b - bh), True)
 
 
+WITHOUT_FRICTION = "the plant without friction"
+"""The plant of the ideal continuous loop's statements when the scenario's has friction (facts 18-19)."""
+
+
+def said_for(plant: str | None, text: str) -> str:
+    """``text`` said for ``plant`` (None: the law's model, said by the loop alone)."""
+    return text if plant is None else f"for {plant}: {text}"
+
+
 def friction_record(design: Design, camera: Camera, disturbance: DisturbanceBounds, start: dict,
                     frictionless: Envelope, bound: FrictionBound) -> dict:
     """The envelope of the plant with friction, the law's as it is (docs/math.md, fact 18.5 unweighted:

@@ -33,6 +33,7 @@ from dvfc.analysis.certify import (
 from dvfc.analysis.envelope import ASSUMPTIONS as ENVELOPE_ASSUMPTIONS
 from dvfc.analysis.envelope import (
     INTEGRAL_RATE,
+    WITHOUT_FRICTION,
     FrictionBound,
     GridEnvelope,
     design_of,
@@ -40,6 +41,7 @@ from dvfc.analysis.envelope import (
     envelope,
     friction_record,
     grid_envelope,
+    said_for,
     start_storage,
     stated,
 )
@@ -53,7 +55,7 @@ from dvfc.analysis.record import ABSENT, INTERNAL, Absent, Record
 from dvfc.analysis.sampled import limit_record, robot_limits
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.simulate import RunStatus, Settings, Trajectory, summary
-from dvfc.analysis.start import planned_start, ramp_start, until_integral
+from dvfc.analysis.start import StartStatement, for_plant, planned_start, ramp_start, until_integral
 from dvfc.analysis.verify import Claim, ClaimStatus, verify
 from dvfc.models.camera import Camera
 from dvfc.models.errors import PlantErrors
@@ -413,8 +415,8 @@ def envelope_record(case: Case, *, search: bool = True) -> dict:
     if (friction := plant_friction(case)) is not None and not planar:  # docs/math.md, facts 18-19
         record["friction"] = friction_record(design, loop.camera, disturbance, start_storage(loop, case.s0), env,
                                              FrictionBound.of(friction, loop.compensation))  # fmt: skip
-        with_friction = record["friction"]["statement"]
-        record["statement"] = f"for the plant without friction: {record['statement']}; {with_friction}"
+        record["start"] = for_plant(record["start"], WITHOUT_FRICTION)
+        record["statement"] = f"{said_for(WITHOUT_FRICTION, record['statement'])}; {record['friction']['statement']}"
     if loop.integral:  # docs/math.md, fact 20.4: the law without K_I has this envelope, this design none
         without = {**record, "statement": f"the same design without integral action: {record['statement']}"}
         start = until_integral(record["start"], loop.integral_start)  # fact 20.6: until z_I moves
@@ -570,8 +572,7 @@ def statements(
                              status=S.NOT_CERTIFIED, detail=str(env.get("reason", "not computed"))))  # fmt: skip
         if (start := env.get("start") or {}).get("until_s") is not None:  # fact 20.6
             out.append(Statement(statement="the start, until integral action engages (fact 20.6)",
-                                 loop=f"ideal continuous loop, 0 <= t <= {start['until_s']:.4g} s",
-                                 status=S.certified(start["inside"]),
+                                 loop=StartStatement.of(start).about, status=S.certified(start["inside"]),
                                  detail=start["statement"] if start["inside"] else str(start.get("reason"))),
                        )  # fmt: skip
     else:
@@ -587,7 +588,7 @@ def statements(
                       status=S.certified(speed is not None and speed >= own),
                       detail="largest target speed with every statement certified (features in view) "
                              f"{'-' if speed is None else f'{speed:.4g}'} m/s against {own:.4g} m/s"),
-            Statement(statement="the start", loop="ideal continuous loop, from t = 0",
+            Statement(statement="the start", loop=StartStatement.of(env["start"]).about,
                       status=S.certified(env["start"]["inside"]),
                       detail=f"V(0) = {env['start']['V0']:.4g} "
                              + ("inside the certified set" if env["start"]["inside"] else

@@ -31,7 +31,7 @@ recursion on a time grid instead of one level.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import casadi as cs
@@ -57,6 +57,7 @@ from dvfc.analysis.envelope import (
     rate_margin,
     rates,
     recheck,
+    said_for,
     visible_level,
     xi_rates,
 )
@@ -209,7 +210,7 @@ def planned_start(design: Design, camera: Camera, disturbance: DisturbanceBounds
     record["tube"] = tube = tube_start(design, camera, disturbance, plan, record["V0"])
     if record["visible"] is False and tube["inside"] and tube.get("visible"):
         record["visible"] = True  # the tube form's regions fit where the fixed level's do not
-    record["statement"] = _statement(record)
+    record["statement"] = StartStatement.of(record).text
     return record
 
 
@@ -236,17 +237,8 @@ def run_regions(loop: ClosedLoop, t: np.ndarray, level: float) -> tuple[np.ndarr
             scale * np.stack([ends[0][1], ends[1][1]], axis=-1) + centre)  # fmt: skip
 
 
-def _span(record: dict) -> str:
-    """Over which times a start statement holds: every ``t >= 0``, or up to ``until_s``
-    (:func:`until_integral`)."""
-    until = record.get("until_s")
-    return "for all t >= 0" if until is None else f"for 0 <= t <= {until:.4g} s"
-
-
-def _statement(record: dict) -> str:
-    """One sentence: what the planned start certifies, for which loop, from when."""
-    when = (f"{_span(record)} (ideal continuous loop with the planned reference over {record['duration']:g} s: "
-            f"V(t) <= {record['level']:.4g}, V(0) = {record['V0']:.3g})")  # fmt: skip
+def _planned_says(record: dict, when: str) -> str:
+    """What a certified planned start says, over ``when`` (its times, loop and level)."""
     if record["visible"] is True:
         tube = record["tube"]
         margins = f"at least {record['image_margin_px']:.3g} px inside (fixed level)"
@@ -380,7 +372,7 @@ def ramp_start(design: Design, camera: Camera, disturbance: DisturbanceBounds, e
             record["visible_from_s"] = None
         if not record["visible"]:
             record["reason"] = _ramp_visibility(record)
-    record["statement"] = _ramp_statement(record)
+    record["statement"] = StartStatement.of(record).text
     return record
 
 
@@ -415,17 +407,82 @@ def until_integral(start: dict, t_i: float) -> dict:
     if (record.get("visible_from_s") or 0.0) > t_i:  # visibility only after T_I: not certified up to it
         record["visible_from_s"] = None
         record["reason"] = _ramp_visibility(record)
-    method = start.get("method", "constant")
-    if method == "planned":
-        told = _statement(record)
-    elif method == "ramp":
-        told = _ramp_statement(record)
-    else:
-        told = (f"errors bounded {_span(record)} (ideal continuous loop, fact 7 from a start inside the certified "
-                f"set: V(t) <= {start['level']:.4g}, V(0) = {start['V0']:.3g})")  # fmt: skip
-    record["statement"] = (f"until integral action engages at t = {t_i:.4g} s (z_I = 0 before, so the run is the "
-                           f"design's without K_I, fact 20.6): {told}")  # fmt: skip
+    record["statement"] = StartStatement.of(record).text
     return record
+
+
+def for_plant(start: dict, plant: str) -> dict:
+    """The start record as computed for ``plant`` (:data:`dvfc.analysis.envelope.WITHOUT_FRICTION`:
+    the ideal continuous loop's, when the scenario's plant has friction), its statement saying so."""
+    record = {**start, "plant": plant}
+    if "statement" in record:
+        record["statement"] = StartStatement.of(record).text
+    return record
+
+
+@dataclass(frozen=True)
+class StartStatement:
+    """What a start record states (docs/math.md, facts 16, 20.6), read from it by :meth:`of`: of which
+    loop and plant, over which times and, when the start is certified, what. The record's
+    ``statement`` is its :attr:`text` and a statements table names its :attr:`about`: every printer
+    reads the loop and the plant from here."""
+
+    loop: str
+    """The ideal continuous loop with the start's reference."""
+    plant: str | None
+    """The plant the statement is computed for when the scenario's is another (friction), else None."""
+    until_s: float | None
+    """The statement holds for ``0 <= t <= until_s`` (fact 20.6), or (None) for all ``t >= 0``."""
+    says: str | None = None
+    """What is certified over :attr:`span`, every time it names within it; None: not certified."""
+
+    @staticmethod
+    def of(record: dict) -> StartStatement:
+        """The statement of a start record (``method``, ``inside`` and, when inside, its level)."""
+        method = record.get("method", "constant")
+        scope = StartStatement(_loop(record), record.get("plant"), record.get("until_s"))
+        if not record["inside"]:
+            return scope
+        when = f"{scope.span} ({scope.loop}: V(t) <= {record['level']:.4g}, V(0) = {record['V0']:.3g})"
+        says = {"planned": _planned_says, "ramp": _ramp_says, "constant": _constant_says}[method]
+        return replace(scope, says=says(record, when))
+
+    @property
+    def span(self) -> str:
+        """Over which times it holds: every ``t >= 0``, or up to ``until_s``."""
+        until = self.until_s
+        return "for all t >= 0" if until is None else f"for 0 <= t <= {until:.4g} s"
+
+    @property
+    def about(self) -> str:
+        """The loop, the plant and the times, as a statements table's row names what it is about."""
+        plant = [] if self.plant is None else [f"for {self.plant}"]
+        return ", ".join([self.loop, *plant, self.span.removeprefix("for ")])
+
+    @property
+    def text(self) -> str:
+        """The sentence of a certified start: for its plant, until integral action engages, what it says."""
+        assert self.says is not None, "the sentence of a certified start"
+        told = self.says
+        if self.until_s is not None:
+            told = (f"until integral action engages at t = {self.until_s:.4g} s (z_I = 0 before, so the run is "
+                    f"the design's without K_I, fact 20.6): {told}")  # fmt: skip
+        return said_for(self.plant, told)
+
+
+def _loop(record: dict) -> str:
+    """The loop a start record is about: the ideal continuous loop with its reference."""
+    method = record.get("method", "constant")
+    if method == "planned":
+        return f"ideal continuous loop with the planned reference over {record['duration']:g} s"
+    if method == "ramp":
+        return f"ideal continuous loop with a {record['ramp']:g} s ramp of u_d"
+    return "ideal continuous loop"
+
+
+def _constant_says(record: dict, when: str) -> str:
+    """What a start inside fact 7's certified set says, over ``when``."""
+    return f"errors bounded {when}, by fact 7 from a start inside the certified set"
 
 
 def _settled(v: float, b: float, k: float, y: float) -> bool:
@@ -435,10 +492,8 @@ def _settled(v: float, b: float, k: float, y: float) -> bool:
     return k > 0 and abs(v - b / k) <= 0.01 * b / k and max(v, b / k) < y
 
 
-def _ramp_statement(record: dict) -> str:
-    """One sentence: what the ramp certifies, for which loop, from when."""
-    when = (f"{_span(record)} (ideal continuous loop with a {record['ramp']:g} s ramp of u_d: V(t) <= "
-            f"{record['level']:.4g}, V(0) = {record['V0']:.3g})")  # fmt: skip
+def _ramp_says(record: dict, when: str) -> str:
+    """What a certified ramp says, over ``when`` (its times, loop and level)."""
     if record["visible"] is True:
         return f"every feature stays in the image {when}"
     if record["visible"] is False:

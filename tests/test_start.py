@@ -21,7 +21,7 @@ from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.start import run_regions
 from dvfc.analysis.verify import envelope_claims
 
-from helpers import build_loop, default_dict_without_integral, default_without_integral, run, scenario_dict
+from helpers import CELL, build_loop, default_dict_without_integral, default_without_integral, run, scenario_dict
 
 
 def planned(duration: float = 2.0, observer: str = "scenario"):
@@ -234,3 +234,25 @@ def test_every_time_a_start_statement_names_lies_before_integral_action_engages(
     assert times and all(0 <= x <= t_i * (1 + 5e-4) for x in times), start["statement"]
     assert "not certified after T_I" in start["statement"]
 
+
+@pytest.mark.slow
+def test_the_start_computed_without_friction_says_so_wherever_it_is_printed(tmp_path):
+    """The start statements are the ideal continuous loop's, whose plant is the law's model, without
+    friction (docs/math.md, facts 16, 20.6). On ``examples/ur5_cell.toml``, whose plant has friction, the
+    envelope's statement says "for the plant without friction" (fact 18), and so must its start, certified
+    until integral action engages: the record's statement, certify's printed ``START`` line and the
+    statements row the report and its summary print (its loop column naming the plant)."""
+    out = tmp_path / "c"
+    result = CliRunner().invoke(app, ["certify", str(CELL), "--no-lower-bounds", "--out", str(out)],
+                                env={"COLUMNS": "4000"})  # fmt: skip
+    assert result.exit_code in (0, 1), result.output
+    certificate = json.loads((out / "certificate.json").read_text())
+    env = certificate["points"][0]["envelope"]
+    start, said = env["start"], "for the plant without friction"
+    assert env["friction"] is not None and start["inside"] and start["until_s"] > 0  # the case in point
+    assert said in start["statement"]
+    line = next(line for line in result.stdout.splitlines() if line.startswith("START"))
+    assert said in line
+    verification = {"summary": {"claims": 0, "failed": 0, "inconclusive": 0}}
+    row = next(r for r in statements(certificate, verification) if r.statement.startswith("the start"))
+    assert said in row.loop and said in row.detail

@@ -1457,6 +1457,27 @@ MUTATIONS = (
           'return check.certified and self.residual < 10 * check.tolerance'),),
         ('tests/test_multirate.py::test_the_self_motion_is_fixed_only_within_the_lyapunov_checks_tolerance',),
     ),
+    Mutation(
+        "start-statement-without-plant",
+        "a start statement computed for the plant without friction does not say so (its sentence, the START line)",
+        "analysis/start.py",
+        (("        return said_for(self.plant, told)\n", "        return told\n"),),
+        ("tests/test_start.py::test_the_start_computed_without_friction_says_so_wherever_it_is_printed",),
+    ),
+    Mutation(
+        "start-row-without-plant",
+        "the statements row of a start names its loop and times but not the plant it is computed for",
+        "analysis/start.py",
+        (('        plant = [] if self.plant is None else [f"for {self.plant}"]\n', "        plant: list[str] = []\n"),),
+        ("tests/test_start.py::test_the_start_computed_without_friction_says_so_wherever_it_is_printed",),
+    ),
+    Mutation(
+        "start-plant-not-recorded",
+        "the envelope of a plant with friction says its plant, its start record not",
+        "analysis/results.py",
+        (('        record["start"] = for_plant(record["start"], WITHOUT_FRICTION)\n', ""),),
+        ("tests/test_start.py::test_the_start_computed_without_friction_says_so_wherever_it_is_printed",),
+    ),
 )
 
 
