@@ -327,8 +327,10 @@ def linearize_planar(loop: PlanarLoop, q0: np.ndarray, iterations: int = 50) -> 
     return _linearization(rate, output, z, w, model.t, q, weight_diagonals(loop))
 
 
-def _quaternion_product(p: np.ndarray, q):
-    s1, v1 = p[0], cs.DM(p[1:4])
+def _quaternion_product(p: np.ndarray | cs.SX, q):
+    """The quaternion product ``p (x) q`` of ``[w; x; y; z]`` columns (``p`` numbers or symbols)."""
+    p = p if isinstance(p, cs.SX) else cs.DM(p)
+    s1, v1 = p[0], p[1:4]
     s2, v2 = q[0], q[1:4]
     return cs.vertcat(s1 * s2 - v1.T @ v2, s1 * v2 + s2 * v1 + cs.cross(v1, v2))
 

@@ -58,7 +58,7 @@ from dvfc.models.camera import Camera
 from dvfc.models.errors import PlantErrors, controller_features, true_features
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import PlanarLoop
-from dvfc.models.robot import Robot, spans_the_task
+from dvfc.models.robot import JointLimits, Robot, spans_the_task
 from dvfc.models.target import TargetMotion
 
 LYAPUNOV_MARGIN = 0.5
@@ -219,9 +219,7 @@ class DeclaredPlant:
             return math.inf
         except NotApplicableError:
             return None
-        if imp.saturate and not np.all(np.abs(system.lin.tau_eq) < imp.limits(loop.robot.limits).effort):
-            return math.inf
-        return system.rho()
+        return math.inf if system.saturated(loop.robot.limits) else system.rho()
 
     def camera_errors(self, camera: Camera) -> np.ndarray | None:
         """The plant's :meth:`~dvfc.models.errors.PlantErrors.camera_vector` where it differs from the
@@ -288,11 +286,6 @@ EQUILIBRIUM_TOLERANCE = 1e-10
 as it is (Newton's method stops at ``1e-13`` where it converges)."""
 
 
-def _product(p: cs.SX, q: cs.SX) -> cs.SX:
-    """The quaternion product ``p (x) q`` of ``[w; x; y; z]`` columns."""
-    return cs.vertcat(p[0] * q[0] - cs.dot(p[1:4], q[1:4]), p[0] * q[1:4] + q[0] * p[1:4] + cs.cross(p[1:4], q[1:4]))
-
-
 def _solve(residual: cs.Function, y0: np.ndarray, iterations: int = 60) -> tuple[np.ndarray, float]:
     """Newton's method with the least-norm step (``pinv`` of the Jacobian: on a manifold of solutions, a
     nearby one) on ``residual(y) = (R, dR/dy)`` from ``y0``; the point and ``|R|`` there."""
@@ -321,14 +314,14 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
     point = cs.SX.sym("point", loop.n_state)  # the state linearised at
     o = 2 * n + 3
     state = cs.vertcat(point[: 2 * n] + cs.vertcat(dq, dqd), point[2 * n : o] + dp,
-                       _product(point[o : o + 4], cs.vertcat(1, dth / 2)),
+                       _quaternion_product(point[o : o + 4], cs.vertcat(1, dth / 2)),
                        point[o + 4 :] + dz_i)  # fmt: skip
     held = cs.DM.zeros(dz_i.shape[0])  # z_I is held over the period
     rate = cs.vertcat(model.qd, model.qdd, model.observer_rate[0:3], model.observer_velocity[3:6], held)
     # the law and the observer's inputs at the sample read neither the held torque nor those inputs
     at_sample = cs.substitute([model.tau, cs.vertcat(model.camera_velocity, model.u[n + task : n + 2 * task])],
                               [model.hold], [cs.vertcat(cs.DM.zeros(n), e, cs.DM.zeros(2 * task))])  # fmt: skip
-    camera = plant.camera_errors(loop.camera)
+    camera, differs = plant.camera_errors(loop.camera), plant.differs(loop.camera)
     if camera is None:
         e_image = model.e_e_image
     else:  # the true camera's image read with the nominal intrinsics (models/errors.py)
@@ -337,7 +330,7 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
     exprs = tuple(cs.substitute([rate, *at_sample, model.e_e, e_image, model.xi], [model.state], [state]))
     rate, law, inputs, e_exact, e_image, xi = exprs
     s_eq = rest_state(loop, q_nom)
-    if plant.differs(loop.camera):
+    if differs:
         s_eq = _plant_equilibrium(loop, s_eq, (z, point, model.hold, model.t), exprs)
     jac = cs.Function("held", [z, tau, e, observer, model.t, point],
                       [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau), cs.jacobian(rate, e),
@@ -346,7 +339,7 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
                        cs.jacobian(xi, e), e_exact, e_image, inputs, xi])  # fmt: skip
     zero_z, zero_o = np.zeros(z.shape[0]), np.zeros(2 * task)
     e_used = np.zeros(task)
-    if plant.differs(loop.camera):  # e at the plant's equilibrium: the mode's (exact (15), or (21))
+    if differs:  # e at the plant's equilibrium: the mode's (exact (15), or (21))
         values = jac(zero_z, np.zeros(n), e_used, zero_o, 0.0, s_eq)
         e_used = np.asarray(values[15 if loop.mode == "image" else 14]).ravel()
     tau_eq = np.asarray(jac(zero_z, np.zeros(n), e_used, zero_o, 0.0, s_eq)[0]).ravel()
@@ -548,6 +541,12 @@ class MultirateLoop:
         """``pi`` across the self-motion (:func:`transverse`; ``pi`` itself on a 6-joint arm)."""
         return transverse(pi, self.lin.self_motion)
 
+    def saturated(self, urdf: JointLimits) -> bool:
+        """Whether saturation is active at the equilibrium: ``saturate`` on and the torque held there not
+        strictly inside the efforts (of the URDF's limits ``urdf``, scaled by the implementation)."""
+        imp = self.implementation
+        return imp.saturate and not np.all(np.abs(self.lin.tau_eq) < imp.limits(urdf).effort)
+
     def rho(self, **change: Any) -> float:
         """``rho`` of the monodromy across the self-motion (:meth:`transverse`) with the
         implementation's fields changed by ``change``; ``inf`` when the product of the step maps
@@ -650,8 +649,7 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
     except ValueError as exc:  # NotApplicableError, no equilibrium configuration, or none of the plant
         return {**not_applicable(str(exc)), **words}
     lin = system.lin
-    effort = imp.limits(loop.robot.limits).effort
-    if imp.saturate and not np.all(np.abs(lin.tau_eq) < effort):
+    if system.saturated(loop.robot.limits):
         reason = "saturation is active at the equilibrium (|tau_eq| not strictly inside the efforts)"
         return {**not_applicable(reason), **words}
     if not np.isfinite(pi).all():

@@ -111,7 +111,8 @@ def test_the_default_is_certified_with_the_stated_numbers(request, which, rho, c
     assert (m["latency"]["stable_at"], m["latency"]["unstable_at"]) == pytest.approx((0.144, 0.146))
     assert (m["camera_rate"]["value"], m["camera_rate"]["unstable_at"]) == pytest.approx((500 / 62, 500 / 63))
     assert (m["control_rate"]["value"], m["control_rate"]["unstable_at"]) == control
-    assert f"CERTIFIED: rho = {rho:.6g} over 50 ms" in implemented_text(record)
+    said = f"CERTIFIED for the plant equal to the controller's model: rho = {rho:.6g} over 50 ms"
+    assert said in implemented_text(record)
 
 
 def log_decay_rate(traj: Trajectory) -> float:
