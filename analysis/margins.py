@@ -80,9 +80,14 @@ LINEAR = ("latency", "camera_rate")
 measured twin: the control rate is not searched)."""
 
 PLANT = ("payload_mass", "torque_scale", "mount_rotation", "focal_length_error", "friction_scale")
-"""The searched parameters that change the plant fact 14 linearises (:class:`DeclaredPlant`): at each
-of their search points the plant as declared with the value is linearised anew, and a point where its
-monodromy has ``rho >= 1`` (or the plant has no equilibrium, or saturates there) does not hold."""
+"""The searched parameters that change the plant fact 14 linearises (:class:`DeclaredPlant`): their linear
+margin is where the plant as declared with the value, linearised anew, stops being stable (``rho >= 1``, no
+equilibrium near the model's, or saturation there; :meth:`LinearCheck.margin`), and at each search point the
+same check is made: a point where it fails does not hold."""
+
+PLANT_STEPS = 10
+"""Bisection steps of a plant parameter's linear margin (:meth:`LinearCheck.margin`): its bracket is 1/1024
+of the searched range (a factor ``(end/start)^(1/1024)`` for the torque scale)."""
 
 PAYLOAD_FACTOR = 0.5
 """The payload's searched range ends at this times the URDF's total link mass (no rated
@@ -421,6 +426,32 @@ class LinearCheck:
         except NotApplicableError:
             return None
 
+    def margin(self, name: str, start: float, end: float) -> dict | None:
+        """Fact 14's linear margin of a parameter searched from ``start`` to ``end``, a record ``{"value", "unit",
+        "stable_at", "unstable_at", "range"}`` as :func:`dvfc.analysis.multirate.linear_margins` gives them
+        (``value`` None when stable over the whole range): the record's own for :data:`LINEAR`; for :data:`PLANT`,
+        by bisection of :meth:`rho` between ``start`` and ``end`` (geometric for a parameter worse downwards) in
+        :data:`PLANT_STEPS` steps. None where not checked. A bisection finds one boundary between a stable and
+        an unstable value: stability between is not checked value by value (each search point is)."""
+        if self.margins is None or name not in LINEAR + PLANT:
+            return None
+        if name in LINEAR:
+            return self.margins[name]
+        p = PARAMETERS[name]
+
+        def stable(value: float) -> bool:
+            rho = self.rho(name, value)
+            return rho is not None and rho < 1 - RHO_MARGIN
+
+        out = {"unit": p.unit, "range": [start, end]}
+        if stable(end):
+            return {**out, "value": None, "stable_at": end, "unstable_at": None}
+        good, bad = start, end
+        for _ in range(PLANT_STEPS):
+            mid = math.sqrt(good * bad) if p.worse == "down" else (good + bad) / 2
+            good, bad = (mid, bad) if stable(mid) else (good, mid)
+        return {**out, "value": good, "stable_at": good, "unstable_at": bad}
+
 
 def _simulator(case: Case, name: str, settings: Settings) -> SampledSimulator:
     """The simulator of a search point: the process's :func:`shared_simulator` for ``settings``, but
@@ -474,27 +505,28 @@ def trial(
             "linear": linear_rho}  # fmt: skip
 
 
-def linear_statement(name: str, value: float | None, linear: LinearCheck | None) -> dict:
-    """A measured margin against fact 14: ``{"basis", "checked", "linear_margin", "value", "clipped",
-    "statement"}``. ``basis`` says what bounds it: ``"linear margin"`` (:data:`LINEAR`: ``value`` itself
-    unless it lies beyond fact 14's linear margin, then that margin, ``clipped``; ``linear_margin`` None
-    where stable over its whole range), ``"plant linearised at each point"`` (:data:`PLANT`: a search point
-    whose plant's monodromy has ``rho >= 1`` does not hold) or ``"measured only"``. ``value`` None: the loop
-    holds over the whole searched range."""
+def linear_statement(name: str, value: float | None, linear: LinearCheck | None,
+                     margin: dict | None = None) -> dict:  # fmt: skip
+    """A measured margin against fact 14's linear one: ``{"basis", "checked", "linear_margin", "value",
+    "clipped", "statement"}``, ``value`` the margin to report (``value`` itself unless it lies beyond the
+    linear margin: then the linear margin, ``clipped``), ``linear_margin`` fact 14's (None where not checked
+    or stable over its whole range). ``margin``: the linear margin of a :data:`PLANT` parameter
+    (:meth:`LinearCheck.margin`); a :data:`LINEAR` one's is the check's own. ``basis`` says which bounds the
+    margin: ``"linear margin"`` (the schedule's), ``"linear margin of the plant as declared"`` or
+    ``"measured only"``. ``value`` None: the loop holds over the whole searched range."""
     p = PARAMETERS[name]
-    if linear is None or linear.margins is None or name not in LINEAR + PLANT:
+    if name in LINEAR and linear is not None and linear.margins is not None:
+        margin = linear.margins[name]
+    if linear is None or margin is None:
         why = ("fact 14 has no linear check for this parameter (it does not enter the linearised loop)"
                if name not in LINEAR + PLANT else "fact 14 not consulted" if linear is None
                else f"fact 14: {linear.reason}")  # fmt: skip
         return {"basis": "measured only", "checked": False, "linear_margin": None, "value": value, "clipped": False,
                 "statement": f"measured only, not checked against fact 14: {why}"}  # fmt: skip
-    if name in PLANT:
-        return {"basis": "plant linearised at each point", "checked": True, "linear_margin": None, "value": value,
-                "clipped": False, "statement": "at each search point fact 14 linearised the plant as declared with "
-                "the value: a point where its monodromy has rho >= 1 does not hold"}  # fmt: skip
-    m = linear.margins[name]
+    m = margin
+    basis = "linear margin" if name in LINEAR else "linear margin of the plant as declared"
     beyond = lambda v: v is None or (v > m["stable_at"] if p.worse == "up" else v < m["stable_at"])  # noqa: E731
-    out = {"basis": "linear margin", "checked": True, "linear_margin": m["value"], "value": value, "clipped": False}
+    out = {"basis": basis, "checked": True, "linear_margin": m["value"], "value": value, "clipped": False}
     if m["value"] is None:
         return {**out, "statement": f"fact 14: the linearised loop is stable throughout its searched range (to "
                                     f"{m['range'][1]:g} {p.unit}): no linear margin to clip to"}  # fmt: skip
@@ -531,8 +563,9 @@ def search(case: Case, name: str, bound: TrackingBound, log: str | None = None,
               "resolution": resolution}  # fmt: skip
     if (p.worse == "down" and start <= end) or (p.worse == "up" and start >= end):
         return {**margin, "reason": "the scenario's value is already beyond the searched range"}
+    plant_margin = None if linear is None or name not in PLANT else linear.margin(name, start, end)
     if run(end):
-        checked = linear_statement(name, None, linear)
+        checked = linear_statement(name, None, linear, plant_margin)
         return {**margin, "value": checked["value"], "holds_at": end, "reason": "holds over the whole searched range",
                 "runs": len(done), "linear": checked, "holds_run": run_summary(done[end])}  # fmt: skip
     good, bad = start, end
@@ -544,7 +577,7 @@ def search(case: Case, name: str, bound: TrackingBound, log: str | None = None,
             good = mid
         else:
             bad = mid
-    checked = linear_statement(name, good, linear)
+    checked = linear_statement(name, good, linear, plant_margin)
     return {**margin, "value": checked["value"], "holds_at": good, "breaks_at": bad, "reason": None,
             "breaks_because": done[bad]["detail"], "runs": len(done), "linear": checked,
             "holds_run": run_summary(done[good]) if good in done else None,

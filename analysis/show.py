@@ -337,8 +337,6 @@ def linear_text(margin: dict) -> str:
         return "-"
     if not linear["checked"]:
         return "measured only"
-    if linear["basis"] == "plant linearised at each point":
-        return "rho < 1 at each point"
     if linear["linear_margin"] is None:
         return "stable over its range"
     return f"{'clipped to' if linear['clipped'] else 'within'} {linear['linear_margin']:.4g} {margin['unit']}"

@@ -14,6 +14,7 @@ import pytest
 import tomli_w
 from typer.testing import CliRunner
 
+from dvfc.analysis import margins as margins_module
 from dvfc.analysis.campaign import CampaignSpec, read_runs, run_campaign
 from dvfc.analysis.case import Case
 from dvfc.analysis.cli import app
@@ -23,6 +24,7 @@ from dvfc.analysis.margins import (
     HORIZONS,
     PARAMETERS,
     PAYLOAD_FACTOR,
+    PLANT_STEPS,
     LinearCheck,
     TrackingBound,
     base_value,
@@ -356,3 +358,23 @@ def test_a_plant_parameter_is_checked_on_the_plant_linearised_at_its_value(defau
     assert linear.rho("focal_length_error", 1.0) == math.inf
     point = trial(case, "focal_length_error", 1.0, bound, linear)
     assert not point["holds"] and point["linear"] == {"rho": math.inf, "stable": False}
+
+
+@pytest.mark.slow
+def test_a_plant_parameters_margin_is_never_beyond_its_linear_margin(default_case, monkeypatch):
+    """A focal-length error's runs said to hold over the whole searched range (a stand-in for the runs) give a
+    margin no larger than fact 14's linear margin of the plant as declared: the bisection's last stable value
+    has rho < 1 and its first unstable one rho >= 1 (a focal length twice the controller's has no equilibrium
+    near the model's), and the reported margin is clipped to it, saying so."""
+    case, bound, linear = default_case
+    held = lambda case, name, value, bound, linear, first=None: {  # noqa: E731
+        "value": value, "holds": True, "detail": "", "horizon": 10.0, "horizons": [10.0], "growth": None,
+        "linear": {"rho": None, "stable": None}}  # fmt: skip
+    monkeypatch.setattr(margins_module, "trial", held)
+    margin = search(case, "focal_length_error", bound, linear=linear)
+    lin = linear.margin("focal_length_error", 0.0, 1.0)
+    assert lin["value"] is not None and lin["unstable_at"] - lin["stable_at"] <= 1.0 / 2**PLANT_STEPS
+    rho = lambda value: linear.rho("focal_length_error", value)  # noqa: E731
+    assert rho(lin["stable_at"]) < 1 <= rho(lin["unstable_at"])
+    assert margin["value"] == lin["stable_at"] and margin["linear"]["clipped"], margin["linear"]
+    assert margin["linear"]["basis"] == "linear margin of the plant as declared"

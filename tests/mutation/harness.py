@@ -68,6 +68,14 @@ MUTATIONS = (
           "        if self.system is None or name not in LINEAR:\n"),),
         ("tests/test_margins.py::test_a_plant_parameter_is_checked_on_the_plant_linearised_at_its_value",),
     ),
+    Mutation(
+        "plant-margin-not-clipped",
+        "a payload, mount, focal-length or friction margin reported beyond fact 14's linear margin of the plant",
+        "analysis/margins.py",
+        (("    plant_margin = None if linear is None or name not in PLANT else linear.margin(name, start, end)\n",
+          "    plant_margin = None\n"),),
+        ("tests/test_margins.py::test_a_plant_parameters_margin_is_never_beyond_its_linear_margin",),
+    ),
     # --- the seven of the audit --------------------------------------------------------
     Mutation(
         "grid-kmin-max",
