@@ -57,7 +57,8 @@ MUTATIONS = (
         "true-camera-ignored-at-the-equilibrium",
         "the plant's equilibrium and linearisation read the nominal camera's image, not the true camera's",
         "analysis/multirate.py",
-        (("    camera = plant.camera_errors(loop.camera)\n", "    camera = None\n"),),
+        (("    camera, differs = plant.camera_errors(loop.camera), plant.differs(loop.camera)\n",
+          "    camera, differs = None, plant.differs(loop.camera)\n"),),
         ("tests/test_multirate_statements.py::test_the_sampled_loop_settles_at_the_equilibrium_of_the_plant_as_declared",),
     ),
     Mutation(
@@ -647,14 +648,16 @@ MUTATIONS = (
         "multirate-saturation-any-joint",
         "fact 14 applies when any joint's g(q_eq) is inside its effort (one saturated joint passes)",
         "analysis/multirate.py",
-        (("not np.all(np.abs(lin.tau_eq) < effort)", "not np.any(np.abs(lin.tau_eq) < effort)"),),
+        (("not np.all(np.abs(self.lin.tau_eq) < imp.limits(urdf).effort)",
+          "not np.any(np.abs(self.lin.tau_eq) < imp.limits(urdf).effort)"),),
         ("tests/test_multirate_statements.py::test_saturation_at_the_equilibrium_torque_puts_the_loop_outside_the_statement",),
     ),
     Mutation(
         "multirate-saturation-boundary",
         "fact 14 applies with g(q_eq) exactly at an effort (on the clip's kink)",
         "analysis/multirate.py",
-        (("not np.all(np.abs(lin.tau_eq) < effort)", "not np.all(np.abs(lin.tau_eq) <= effort)"),),
+        (("not np.all(np.abs(self.lin.tau_eq) < imp.limits(urdf).effort)",
+          "not np.all(np.abs(self.lin.tau_eq) <= imp.limits(urdf).effort)"),),
         ("tests/test_multirate_statements.py::test_an_equilibrium_torque_exactly_at_its_effort_is_outside_the_statement",),
     ),
     Mutation(
