@@ -9,10 +9,12 @@ is off, the torques within the effort limits, and the
 tracking error over the last half of the run stays within the operating envelope's
 certified ultimate bound (docs/math.md, fact 7; twice the continuous loop's error where the design
 has no certified envelope) (:data:`CRITERION`). A run judged to hold must also have reached a
-steady state (:func:`envelope_growth`: the horizon is doubled, up to :data:`HORIZONS`, until the
-error's envelope stops growing), and where fact 14 applies a latency or camera rate at which the
-sampled loop linearised at rest is unstable does not hold; a measured margin is never reported
-beyond fact 14's linear one (:data:`STEADY`). These are measurements on simulated runs, not
+steady state (:func:`envelope_growth`: over at least :data:`PERIODS` whole periods of the target's
+motion, the last period's peak within ``exp(GROWTH_RATE period)`` of the largest before it, the horizon
+doubled, up to :data:`HORIZONS`, until it is), and where fact 14 applies a value at which the sampled
+loop linearised at rest is unstable does not hold (the schedule's for the latency and camera rate, the
+plant as declared with the value for :data:`PLANT`); a measured margin is never reported beyond fact
+14's linear one (:data:`STEADY`). These are measurements on simulated runs, not
 certificates.
 
 Each parameter's search is one task (local processes or a Dask cluster); every run is
@@ -22,6 +24,7 @@ with the runs already made.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 import xml.etree.ElementTree as ET
@@ -67,9 +70,16 @@ STEPS = 6
 """Bisection steps after the range end: the bracket shrinks to 1/64 of the range (a
 factor ``(hi/lo)^(1/64)`` for the parameters searched geometrically)."""
 
-GROWTH = 1.05
-"""A run has reached a steady state when the peak of its tracking ratio over the last quarter of
-the run is at most this times the peak over the half before it (:func:`envelope_growth`)."""
+PERIODS = 3
+"""Whole periods of the target's motion a run's growth is judged on, at least, after its first period (the
+start's transient): the last one's peak against the largest before it (:func:`envelope_growth`)."""
+
+GROWTH_RATE = 0.01
+"""1/s: a run is growing when its last period's peak tracking ratio exceeds the largest of the earlier
+periods' by more than ``exp(GROWTH_RATE T)`` (``T`` the period). A mode growing by ``rho = 1 + 1e-3`` per
+common period ``P`` of fact 14 grows at ``ln(1 + 1e-3) / P``, at least 0.01 1/s for ``P <= 0.1`` s (0.020
+1/s at the default's 50 ms): once it dominates, each period's peak is ``rho^(T/P)`` times the last (1.083 on
+the default's 4 s circle) against the 1.041 allowed."""
 
 HORIZONS = (1, 2, 4)
 """The horizons a run is judged on, as multiples of the scenario's duration: the first whose
@@ -94,9 +104,11 @@ PAYLOAD_FACTOR = 0.5
 payload is known for an arm): 10.5 kg on the UR5 (20.99 kg of links; rated 5 kg)."""
 
 STEADY = (
-    "; a run that holds has reached a steady state: the peak tracking ratio (the larger of position and angle "
-    "over their bounds) over the last quarter of the run at most {growth:g}x that over the half before it, the "
-    "horizon doubled up to {most:g}x the scenario's until it is (else: does not hold, error still growing); {linear}"
+    "; a run that holds has reached a steady state: over whole periods of {period:.4g} s ({what}) after the first, "
+    "at least {periods}, the peak tracking ratio (the larger of position and angle over their bounds) of the last "
+    "at most exp({rate:g}/s x period) = {limit:.4g}x the largest before it (a mode growing by rho = 1 + 1e-3 per "
+    "50 ms fails it once it dominates), the horizon doubled up to {most:g}x the scenario's until it is (else: does "
+    "not hold, error still growing or not judged); {linear}"
 )
 LINEAR_CLAUSE = (
     "where fact 14 applies, a latency or camera rate at which the sampled loop linearised at rest is unstable "
@@ -262,12 +274,26 @@ def tracking_error(traj: Trajectory) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class Growth:
-    """The envelope of a run's tracking error: the peak tracking ratio (the larger of position
-    and angle over the bound's, sample by sample) over the second and third quarters of the run
-    (``previous``) and over the last (``last``); ``growing`` when ``last > GROWTH * previous``."""
+    """The envelope of a run's tracking error over whole periods ``period`` of the target's motion, counted
+    back from the run's end and after its first period: the peak tracking ratio (the larger of position and
+    angle over the bound's, sample by sample) of each, oldest first (``peaks``, at least :data:`PERIODS`);
+    ``growing`` when the last exceeds the largest before it by more than ``limit = exp(GROWTH_RATE period)``."""
 
-    previous: float
-    last: float
+    period: float
+    peaks: tuple[float, ...]
+
+    @property
+    def previous(self) -> float:
+        """The largest peak before the last period's."""
+        return max(self.peaks[:-1])
+
+    @property
+    def last(self) -> float:
+        return self.peaks[-1]
+
+    @property
+    def limit(self) -> float:
+        return math.exp(GROWTH_RATE * self.period)
 
     @property
     def ratio(self) -> float:
@@ -276,24 +302,37 @@ class Growth:
 
     @property
     def growing(self) -> bool:
-        return self.ratio > GROWTH
+        return self.ratio > self.limit
 
     def as_dict(self) -> dict:
-        return {"previous_peak": self.previous, "last_peak": self.last, "ratio": self.ratio, "limit": GROWTH,
-                "growing": self.growing}  # fmt: skip
+        return {"period": self.period, "peaks": list(self.peaks), "previous_peak": self.previous,
+                "last_peak": self.last, "ratio": self.ratio, "limit": self.limit, "growing": self.growing}  # fmt: skip
 
 
-def envelope_growth(traj: Trajectory, bound: TrackingBound) -> Growth:
-    """:class:`Growth` of a completed run: the peak tracking ratio over ``[3T/4, T]`` against
-    that over ``[T/4, 3T/4]`` (the sample at ``3T/4`` in both). The earlier window is half the run
-    so that a periodic steady error (a target circling with a period up to ``T/2``) has its
-    peak in it and is not taken for growth; an error growing like ``exp(a t)`` gives
-    ``exp(a T/4)``."""
+def judged_period(loop: ClosedLoop, duration: float) -> float:
+    """The period a run's growth is judged over: the target's motion's (:attr:`TargetMotion.motion_period`)
+    when :data:`PERIODS` of them after the first fit the longest horizon (:data:`HORIZONS`), else (a target at
+    rest, or too slow) ``duration / (PERIODS + 1)``."""
+    period = loop.target.motion_period
+    if period is None or (PERIODS + 1) * period > HORIZONS[-1] * duration * (1 + 1e-9):
+        return duration / (PERIODS + 1)
+    return period
+
+
+def envelope_growth(traj: Trajectory, bound: TrackingBound, period: float) -> Growth | None:
+    """:class:`Growth` of a completed run over whole periods ``period`` ending at its end and starting at or
+    after ``period`` (the first period, the start's transient, left out); None when fewer than
+    :data:`PERIODS` fit (a longer run is needed). A periodic steady error repeats its peak every period
+    (ratio 1); an error growing like ``exp(a t)`` gives ``exp(a period)`` once it dominates."""
     position, angle = tracking_samples(traj)
     ratio = np.maximum(position / bound.position, angle / bound.angle_deg)
-    t, end = np.asarray(traj.t), traj.t[-1]
-    before, last = ratio[(t >= end / 4) & (t <= 3 * end / 4)], ratio[t >= 3 * end / 4]
-    return Growth(float(before.max()), float(last.max()))
+    t, end = np.asarray(traj.t), float(traj.t[-1])
+    count = math.floor(end / period + 1e-9) - 1  # whole periods after the first
+    if count < PERIODS:
+        return None
+    edges = end - period * np.arange(count, -1, -1)
+    peaks = tuple(float(ratio[(t >= a - 1e-9) & (t <= b + 1e-9)].max()) for a, b in itertools.pairwise(edges))
+    return Growth(period, peaks)
 
 
 def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: TrackingBound) -> tuple[bool, str]:
@@ -484,20 +523,23 @@ def trial(
     used = getattr(changed.implementation, name) if name in LINEAR else value
     rho = None if linear is None else linear.rho(name, used)
     unstable = rho is not None and rho >= 1 - RHO_MARGIN
-    horizons, growth = [], None
+    horizons, growth, period = [], None, judged_period(loop, case.settings.duration)
     for factor in HORIZONS:
         settings = replace(changed, duration=factor * case.settings.duration)
         traj = first if factor == 1 and first is not None else _simulator(case, name, settings).run(case.s0)
         horizons.append(settings.duration)
         holds, detail = judge(traj, loop, settings, bound)
-        growth = envelope_growth(traj, bound) if holds else None
-        if unstable or growth is None or not growth.growing:
+        growth = envelope_growth(traj, bound, period) if holds else None
+        if unstable or not holds or (growth is not None and not growth.growing):
             break
     if unstable and rho is not None:
         holds, detail = False, f"{unstable_text(rho)}; its run over {horizons[-1]:g} s: {detail}"
+    elif holds and growth is None:
+        holds, detail = False, (f"fewer than {PERIODS} whole periods of {period:.4g} s after the first in "
+                                f"{horizons[-1]:g} s: growth not judged; {detail}")  # fmt: skip
     elif growth is not None and growth.growing:
-        holds, detail = False, (f"error still growing at {horizons[-1]:g} s (the peak over the last quarter "
-                                f"{growth.ratio:.4g}x that over the half before it, > {GROWTH:g}); "
+        holds, detail = False, (f"error still growing at {horizons[-1]:g} s (the last {period:.4g} s period's peak "
+                                f"{growth.ratio:.4g}x the largest before it, > {growth.limit:.4g}); "
                                 f"{detail}")  # fmt: skip
     linear_rho = {"rho": rho, "stable": None if rho is None else not unstable}
     return {"value": value, "holds": holds, "detail": detail, "seconds": time.perf_counter() - clock,
@@ -679,6 +721,9 @@ def margins(
                                         "reason": reason}  # fmt: skip
     unchecked = f"fact 14: {linear.reason}: the measured margins are not checked against linear ones"
     clause = LINEAR_CLAUSE if linear.margins is not None else unchecked
-    steady = STEADY.format(growth=GROWTH, most=HORIZONS[-1], linear=clause)
+    period = judged_period(loop, settings.duration)
+    what = "the target's motion" if period == loop.target.motion_period else "the target's motion has none that fits"
+    steady = STEADY.format(period=period, what=what, periods=PERIODS, rate=GROWTH_RATE,
+                           limit=math.exp(GROWTH_RATE * period), most=HORIZONS[-1], linear=clause)  # fmt: skip
     return MarginsResult(scenario=spec.name, margins=out, criterion=CRITERION.format(bound=bound.text) + steady,
                          tracking_bound=bound.as_dict(), linear_margins=record, scenario_run=own)  # fmt: skip

@@ -66,6 +66,15 @@ class TargetMotion:
         """``|w|`` of ``V_wo``: the spin rate."""
         return abs(self.spin_rate)
 
+    @property
+    def motion_period(self) -> float | None:
+        """The period of ``g_wo(t)``: the circle's, or the spin's ``2 pi / |spin_rate|``; None when the
+        target is at rest, or circles and spins (no common period is sought)."""
+        circles, spins = self.radius != 0, self.spin_rate != 0
+        if circles == spins:
+            return None
+        return self.period if circles else 2 * np.pi / abs(self.spin_rate)
+
     def velocity(self, t: cs.SX) -> Matrix:
         """``V_wo(t) = (g_wo^-1 dg_wo/dt)^vee`` (5), exact by automatic differentiation."""
         g = self.pose(t)
