@@ -87,9 +87,10 @@ SCOPE = (
 )
 
 SELF_MOTION_SCOPE = (
-    "; on the redundant arm, of the manifold of equilibria (the self-motion, dimension {m}: every q with the camera "
-    "at the reference near q_eq, tangent null(J_b(q_eq)) fixed by Pi): rho is that of Pi across it, Q^T Pi Q, and a "
-    "run starting near converges to one of its equilibria (the posture it settles in is not controlled)"
+    "; on the redundant arm, of the manifold of equilibria (the self-motion, dimension {m}: the poses near q_eq "
+    "where the loop rests, checked to be equilibria at poses up to 0.05 rad along it, tangent null(J_b(q_eq)) fixed "
+    "by Pi): rho is that of Pi across it, Q^T Pi Q, and a run starting near converges to one posture of the "
+    "self-motion, not controlled"
 )
 
 
@@ -120,6 +121,12 @@ class HeldLinearization:
     state, e_eq
         The state ``[q; qd; pbar; quat; z_I]`` and the held ``e`` at the equilibrium (None: the model's,
         ``gbar = g_d``, ``e = 0``).
+    self_motion_equilibria
+        On a redundant arm, whether the self-motion's poses near ``q_eq`` are equilibria
+        (:class:`SelfMotionCheck`); None on a 6-joint arm.
+    tangent
+        On a redundant arm, the tangent of the equilibria's manifold in ``z`` (its ``z_I`` and estimate move
+        along it when the plant is not the model); None: ``[self_motion; 0]``.
     """
 
     a: np.ndarray
@@ -139,6 +146,8 @@ class HeldLinearization:
     self_motion: np.ndarray = field(default_factory=lambda: np.zeros((6, 0)))
     state: np.ndarray | None = None
     e_eq: np.ndarray | None = None
+    self_motion_equilibria: SelfMotionCheck | None = None
+    tangent: np.ndarray | None = None
 
     def flow(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(Phi, G_tau, G_e, G_o)``: the held flow over ``h``, the first block row of
@@ -330,8 +339,12 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
     exprs = tuple(cs.substitute([rate, *at_sample, model.e_e, e_image, model.xi], [model.state], [state]))
     rate, law, inputs, e_exact, e_image, xi = exprs
     s_eq = rest_state(loop, q_nom)
+    redundant = n > task
+    if differs or redundant:
+        at_rest = _equilibrium_residual(loop, s_eq, (z, point, model.hold, model.t), exprs)
+    y_eq = np.zeros(loop.n_state - n - 1)  # [dq; dp; dtheta; dz_I] about the model's equilibrium
     if differs:
-        s_eq = _plant_equilibrium(loop, s_eq, (z, point, model.hold, model.t), exprs)
+        s_eq, y_eq = _plant_equilibrium(loop, s_eq, at_rest)
     jac = cs.Function("held", [z, tau, e, observer, model.t, point],
                       [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau), cs.jacobian(rate, e),
                        cs.jacobian(rate, observer), cs.jacobian(law, z), cs.jacobian(law, e), cs.jacobian(inputs, z),
@@ -352,15 +365,20 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
     integral = values[12:14] if loop.integral else [None, None]
     q_eq = s_eq[:n]
     jacobian = np.asarray(cs.Function("body_jacobian", [loop.robot.q], [loop.robot.body_jacobian])(q_eq))
+    self_motion = scipy.linalg.null_space(jacobian)
+    equilibria = tangent = None
+    if redundant:
+        equilibria = self_motion_check(at_rest, y_eq, self_motion)
+        tangent = _equilibria_tangent(at_rest, y_eq, n, self_motion.shape[1])
     return HeldLinearization(a, b_tau, b_e, b_o, f, f_e, o_mat, o_e, c, c_image, q_eq=q_eq, tau_eq=tau_eq,
-                             xi=integral[0], xi_e=integral[1], self_motion=scipy.linalg.null_space(jacobian),
-                             state=s_eq, e_eq=e_used)  # fmt: skip
+                             xi=integral[0], xi_e=integral[1], self_motion=self_motion, state=s_eq, e_eq=e_used,
+                             self_motion_equilibria=equilibria, tangent=tangent)  # fmt: skip
 
 
-def _plant_equilibrium(loop: ClosedLoop, s_nom: np.ndarray, symbols: tuple, exprs: tuple) -> np.ndarray:
-    """The state at rest of the sampled loop with the plant as declared (``qd = 0``; the joints'
-    accelerations, the observer's rate and, with integral action, ``xi`` zero), by :func:`_solve` from the
-    model's equilibrium ``s_nom``; :class:`NotApplicableError` when none is found."""
+def _equilibrium_residual(loop: ClosedLoop, s_nom: np.ndarray, symbols: tuple, exprs: tuple) -> cs.Function:
+    """``y -> (R, dR/dy)``: the rates of the sampled loop at rest (``qd = 0``; the joints' accelerations, the
+    observer's rate and, with integral action, ``xi``) with the held inputs the law, the mode's ``e`` and the
+    observer's inputs make there, at ``y = [dq; dp; dtheta; dz_I]`` about ``s_nom`` (zero at an equilibrium)."""
     z, point, hold, _ = symbols
     rate, law, inputs, e_exact, e_image, xi = exprs
     n = loop.robot.n
@@ -371,15 +389,75 @@ def _plant_equilibrium(loop: ClosedLoop, s_nom: np.ndarray, symbols: tuple, expr
     residual = cs.vertcat(rate[n : 2 * n + 6], xi if loop.integral else cs.DM.zeros(0))
     y = cs.vertcat(z[:n], z[2 * n :])  # at rest: dqd = 0
     at_rest = cs.substitute(residual, cs.vertcat(z[n : 2 * n], point), cs.vertcat(cs.DM.zeros(n), cs.DM(s_nom)))
-    y_eq, size = _solve(cs.Function("equilibrium", [y], [at_rest, cs.jacobian(at_rest, y)]), np.zeros(y.shape[0]))
+    return cs.Function("equilibrium", [y], [at_rest, cs.jacobian(at_rest, y)])
+
+
+def _plant_equilibrium(loop: ClosedLoop, s_nom: np.ndarray, residual: cs.Function) -> tuple[np.ndarray, np.ndarray]:
+    """The state at rest of the sampled loop with the plant as declared (``residual``:
+    :func:`_equilibrium_residual`), by :func:`_solve` from the model's equilibrium ``s_nom``, and its ``y``;
+    :class:`NoEquilibriumError` when none is found."""
+    y_eq, size = _solve(residual, np.zeros(residual.size1_in(0)))
     if not size < EQUILIBRIUM_TOLERANCE:
         raise NoEquilibriumError(f"no equilibrium of the plant as declared found near the model's (Newton's "
                                  f"residual {size:.2e} > {EQUILIBRIUM_TOLERANCE:g})")  # fmt: skip
-    o = 2 * n + 3
+    n, o = loop.robot.n, 2 * loop.robot.n + 3
     dq, dp, dth, dz_i = y_eq[:n], y_eq[n : n + 3], y_eq[n + 3 : n + 6], y_eq[n + 6 :]
     quat = np.asarray(_quaternion_product(s_nom[o : o + 4], cs.DM(np.concatenate([[1.0], dth / 2])))).ravel()
     return np.concatenate([s_nom[:n] + dq, np.zeros(n), s_nom[2 * n : o] + dp, quat / np.linalg.norm(quat),
-                           s_nom[o + 4 :] + dz_i])  # fmt: skip
+                           s_nom[o + 4 :] + dz_i]), y_eq  # fmt: skip
+
+
+SELF_MOTION_STEPS = (-0.05, -0.01, 0.01, 0.05)
+"""rad along each direction of the self-motion at which its poses are checked to be equilibria
+(:class:`SelfMotionCheck`)."""
+
+
+@dataclass(frozen=True)
+class SelfMotionCheck:
+    """The hypothesis of fact 14 across the self-motion, checked: the poses along it near ``q_eq`` are
+    equilibria of the loop at rest (of the plant as declared). From ``q_eq`` moved by each step of
+    :data:`SELF_MOTION_STEPS` along each direction of ``null(J_b(q_eq))``, Newton's least-norm iteration
+    (its steps orthogonal to the equilibria's tangent) must find an equilibrium (``|R|`` below
+    :data:`EQUILIBRIUM_TOLERANCE`) still moved along the direction by at least half the step: an isolated
+    equilibrium (a map fixing the tangent to first order only) pulls the iteration back. ``poses`` checked,
+    ``residual`` the largest ``|R|`` found, ``moved`` the smallest displacement along the direction over the
+    step. A check at poses, not a proof between them."""
+
+    poses: int
+    residual: float
+    moved: float
+
+    @property
+    def holds(self) -> bool:
+        return self.residual < EQUILIBRIUM_TOLERANCE and self.moved >= 0.5
+
+    def as_dict(self) -> dict:
+        return {"poses": self.poses, "largest_residual": self.residual, "smallest_moved": self.moved,
+                "steps_rad": list(SELF_MOTION_STEPS), "holds": self.holds}  # fmt: skip
+
+
+def self_motion_check(residual: cs.Function, y_eq: np.ndarray, directions: np.ndarray) -> SelfMotionCheck:
+    """:class:`SelfMotionCheck` about the equilibrium ``y_eq`` (:func:`_equilibrium_residual`) along the joint
+    ``directions`` (columns, orthonormal)."""
+    n = directions.shape[0]
+    worst, moved = 0.0, math.inf
+    for direction in directions.T:
+        for step in SELF_MOTION_STEPS:
+            start = y_eq.copy()
+            start[:n] += step * direction
+            y, r = _solve(residual, start)
+            worst, moved = max(worst, r), min(moved, float(direction @ (y[:n] - y_eq[:n])) / step)
+    return SelfMotionCheck(directions.shape[1] * len(SELF_MOTION_STEPS), worst, moved)
+
+
+def _equilibria_tangent(residual: cs.Function, y_eq: np.ndarray, n: int, dimension: int) -> np.ndarray | None:
+    """The tangent of the equilibria's manifold at ``y_eq`` in ``z = [dq; dqd; dp; dtheta; dz_I]``: the null
+    space of the residual's Jacobian (:func:`_equilibrium_residual`), ``dqd = 0`` along it; None when its
+    dimension is not ``dimension`` (the self-motion's)."""
+    null = scipy.linalg.null_space(np.asarray(residual(y_eq)[1]))
+    if null.shape[1] != dimension:
+        return None
+    return np.vstack([null[:n], np.zeros((n, dimension)), null[n:]])
 
 
 @dataclass(frozen=True)
@@ -491,28 +569,34 @@ class Transverse:
     (``dimension`` columns, the self-motion in ``dq``, zero elsewhere); ``residual`` is
     ``||Pi T - T||_2``, how far the computed ``Pi`` is from fixing ``T``. With ``T`` fixed, ``Pi`` is
     ``[[I, *], [0, pi]]`` in ``[T, Q]``: its spectrum is ``dimension`` ones and ``pi``'s. On a 6-joint
-    arm ``T`` is empty: ``pi`` is the monodromy itself and ``residual`` 0."""
+    arm ``T`` is empty: ``pi`` is the monodromy itself and ``residual`` 0. ``equilibria``: the check that
+    the self-motion's poses are equilibria (:class:`SelfMotionCheck`; None: not made)."""
 
     pi: np.ndarray
     dimension: int
     residual: float
+    equilibria: SelfMotionCheck | None = None
 
     def certified(self, check: LyapunovCheck) -> bool:
-        """Whether the Lyapunov ``check`` of :attr:`pi` certifies and the computed ``Pi`` fixes the tangent
-        within that check's tolerance on ``Pi`` (a tangent it does not fix is not the self-motion's)."""
-        return check.certified and self.residual < check.tolerance
+        """Whether the Lyapunov ``check`` of :attr:`pi` certifies, the computed ``Pi`` fixes the tangent
+        within that check's tolerance on ``Pi`` (a tangent it does not fix is not the self-motion's) and, on a
+        redundant arm, the self-motion's poses were checked to be equilibria (a map fixing ``T`` to first
+        order may still have an isolated fixed point: ``F(a, b) = (a + a^2 + c b, b / 2)``)."""
+        manifold = self.dimension == 0 or (self.equilibria is not None and self.equilibria.holds)
+        return check.certified and self.residual < check.tolerance and manifold
 
 
-def transverse(pi: np.ndarray, self_motion: np.ndarray) -> Transverse:
-    """:class:`Transverse` of the monodromy ``pi`` whose first rows and columns are ``dq`` (``self_motion``:
-    :attr:`HeldLinearization.self_motion`)."""
+def transverse(pi: np.ndarray, self_motion: np.ndarray, equilibria: SelfMotionCheck | None = None) -> Transverse:
+    """:class:`Transverse` of the monodromy ``pi`` across the tangent whose first rows are ``self_motion`` (the
+    rest zero: :attr:`HeldLinearization.self_motion` in ``dq``, or the tangent of every state;
+    ``equilibria``: the check that its poses are equilibria, :class:`SelfMotionCheck`)."""
     m = self_motion.shape[1]
     if m == 0:
         return Transverse(pi, 0, 0.0)
     tangent = np.zeros((pi.shape[0], m))
     tangent[: self_motion.shape[0]] = self_motion
     q = scipy.linalg.null_space(tangent.T)
-    return Transverse(q.T @ pi @ q, m, float(np.linalg.norm(pi @ tangent - tangent, 2)))
+    return Transverse(q.T @ pi @ q, m, float(np.linalg.norm(pi @ tangent - tangent, 2)), equilibria)
 
 
 @dataclass
@@ -538,8 +622,14 @@ class MultirateLoop:
         return monodromy(*self._maps[imp.period], self.output, sched), sched
 
     def transverse(self, pi: np.ndarray) -> Transverse:
-        """``pi`` across the self-motion (:func:`transverse`; ``pi`` itself on a 6-joint arm)."""
-        return transverse(pi, self.lin.self_motion)
+        """``pi`` across the self-motion (:func:`transverse`): along the equilibria's tangent in ``z`` the held
+        ``e`` and the images in flight move by ``c`` times it; ``pi`` itself on a 6-joint arm."""
+        lin = self.lin
+        if lin.tangent is None:
+            return transverse(pi, lin.self_motion, lin.self_motion_equilibria)
+        copies = (len(pi) - len(lin.a)) // len(self.output)  # the held e and the images in flight
+        tangent = np.vstack([lin.tangent, *[self.output @ lin.tangent] * copies])
+        return transverse(pi, tangent, lin.self_motion_equilibria)
 
     def saturated(self, urdf: JointLimits) -> bool:
         """Whether saturation is active at the equilibrium: ``saturate`` on and the torque held there not
@@ -659,8 +749,8 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
     check = lyapunov_check(across.pi)
     period = sched.steps * imp.period
     certified = rho < 1 - RHO_MARGIN and across.certified(check)
-    reason = (f"rho = {rho:.6g}, the Lyapunov check (margin {check.margin:.3g}) or the self-motion's residual "
-              f"({across.residual:.2g}) fails")  # fmt: skip
+    reason = (f"rho = {rho:.6g}, the Lyapunov check (margin {check.margin:.3g}), the self-motion's residual "
+              f"({across.residual:.2g}) or the check that its poses are equilibria fails")  # fmt: skip
     gap = float(np.abs(lin.c_image - lin.c).max())
     return {
         "integral_state": loop.integral,
@@ -695,11 +785,13 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
 
 def self_motion_record(across: Transverse) -> dict | None:
     """The record's ``self_motion`` (None on a 6-joint arm): the manifold's dimension, the tangent's
-    residual ``||Pi T - T||_2`` and the size of the monodromy across it."""
+    residual ``||Pi T - T||_2``, the size of the monodromy across it and the check that its poses are
+    equilibria (:class:`SelfMotionCheck`)."""
     if not across.dimension:
         return None
+    equilibria = None if across.equilibria is None else across.equilibria.as_dict()
     return {"dimension": across.dimension, "tangent_residual": across.residual, "states": across.pi.shape[0],
-            "statement": SELF_MOTION_SCOPE.format(m=across.dimension).removeprefix("; ")}  # fmt: skip
+            "equilibria": equilibria, "statement": SELF_MOTION_SCOPE.format(m=across.dimension).removeprefix("; ")}
 
 
 def _friction_record(plant: DeclaredPlant, frictionless: MultirateLoop) -> dict:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import tomllib
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from typer.testing import CliRunner
 from dvfc.analysis import multirate
 from dvfc.analysis.cli import app
 from dvfc.analysis.multirate import (
+    DeclaredPlant,
     implemented_record,
     implemented_text,
     lyapunov_check,
@@ -28,7 +30,7 @@ from dvfc.analysis.multirate import (
     spectral_radius,
 )
 from dvfc.analysis.sampled import SampledSimulator
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
+from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
 from dvfc.analysis.simulate import Trajectory
 
 from helpers import default_without_integral
@@ -246,9 +248,10 @@ def test_the_self_motion_is_fixed_only_within_the_lyapunov_checks_tolerance(by, 
     the computed ``Pi`` fixes ``T``, to within the tolerance on ``Pi`` that check allows (a ``Pi`` moving
     ``T`` by more may be the computed image of a true monodromy that does not fix it: ``T`` is then not
     shown to be the self-motion). With the same stable compression across ``T`` (its check certifies,
-    margin 1), a ``Pi`` moving ``T`` by ``by`` times that tolerance is certified exactly when ``by < 1``."""
+    margin 1, its poses found to be equilibria), a ``Pi`` moving ``T`` by ``by`` times that tolerance is
+    certified exactly when ``by < 1``."""
     pi, self_motion, moved = moving_the_self_motion(by)
-    across = multirate.transverse(pi, self_motion)
+    across = multirate.transverse(pi, self_motion, multirate.SelfMotionCheck(4, 0.0, 1.0))
     check = lyapunov_check(across.pi)
     assert across.dimension == 1 and check.certified and check.margin == pytest.approx(1.0, abs=1e-9)
     assert across.residual == pytest.approx(moved, rel=1e-6, abs=1e-15)
@@ -303,3 +306,49 @@ def test_certify_reports_the_loop_as_implemented(tmp_path):
     for m in implemented["margins"].values():
         assert {"value", "unit", "stable_at", "unstable_at"} <= set(m)
     assert "loop as implemented, linearised at rest (fact 14, local): CERTIFIED" in result.output.replace("\n", " ")
+
+
+def test_an_isolated_fixed_point_whose_map_fixes_the_tangent_is_not_the_self_motion():
+    """``F(a, b) = (a + a^2 + c b, b / 2)`` fixes ``T = (1, 0)`` to first order (``DF(0) T = T``: its residual
+    across is 0, its compression 1/2 certified by the Lyapunov check), yet its only fixed point near 0 is 0:
+    from ``(step, 0)`` Newton's least-norm iteration on ``F(y) - y`` returns to 0 (moved 0 of the step), so
+    the check that the self-motion's poses are equilibria fails and fact 14 across ``T`` is not certified;
+    a map with a line of fixed points, ``F(a, b) = (a + c b, b / 2)``, passes it (moved all of the step)."""
+    y, c = cs.SX.sym("y", 2), 0.3
+
+    def residual(first: cs.SX) -> cs.Function:
+        r = cs.vertcat(first + c * y[1], -y[1] / 2)
+        return cs.Function("residual", [y], [r, cs.jacobian(r, y)])
+
+    tangent = np.array([[1.0], [0.0]])
+    isolated = multirate.self_motion_check(residual(y[0] ** 2), np.zeros(2), tangent[:1])
+    line = multirate.self_motion_check(residual(cs.DM(0.0)), np.zeros(2), tangent[:1])
+    assert isolated.residual < multirate.EQUILIBRIUM_TOLERANCE and abs(isolated.moved) < 1e-3 and not isolated.holds
+    assert line.holds and line.moved == pytest.approx(1.0, abs=1e-12)
+    pi = np.array([[1.0, c], [0.0, 0.5]])
+    for check, certified in ((isolated, False), (line, True)):
+        across = multirate.transverse(pi, tangent[:1], check)
+        assert across.residual == 0.0 and lyapunov_check(across.pi).certified
+        assert across.certified(lyapunov_check(across.pi)) is certified
+
+
+@pytest.mark.slow
+def test_a_payload_on_the_seven_joint_arm_moves_its_equilibria_with_the_integral_state():
+    """On the xArm 7 cell a 1 kg payload: with integral action the loop still rests on a manifold of
+    equilibria (its poses checked: every one found, moved by the whole step) whose tangent moves ``z_I`` (the
+    payload's weight changes along the self-motion), fixed by the plant's monodromy to 1e-10, and fact 14 across
+    it is certified; without integral action the payload's weight along the self-motion has nothing to hold it
+    and no equilibrium is found: the statement does not apply."""
+    data = tomllib.loads(XARM7_CELL.read_text())
+    data["plant"] = {"payload": {"mass": 1.0}}
+    loop, s0, settings = build(Scenario.model_validate(data), XARM7_CELL.parent)
+    record = implemented_record(loop, s0, settings)
+    moves = record["self_motion"]
+    assert record["certified"] and moves["tangent_residual"] < 1e-10 and moves["equilibria"]["holds"], moves
+    assert moves["equilibria"]["smallest_moved"] > 0.99
+    system = multirate_loop(loop, s0[: loop.robot.n], settings.implementation, DeclaredPlant.of(settings))
+    assert np.abs(system.lin.tangent[-loop.robot.n :]).max() > 1e-3  # z_I moves along the self-motion
+    data["gains"].pop("k_i_factor")
+    loop, s0, settings = build(Scenario.model_validate(data), XARM7_CELL.parent)
+    record = implemented_record(loop, s0, settings)
+    assert not record["applies"] and "no equilibrium of the plant as declared" in record["reason"]
