@@ -148,7 +148,7 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
 
 def local_rho(case: Case, settings: Settings) -> float | None:
     """``rho`` of fact 14 for one run's plant as drawn (its masses, camera, friction; at the scenario's
-    latency and rates: docs/math.md, fact 14 for the plant as declared), None where the statement does not
+    latency and rates: docs/math.md, fact 25), None where the statement does not
     apply to the loop."""
     if applicability(case.loop, settings) is not None:
         return None

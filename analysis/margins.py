@@ -71,7 +71,8 @@ STEPS = 6
 factor ``(hi/lo)^(1/64)`` for the parameters searched geometrically)."""
 
 PERIODS = 3
-"""Whole periods of the target's motion a run's growth is judged on, at least, after its first period (the
+"""Whole periods of the target's motion a run's growth is judged on (docs/math.md, fact 26), at least, after its
+first period (the
 start's transient): the last one's peak against the largest before it (:func:`envelope_growth`)."""
 
 GROWTH_RATE = 0.01

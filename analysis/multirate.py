@@ -202,7 +202,7 @@ class NoEquilibriumError(NotApplicableError):
 @dataclass(frozen=True)
 class DeclaredPlant:
     """The plant a scenario declares where it differs from the controller's model (docs/math.md,
-    fact 14 for the plant as it is): its masses (``robot``: a payload, a mass scale; None: the
+    fact 25: fact 14 for the plant as it is): its masses (``robot``: a payload, a mass scale; None: the
     model's) and what :class:`~dvfc.models.errors.PlantErrors` holds (camera mount, intrinsics,
     distortion, feature points, joint friction; None: none). The controller keeps its model."""
 
