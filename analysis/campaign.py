@@ -49,6 +49,12 @@ RUNS = "runs"
 
 BOUND = "clopper-pearson, one-sided"
 
+LOCAL = (
+    "; and, where fact 14 applies, the draw's plant linearised at rest (docs/math.md, fact 25: its masses, camera "
+    "and friction, at the scenario's latency and rates) has rho < 1: a draw with rho >= 1 fails whatever its run"
+)
+"""Added to the campaign's criterion: a run judged on its horizon cannot show a slow local instability."""
+
 CONFIDENCE, P_FAIL, QUANTILE = 0.95, 0.01, 0.9
 """The defaults of a campaign's statements: the confidence, the P(fail) whose zero-failure run
 count is stated, the quantile of the tracking error bounded."""
@@ -280,7 +286,7 @@ def summarize(spec: CampaignSpec, table: pa.Table, confidence: float, p: float, 
     holds = np.asarray(data["holds"], dtype=bool)
     k = int((~holds).sum())
     upper = clopper_pearson_upper(k, n, confidence)
-    criterion = CRITERION.format(bound=spec.bound.text)
+    criterion = CRITERION.format(bound=spec.bound.text) + LOCAL
     ratio = np.asarray(data["tracking_ratio"], dtype=float)
     tolerance = {"quantile": quantile, "confidence": confidence, "rank": None, "tracking_position": None,
                  "tracking_angle_deg": None, "tracking_ratio": None,

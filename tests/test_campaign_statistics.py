@@ -5,13 +5,22 @@ run, one rank or one side of a truncation makes the statement false."""
 
 from __future__ import annotations
 
+import tomllib
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import stats
 
-from dvfc.analysis.campaign import local_summary, tolerance_rank, zero_failure_runs
+from dvfc.analysis import campaign
+from dvfc.analysis.campaign import CampaignSpec, local_summary, tolerance_rank, zero_failure_runs
+from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import Dispersion
+from dvfc.analysis.margins import TrackingBound
+from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.schema import DistributionSection
+
+CELL = Path(__file__).resolve().parent.parent / "examples" / "ur5_cell.toml"
 
 LEVELS = [(p, c) for p in (0.5, 0.2, 0.1, 0.05, 0.01, 0.001) for c in (0.5, 0.75, 0.9, 0.95, 0.99)]
 """(p, confidence) pairs, among them exact cases: ``(1 - 0.5)^2 = 1 - 0.75`` and ``0.5^1 = 1 - 0.5``."""
@@ -122,3 +131,25 @@ def test_the_local_summary_counts_the_draws_fact_14_certifies_and_names_the_unst
     local = local_summary(data)
     assert local["computed"] == 3 and local["certified"] == 2 and local["unstable_runs"] == [2]
     assert local["largest_rho"] == 1.0002 and "2 of 4 draws locally certified" in local["statement"]
+
+
+@pytest.mark.slow
+def test_a_draw_whose_plant_is_locally_unstable_fails_whatever_its_run(monkeypatch):
+    """A campaign run that holds on its horizon but whose drawn plant has fact 25's rho >= 1 is a failure, the
+    reason saying the horizon was too short to show it; the same run with rho < 1 holds and records its rho.
+    (Run 0 of ``examples/ur5_cell.toml`` over 2 s, its rho stood in for; draw 67's plant, joint 3's Coulomb
+    friction 8.07 N m, has rho 1.06088 for that plant as drawn.)"""
+    data = tomllib.loads(CELL.read_text())
+    data["simulation"]["duration"] = 2.0
+    case = Case.load(CELL).with_scenario(Scenario.model_validate(data))
+    spec = CampaignSpec.of(case, TrackingBound(1.0, 180.0, "scenario", ""), 0)
+    drawn, _ = spec.run_settings(67)  # joint 3's Coulomb friction drawn at 8.07 N m: it hunts at rest
+    assert campaign.local_rho(case, drawn) == pytest.approx(1.06088, abs=1e-5) and drawn.errors is not None
+    values = spec.values(0)
+    settings, s0 = spec.run_settings(0, values)
+    traj = campaign.shared_simulator(spec.case).for_run(settings).run(s0)
+    for rho, holds in ((0.9, True), (1.01, False)):
+        monkeypatch.setattr(campaign, "local_rho", lambda case, settings, rho=rho: rho)
+        out = campaign.row(spec, 0, traj, settings, values)
+        assert out["holds"] is holds and out["local_rho"] == rho, out["reason"]
+    assert "rho = 1.01 >= 1" in out["reason"] and "the horizon is too short to show it" in out["reason"]

@@ -9,14 +9,17 @@ from __future__ import annotations
 import math
 import tomllib
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.linalg
 
-from dvfc.analysis.multirate import implemented_record, lyapunov_check, multirate_loop
+from dvfc.analysis.multirate import DeclaredPlant, implemented_record, lyapunov_check, multirate_loop
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
+
+CELL = Path(__file__).resolve().parent.parent / "examples" / "ur5_cell.toml"
 
 STABLE = [
     np.array([[0.5, 10.0], [0.0, 0.5]]),
@@ -166,3 +169,30 @@ def test_the_sampled_loop_settles_at_the_equilibrium_of_the_plant_as_declared():
     q_end, q_eq = traj["state"][-1][: loop.robot.n], np.asarray(record["q_eq"])
     assert np.abs(q_eq - np.asarray(model["q_eq"])).max() > 0.05
     assert np.abs(q_end - q_eq).max() < 1e-5
+
+
+@pytest.mark.slow
+def test_a_plant_whose_rho_exceeds_one_does_not_come_to_rest():
+    """On the ur5_cell design with integral action, a joint-3 Coulomb friction of 8.07 N m (the friction of the
+    cell's campaign draw 67) makes fact 14's rho for the plant as declared 1.0609 over 50 ms: the nonlinear sampled
+    loop (RK4 periods, target at rest, no noise) started 1e-3 rad off that equilibrium does not settle (its largest
+    joint offset over the 8th second is above that over the 2nd: it hunts), where the cell's own friction (rho
+    0.902) decays below 1e-6 rad by then."""
+    data = tomllib.loads(CELL.read_text())
+    data["target"]["motion"] = {"kind": "static"}
+    data["start"] = {"reference": "constant", "observer": "scenario"}
+    data["implementation"].update(pixel_noise=0.0, latency_jitter=0, frame_drop=0.0, outliers={"probability": 0.0})
+    data["gains"]["integral_start"] = 0.0
+    offsets = []
+    for coulomb in ([3.0, 3.0, 3.0, 0.56, 0.56, 0.56], [3.471, 2.6482, 8.0703, 0.782, 0.3829, 0.4909]):
+        data["plant"]["friction"]["coulomb"] = coulomb
+        loop, s0, settings = build(Scenario.model_validate(data), CELL.parent)
+        system = multirate_loop(loop, s0[: loop.robot.n], settings.implementation, DeclaredPlant.of(settings))
+        start = system.lin.state.copy()
+        start[: loop.robot.n] += 1e-3
+        traj = as_implemented(loop, replace(settings, duration=8.0)).run(start)
+        t, offset = np.asarray(traj.t), np.abs(traj["state"][:, : loop.robot.n] - system.lin.q_eq).max(axis=1)
+        offsets.append((system.rho(), offset[(t >= 1) & (t < 2)].max(), offset[t >= 7].max()))
+    (rho, _, late), (hunting, second, eighth) = offsets
+    assert rho < 0.91 and late < 1e-6
+    assert hunting > 1.05 and eighth > second

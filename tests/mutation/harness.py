@@ -94,6 +94,21 @@ MUTATIONS = (
         ("tests/test_multirate.py::test_a_payload_on_the_seven_joint_arm_moves_its_equilibria_with_the_integral_state",),
     ),
     Mutation(
+        "campaign-locally-unstable-draw-holds",
+        "a campaign draw whose plant has rho >= 1 counted as holding when its run held",
+        "analysis/campaign.py",
+        (("    if rho is not None and rho >= 1 - RHO_MARGIN:  # a failure whatever its run shows\n",
+          "    if False:\n"),),
+        ("tests/test_campaign_statistics.py::test_a_draw_whose_plant_is_locally_unstable_fails_whatever_its_run",),
+    ),
+    Mutation(
+        "campaign-local-rho-of-the-model",
+        "a campaign draw's local rho computed for the controller's model, not the plant as drawn",
+        "analysis/campaign.py",
+        (("    return DeclaredPlant.of(settings).rho(", "    return DeclaredPlant().rho("),),
+        ("tests/test_campaign_statistics.py::test_a_draw_whose_plant_is_locally_unstable_fails_whatever_its_run",),
+    ),
+    Mutation(
         "plant-margin-not-clipped",
         "a payload, mount, focal-length or friction margin reported beyond fact 14's linear margin of the plant",
         "analysis/margins.py",
