@@ -723,7 +723,8 @@ def margins(
     unchecked = f"fact 14: {linear.reason}: the measured margins are not checked against linear ones"
     clause = LINEAR_CLAUSE if linear.margins is not None else unchecked
     period = judged_period(loop, settings.duration)
-    what = "the target's motion" if period == loop.target.motion_period else "the target's motion has none that fits"
+    what = ("the target's motion" if period == loop.target.motion_period
+            else "a quarter of the scenario's duration: the target's motion has no period that fits")  # fmt: skip
     steady = STEADY.format(period=period, what=what, periods=PERIODS, rate=GROWTH_RATE,
                            limit=math.exp(GROWTH_RATE * period), most=HORIZONS[-1], linear=clause)  # fmt: skip
     return MarginsResult(scenario=spec.name, margins=out, criterion=CRITERION.format(bound=bound.text) + steady,
