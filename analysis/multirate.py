@@ -922,7 +922,8 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation,
     for j in range(ring):
         x_eq[layout.slot(j)] = gbar_eq
     x_eq[layout.q_last] = lin.q_eq
-    x_eq[layout.integral] = at[loop.integral_slice]
+    if loop.integral:
+        x_eq[layout.integral] = at[loop.integral_slice]
     if lin.e_eq is not None:
         x_eq[layout.e_e] = lin.e_eq
     phi, g_tau, *_ = lin.flow(h)

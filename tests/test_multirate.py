@@ -215,8 +215,9 @@ def test_a_tangent_the_monodromy_does_not_fix_is_not_certified(redundant, monkey
     ``Pi`` of about 1e-5), so the record is not certified and names the residual."""
     loop, s0, settings, _ = redundant
     true = multirate.held_linearization
+    joint_1 = np.eye(loop.robot.n)[:, :1]  # the tangent in dq alone (tangent None), joint 1's direction
     monkeypatch.setattr(multirate, "held_linearization",
-                        lambda *a: replace(true(*a), self_motion=np.eye(loop.robot.n)[:, :1]))  # fmt: skip
+                        lambda *a: replace(true(*a), self_motion=joint_1, tangent=None))  # fmt: skip
     record = implemented_record(loop, s0, settings)
     assert record["rho"] < 1 and record["lyapunov_margin"] > 0.5 and record["self_motion"]["tangent_residual"] > 1
     assert not record["certified"] and "self-motion's residual" in record["reason"]
