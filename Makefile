@@ -51,7 +51,7 @@ test: lint typecheck system-deps
 check: lint typecheck
 	$(PYTEST) -m "not slow" tests
 
-# make mutate: break the code on purpose (tests/mutation/harness.py) and check every mutation is caught (~10 min).
+# make mutate: break the code on purpose (tests/mutation/harness.py) and check every mutation is caught (about 45 min on two cores: 192 mutations, 2725 s measured).
 mutate: install
 	$(BIN)/python tests/mutation/harness.py --write
 
