@@ -83,7 +83,7 @@ def main() -> None:
     fmt = lambda v: "-" if v is None else f"{v:.4g}"  # noqa: E731
     for name, m in result.margins.items():
         print(f"  {name:14s} holds at {fmt(m['holds_at']):>8}  breaks at {fmt(m['breaks_at']):>8}  {m['unit']}")
-    for name, m in result["linear_margins"]["margins"].items():
+    for name, m in result.linear_margins["margins"].items():
         print(f"  linear {name:12s} stable at {fmt(m['stable_at']):>8}  unstable at {fmt(m['unstable_at']):>8}  "
               f"{m['unit']}")
 
