@@ -253,6 +253,64 @@ def _carried(name: str, by_child: dict[str, ET.Element], index: dict[str, int]) 
     return found
 
 
+@dataclass(frozen=True)
+class _Moved:
+    """One link moved by the chain, as the bounds see it: the chain joints moving it (``moved``, the
+    carrier first, then the joints above it going up), ``beta_kL`` for each (:func:`_moved_links`; the
+    carrier's exact), their lower counterparts, the carrier's axis ``a_c``, the inertia ``S_L^(c)`` in
+    the carrier's frame and its principal inertias (ascending)."""
+
+    link: _Link
+    moved: list[int]
+    beta: list[float]
+    beta_lo: list[float]
+    axis: np.ndarray
+    spin: np.ndarray
+    principal: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+
+
+def _lever(axes: np.ndarray, where: _Carried, point: np.ndarray) -> tuple[list[int], list[float], list[float]]:
+    """The chain joints moving ``point`` (a point of the link ``where`` describes, in that link's
+    frame) and, for each, bounds ``beta_lo <= |a_k x (p - o_k)| <= beta`` for every ``q`` (module
+    text: exact for the carrier, the triangle inequality above it)."""
+    p = where.rotation @ point + where.translation  # in the carrier's frame
+    moved = [where.carrier] + [k for k, _ in where.above]
+    beta = [float(np.linalg.norm(np.cross(axes[where.carrier], p)))]
+    beta_lo = list(beta)
+    length = float(np.linalg.norm(p))
+    for k, offset in where.above:
+        perpendicular = float(np.linalg.norm(np.cross(axes[k], offset)))
+        beta.append(perpendicular + length)
+        beta_lo.append(max(0.0, perpendicular - length))
+        length += float(np.linalg.norm(offset))
+    return moved, beta, beta_lo
+
+
+def _moved_links(root: ET.Element, joints: list[str]) -> list[_Moved]:
+    """Every link the chain ``joints`` moves, as :class:`_Moved` (a negative principal inertia is refused)."""
+    by_child = {urdf_attribute(j, "child", "link"): j for j in root.findall("joint")}
+    index = {name: k for k, name in enumerate(joints)}
+    axes = _axes(root, joints)
+    out = []
+    for name, link in _links(root).items():
+        where = _carried(name, by_child, index)
+        if where is None:
+            continue
+        principal = np.linalg.eigvalsh(link.inertia)
+        if principal[0] < -AXIS_TOLERANCE * max(1.0, principal[-1]):
+            raise InertiaModelError(
+                f"link {name!r}: principal inertia {principal[0]:.6g} kg m^2 < 0 (not a rigid body): "
+                "the mass-matrix bounds need positive semidefinite link inertias"
+            )
+        moved, beta, beta_lo = _lever(axes, where, link.com)
+        spin = where.rotation @ link.inertia @ where.rotation.T  # S_L^(c)
+        out.append(_Moved(link, moved, beta, beta_lo, axes[where.carrier], spin, principal, where.rotation,
+                          where.translation))  # fmt: skip
+    return out
+
+
 def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[float, ...] = ()) -> MassBounds:
     """The bounds of the module text for the arm whose chain joints are ``joints`` (root first;
     every other movable joint frozen at zero, as in :func:`dvfc.models.robot.frozen_urdf`, and
@@ -266,41 +324,19 @@ def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[floa
         the chain with a negative principal inertia.
     """
     root = ET.parse(urdf).getroot()
-    by_child = {urdf_attribute(j, "child", "link"): j for j in root.findall("joint")}
-    index = {name: k for k, name in enumerate(joints)}
-    axes = _axes(root, joints)
     n = len(joints)
     arm = np.asarray(armature, dtype=float) if armature else np.zeros(n)
     upper, lower = np.diag(arm), arm.copy()
     bodies = [_EMPTY] * n
-    for name, link in _links(root).items():
-        where = _carried(name, by_child, index)
-        if where is None:
-            continue
-        principal = np.linalg.eigvalsh(link.inertia)
-        if principal[0] < -AXIS_TOLERANCE * max(1.0, principal[-1]):
-            raise InertiaModelError(
-                f"link {name!r}: principal inertia {principal[0]:.6g} kg m^2 < 0 (not a rigid body): "
-                "the mass-matrix bounds need positive semidefinite link inertias"
-            )
-        com = where.rotation @ link.com + where.translation  # c_L^(c)
-        spin = where.rotation @ link.inertia @ where.rotation.T  # S_L^(c)
-        a = axes[where.carrier]
-        moved = [where.carrier] + [k for k, _ in where.above]
-        beta = [float(np.linalg.norm(np.cross(a, com)))]  # exact
-        beta_lo = list(beta)
-        length = float(np.linalg.norm(com))
-        for k, offset in where.above:
-            perpendicular = float(np.linalg.norm(np.cross(axes[k], offset)))
-            beta.append(perpendicular + length)
-            beta_lo.append(max(0.0, perpendicular - length))
-            length += float(np.linalg.norm(offset))
-        alpha = np.full((len(moved), len(moved)), principal[-1])
+    for item in _moved_links(root, joints):
+        moved, beta, a, spin = item.moved, item.beta, item.axis, item.spin
+        alpha = np.full((len(moved), len(moved)), item.principal[-1])
         alpha[0, :] = alpha[:, 0] = np.linalg.norm(spin @ a)  # |a_i^T S a_c| <= |S a_c|
         alpha[0, 0] = a @ spin @ a  # exact
-        upper[np.ix_(moved, moved)] += link.mass * np.outer(beta, beta) + alpha
-        lower[moved] += link.mass * np.square(beta_lo) + np.r_[a @ spin @ a, np.full(len(moved) - 1, principal[0])]
-        bodies[where.carrier] = _merge(bodies[where.carrier], link, where.rotation, where.translation)
+        upper[np.ix_(moved, moved)] += item.link.mass * np.outer(beta, beta) + alpha
+        lower[moved] += item.link.mass * np.square(item.beta_lo) + np.r_[a @ spin @ a,
+                                                                         np.full(len(moved) - 1, item.principal[0])]
+        bodies[moved[0]] = _merge(bodies[moved[0]], item.link, item.rotation, item.translation)
     mu = np.array([np.linalg.eigvalsh(body.inertia)[0] for body in bodies])
     return MassBounds(upper, lower, np.maximum(mu, 0.0), arm)
 
@@ -320,3 +356,58 @@ def _merge(body: _Link, link: _Link, rotation: np.ndarray, translation: np.ndarr
         d = c - centre
         total += i + m * (d @ d * np.eye(3) - np.outer(d, d))
     return _Link(mass, centre, total)
+
+
+@dataclass(frozen=True)
+class CoriolisBounds:
+    """Bounds on the Christoffel symbols of ``M(q)`` for every ``q`` (docs/math.md, fact 23, (B1)):
+    ``|Gamma_ijk(q)| <= G_ijk`` with ``C(q, qd)_ij = sum_k Gamma_ijk qd_k``; per row
+    ``|(C(q, qd) b)_i| <= rows_i |qd| |b|`` (``rows_i = ||G[i]||_2``), as a whole
+    ``|a^T C(q, qd) b| <= whole |a| |b| |qd|`` (the smallest spectral norm of ``G``'s unfoldings)."""
+
+    tensor: np.ndarray
+    rows: np.ndarray
+    whole: float
+
+
+def christoffel_bounds(urdf: str | Path, joints: list[str]) -> CoriolisBounds:
+    """(B1) of docs/math.md, fact 23: for each link ``L`` moved by ``i``, ``j`` and ``k``
+    (``lo, hi = min, max(i, j)``), ``|dM_ij/dq_k| <= E_ijk``, the sum over links of 0 for ``k <= lo``,
+    ``m_L (beta_k beta_hi + beta_lo beta_hi) + lambda_max(I_L)`` for ``lo < k <= hi`` and
+    ``m_L (beta_k beta_hi + beta_lo beta_k) + lambda_max(I_L) - lambda_min(I_L)`` for ``k > hi``
+    (turning joint ``k`` moves the part distal to it rigidly about its axis); then
+    ``G_ijk = (E_ijk + E_ikj + E_jki) / 2``. The armature is constant and adds nothing."""
+    root = ET.parse(urdf).getroot()
+    n = len(joints)
+    e = np.zeros((n, n, n))
+    for item in _moved_links(root, joints):
+        beta = dict(zip(item.moved, item.beta, strict=True))
+        mass, top, bottom = item.link.mass, item.principal[-1], item.principal[0]
+        for i in item.moved:
+            for j in item.moved:
+                lo, hi = min(i, j), max(i, j)
+                for k in item.moved:
+                    if lo < k <= hi:
+                        e[i, j, k] += mass * (beta[k] * beta[hi] + beta[lo] * beta[hi]) + top
+                    elif k > hi:
+                        e[i, j, k] += mass * (beta[k] * beta[hi] + beta[lo] * beta[k]) + top - bottom
+    g = (e + e.transpose(0, 2, 1) + e.transpose(2, 1, 0)) / 2  # E_ijk + E_ikj + E_jki (E symmetric in i, j)
+    rows = np.array([np.linalg.norm(g[i], 2) for i in range(n)])
+    whole = min(float(np.linalg.norm(g.transpose(axes).reshape(n, n * n), 2))
+                for axes in ((0, 1, 2), (1, 0, 2), (2, 0, 1)))  # fmt: skip
+    return CoriolisBounds(g, rows, whole)
+
+
+def camera_levers(urdf: str | Path, joints: list[str], frame: str, mount: np.ndarray) -> np.ndarray:
+    """(B2) of docs/math.md, fact 23: ``d_i >= dist(camera origin, axis i)`` for every ``q``, the
+    length of the linear part of column ``i`` of ``J_b`` (its angular part is a unit axis). The
+    camera origin is the point ``mount`` of the link ``frame`` (its frame); 0 for a joint that
+    does not move it."""
+    root = ET.parse(urdf).getroot()
+    by_child = {urdf_attribute(j, "child", "link"): j for j in root.findall("joint")}
+    where = _carried(frame, by_child, {name: k for k, name in enumerate(joints)})
+    d = np.zeros(len(joints))
+    if where is not None:
+        moved, beta, _ = _lever(_axes(root, joints), where, np.asarray(mount, dtype=float))
+        d[moved] = beta
+    return d

@@ -402,14 +402,14 @@ MUTATIONS = (
         "carrier-full-length",
         "B uses the full length |c_L| where the exact carrier entry |a_c x c_L| belongs",
         "models/inertia.py",
-        (("beta = [float(np.linalg.norm(np.cross(a, com)))]  # exact", "beta = [float(np.linalg.norm(com))]"),),
+        (("beta = [float(np.linalg.norm(np.cross(axes[where.carrier], p)))]", "beta = [float(np.linalg.norm(p))]"),),
         ("tests/test_inertia.py::test_entries_are_bounded_and_the_carrier_entries_attained",),
     ),
     Mutation(
         "carrier-alpha-spectral",
         "B's carrier rotational term lambda_max(I_L) instead of the exact a_c^T S a_c",
         "models/inertia.py",
-        (("        alpha[0, 0] = a @ spin @ a  # exact\n", "        alpha[0, 0] = principal[-1]\n"),),
+        (("        alpha[0, 0] = a @ spin @ a  # exact\n", "        alpha[0, 0] = item.principal[-1]\n"),),
         ("tests/test_inertia.py::test_entries_are_bounded_and_the_carrier_entries_attained",),
     ),
     Mutation(
@@ -654,6 +654,20 @@ MUTATIONS = (
     ),
     # --- statements that claim more than is true (each caught against an independent computation) ---
     Mutation(
+        "christoffel-distal-term-dropped",
+        "fact 23's bound on dM_ij/dq_k leaves out the joints below both i and j (k > hi)",
+        "models/inertia.py",
+        (("                    elif k > hi:\n", "                    elif k > hi and False:\n"),),
+        ("tests/test_integral_envelope.py::test_the_ur5_bounds_are_those_of_the_derivation",),
+    ),
+    Mutation(
+        "sigma-min-without-weyl-correction",
+        "fact 23's s_lo taken at the cells' centres, without Weyl's correction over each cell",
+        "analysis/integral_envelope.py",
+        (("        return values - np.sum(", "        return values - 0 * np.sum("),),
+        ("tests/test_integral_envelope.py::test_sigma_min_on_coarse_cells_is_below_every_sampled_value",),
+    ),
+    Mutation(
         "inertia-cross-carrier-alpha",
         "fact 10.1's cross term with the carrier taken as a_c^T S a_c instead of |S a_c| (below |M_ic|)",
         "models/inertia.py",
@@ -665,8 +679,8 @@ MUTATIONS = (
         "inertia-cross-alpha-dropped",
         "fact 10.1's rotational cross terms of the joints above the carrier dropped (lambda_max(I_L) on the diagonal only)",  # noqa: E501
         "models/inertia.py",
-        (("        alpha = np.full((len(moved), len(moved)), principal[-1])\n",
-          "        alpha = np.diag(np.full(len(moved), principal[-1]))\n"),),
+        (("        alpha = np.full((len(moved), len(moved)), item.principal[-1])\n",
+          "        alpha = np.diag(np.full(len(moved), item.principal[-1]))\n"),),
         ("tests/test_inertia_cross_terms.py::test_inertia_bound_dominates_mass_matrix_entrywise_with_cross_terms",),
     ),
     Mutation(
