@@ -66,18 +66,28 @@ def test_the_ur5_bounds_are_those_of_the_derivation():
     assert levers == pytest.approx([1.2396, 1.0872, 0.6622, 0.1770, 0.0823, 0.0], abs=6e-5)
 
 
-def test_sigma_min_on_a_box_is_below_every_sampled_value():
-    """(B3.5): ``s_lo`` lies below ``sigma_min(J_b)`` at 2000 random configurations of the box."""
+BOX_LOWER = np.array([0.0, -1.75, 1.43, -1.63, -1.63, 0.0])
+BOX_UPPER = np.array([0.0, -1.43, 1.74, -1.50, -1.51, 0.0])
+"""A box about the default's run after ``T_I``: ``q2..q5`` vary (``J_b`` does not depend on ``q1``; the camera on
+the last axis, ``sigma(J_b)`` not on ``q6``)."""
+
+
+def box_sigma(count: int, seed: int) -> tuple[float, float]:
+    """``(s_lo, the smallest sigma_min(J_b) at count random configurations)`` on the UR5's box."""
     robot = arm("ur5")
-    lower = np.array([0.0, -1.75, 1.43, -1.63, -1.63, 0.0])
-    upper = np.array([0.0, -1.43, 1.74, -1.50, -1.51, 0.0])
     varied = np.array([False, True, True, True, True, False])
     levers = camera_levers(robot.urdf, robot.joints, "tool0", np.zeros(3))
-    s_lo, centre, _ = ie.sigma_min_on_box(ie.jacobian_function(robot), lower, upper, varied, levers)
-    q = np.random.default_rng(4).uniform(lower, upper, (2000, 6))
-    j = np.asarray(ie.jacobian_function(robot).map(2000)(q.T)).reshape(6, 2000, 6).transpose(1, 0, 2)
-    sampled = np.linalg.svd(j, compute_uv=False)[:, 5]
-    assert 0 < s_lo <= sampled.min() and s_lo >= 0.8 * centre
+    s_lo, _, _ = ie.sigma_min_on_box(ie.jacobian_function(robot), BOX_LOWER, BOX_UPPER, varied, levers)
+    q = np.random.default_rng(seed).uniform(BOX_LOWER, BOX_UPPER, (count, 6))
+    j = np.asarray(ie.jacobian_function(robot).map(count)(q.T)).reshape(6, count, 6).transpose(1, 0, 2)
+    return s_lo, float(np.linalg.svd(j, compute_uv=False)[:, 5].min())
+
+
+def test_sigma_min_on_a_box_is_below_every_sampled_value():
+    """(B3.5): ``s_lo`` lies below ``sigma_min(J_b)`` at 2000 random configurations of the box, and within
+    20% of it (the refinement is not vacuous)."""
+    s_lo, sampled = box_sigma(2000, 4)
+    assert 0.8 * sampled <= s_lo <= sampled
 
 
 def test_sigma_min_on_coarse_cells_is_below_every_sampled_value(monkeypatch):
@@ -87,12 +97,5 @@ def test_sigma_min_on_coarse_cells_is_below_every_sampled_value(monkeypatch):
     monkeypatch.setattr(ie, "BOX_BATCH", 16)
     monkeypatch.setattr(ie, "BOX_EVALUATIONS", 200)
     monkeypatch.setattr(ie, "BOX_TOLERANCE", 0.0)
-    robot = arm("ur5")
-    lower = np.array([0.0, -1.75, 1.43, -1.63, -1.63, 0.0])
-    upper = np.array([0.0, -1.43, 1.74, -1.50, -1.51, 0.0])
-    varied = np.array([False, True, True, True, True, False])
-    levers = camera_levers(robot.urdf, robot.joints, "tool0", np.zeros(3))
-    s_lo, _, _ = ie.sigma_min_on_box(ie.jacobian_function(robot), lower, upper, varied, levers)
-    q = np.random.default_rng(5).uniform(lower, upper, (20000, 6))
-    j = np.asarray(ie.jacobian_function(robot).map(20000)(q.T)).reshape(6, 20000, 6).transpose(1, 0, 2)
-    assert s_lo <= np.linalg.svd(j, compute_uv=False)[:, 5].min()
+    s_lo, sampled = box_sigma(20000, 5)
+    assert s_lo <= sampled
