@@ -61,6 +61,9 @@ from dvfc.models.robot import spans_the_task
 
 TARGET_MARGIN = 1e-4
 """Relative margin below a gamma target that the synthesis aims at."""
+CORNER_SLACK = 1e-6
+"""Relative slack on the solver's largest ``s`` at which :func:`corner` meets the ``xi`` block: far above
+the solver's accuracy (about 1e-10 on ``s``), far below a printed digit."""
 
 SEARCH_STEPS = 6
 """Bisection steps of the limits search after its two ends: a bracket of 1/64 of the family."""
@@ -153,7 +156,12 @@ def window_constraints(windows: WindowSpec | None, k_xi: cp.Variable) -> list:
 def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target: float | None,
          plant: PlantWeights | None, windows: WindowSpec | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Solve the fact-6 SDP for fixed weights (and the generalized plant's, fact 17) within the gain
-    windows (:func:`window_constraints`); returns ``(k_xi, k_c, k_e)`` or None."""  # fmt: skip
+    windows (:func:`window_constraints`); returns ``(k_xi, k_c, k_e)`` or None.
+
+    Without a target the optimum ``maximize s`` is not unique (``K_xi`` enters only its own block, and
+    the gains beyond what the LMI needs are free), and where on that face a solver stops depends on the
+    last bits of the arithmetic (on another BLAS kernel the same problem moved the gains by 2e-4). The
+    design is then :func:`corner` at the solver's ``s`` less :data:`CORNER_SLACK`."""  # fmt: skip
     w = weights.as_array()[None]
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
@@ -178,7 +186,33 @@ def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target:
     problem = cp.Problem(objective, constraints)
     if solve(problem)[0] is None:
         return None
+    if isinstance(s, cp.Variable):  # no target: the minimum-gamma design
+        level = float(np.asarray(s.value)) * (1 - CORNER_SLACK)
+        return corner(n, bounds, windows, 0.5 * s2[:n] + level * d_w[:n] ** 2)
     return _clipped(bounds, k_xi, k_c, k_ep, k_er)
+
+
+def corner(n: int, bounds: Bounds, windows: WindowSpec | None,
+           needed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The minimum-gamma design of the box (docs/math.md, fact 6, uniqueness): ``K_c`` and ``K_e`` at
+    their upper bounds (``K_e`` isotropic: fact 2), and ``K_xi`` at its upper bounds scaled by the
+    largest ``t <= 1`` with ``t diag(upper) <= H`` (:meth:`WindowSpec.synthesis_hold`; ``t`` the least
+    eigenvalue of ``diag(upper)^-1/2 H diag(upper)^-1/2``) when that meets ``needed``, the least
+    ``K_xi`` of the ``xi`` block at the optimal ``s``; else (the ``xi`` block binds) the least ``K_xi``
+    allowed: ``needed``, the box's lower bounds and :meth:`WindowSpec.synthesis_lower`, elementwise.
+
+    Fact 6's ``P = N^T diag(k) N - I/2 - s W`` grows (in the Loewner order) with every gain, so any
+    optimal point of the SDP is dominated by this one, which is then optimal too, and within the hold
+    LMI (``H - diag(k) >= 0`` stays so when ``k`` decreases). Every number is a bound, one symmetric
+    eigenvalue or the optimal ``s``: the same on any machine to round-off, where the solver's point on
+    the optimal face is not."""
+    upper = np.broadcast_to(np.asarray(bounds.k_xi[1], dtype=float), n).copy()
+    if windows is not None and (hold := windows.synthesis_hold()) is not None:
+        root = 1.0 / np.sqrt(upper)
+        upper *= min(1.0, float(np.linalg.eigvalsh(root[:, None] * hold * root[None, :])[0]))
+    lowest = np.maximum(bounds.k_xi[0], 0.0 if windows is None else windows.synthesis_lower())
+    k_xi = upper if np.all(upper >= np.maximum(needed, lowest)) else np.maximum(needed, lowest)
+    return k_xi, np.full(6, float(bounds.k_c[1])), np.full(6, float(bounds.k_e[1]))
 
 
 def _clipped(bounds: Bounds, k_xi: cp.Variable, k_c: cp.Variable, k_ep: cp.Variable,

@@ -43,6 +43,7 @@ from dvfc.analysis.synthesize import (
     scaled,
     scenario_text,
     search_within_limits,
+    synthesis_bounds,
     synthesis_record,
     synthesize,
     synthesize_speed,
@@ -93,6 +94,37 @@ def test_no_grid_point_in_bounds_certifies_smaller_gamma(result):
         assert exact_gamma(point, REFERENCE, np.eye(3))[0] >= best
 
 
+def test_the_minimum_gamma_design_is_the_box_corner(result):
+    """docs/math.md, fact 6 (uniqueness): without windows the minimum-gamma design is the box's upper
+    corner, bit for bit (the solver's point on the optimal face is not), and no grid point beats it
+    (:func:`test_no_grid_point_in_bounds_certifies_smaller_gamma`)."""
+    p = result.point
+    assert np.array_equal(p.k_xi, np.full(6, BOUNDS.k_xi[1])) and np.array_equal(p.k_c, np.full(6, BOUNDS.k_c[1]))
+    assert np.array_equal(p.k_e, np.full(6, BOUNDS.k_e[1]))
+
+
+@pytest.mark.parametrize("alpha", [1.0, 0.9358])
+def test_the_design_is_the_same_when_the_data_move_by_round_off(alpha):
+    """Green on every machine (docs/math.md, fact 6): the default's written design (gains rounded as
+    written) within the gain windows, on the limits search's box at ``alpha``, is the same when the
+    weights move by 1e-13 relative either way, as another machine's BLAS moves the last bits. The
+    solver's own point on the optimal face moved in the 4th digit (``k_xi,1`` 57.19 to 57.20)."""
+    case = Case.load(EXAMPLES / "ur5_circle.toml")
+    spec, windows = case.scenario, case_window_spec(case)
+    box = scaled(synthesis_bounds(case), alpha)
+    base = Weights(**spec.weights.model_dump())
+
+    def written(eps: float) -> np.ndarray:
+        design = designer(Weights(*(base.as_array() * (1 + eps))), case.reference, 6, windows=windows,
+                          theta_max=math.radians(spec.certify.theta_max_deg), plant=case.point.plant)  # fmt: skip
+        p = design(box).point
+        return np.r_[p.k_xi, p.k_c, p.k_e]
+
+    first = written(0.0)
+    for eps in (1e-13, -1e-13):
+        assert np.array_equal(written(eps), first), eps
+
+
 @pytest.mark.slow
 def test_the_target_speed_sdp_keeps_every_gain_inside_its_window_with_margin():
     """The same windows in fact 7's SDP (:func:`synthesize_speed`, the UR5's mass bounds, the light
@@ -133,10 +165,11 @@ def test_gamma_target_gives_smallest_gains(result):
 
 def test_the_sdp_keeps_every_gain_inside_its_window_with_margin():
     """docs/math.md, "Gain windows": on a light arm (``M`` with eigenvalues 0.005-0.013 kg m^2) held at
-    500 Hz, the fact-6 SDP alone puts ``k_xi = 17`` on every joint, a held map with ``h lambda_max(M^-1
-    K_xi) = 7.0``, far past 2 (diverges); with the windows, ``h lambda_max`` (numpy's eigenvalues of
-    ``M^-1 K_xi``, not the LMI) is at most ``0.8 x 1.95``, every gain at most 0.8 of its hold limit (by
-    bisection, :func:`dvfc.analysis.windows.hold_limits`) and at least 1.1 x 1/2, at the same gamma."""
+    500 Hz, the minimum-gamma design alone puts ``k_xi`` at the box's upper 30 on every joint, a held
+    map with ``h lambda_max(M^-1 K_xi) = 12.3``, far past 2 (diverges); with the windows, ``h lambda_max``
+    (numpy's eigenvalues of ``M^-1 K_xi``, not the LMI) is at most ``0.8 x 1.95``, every gain at most 0.8
+    of its hold limit (by bisection, :func:`dvfc.analysis.windows.hold_limits`) and at least 1.1 x 1/2,
+    at the same gamma."""
     a = np.random.default_rng(0).normal(size=(6, 6))
     mass = 0.0008 * (a @ a.T + 6 * np.eye(6))
     spec = WindowSpec(mass, 500.0, None)
@@ -462,16 +495,35 @@ def test_the_written_design_passes_the_sampled_loops_certificate_with_margin(win
 
 
 @pytest.mark.slow
-def test_synthesize_says_when_the_written_design_loses_the_start_certificate(windowed):
-    """Fact 16b: the scenario's own (isotropic) ``K_c`` certifies its planned start; the synthesised
-    ``K_c`` is unequal across axes, so the written design's start is not certified, which the JSON
-    and the human output of ``synthesize`` state (and ``certify`` of the written file agrees)."""
-    _, record, text, target = windowed
+def test_synthesize_says_when_the_written_design_loses_the_start_certificate(tmp_path):
+    """Fact 16b: the default's own (isotropic) ``K_c`` certifies its planned start; the smallest gains
+    reaching gamma 0.5 (fact 6's strictly convex program) have a ``K_c`` unequal across axes, so the
+    written design's start is not certified, which the JSON and the human output of ``synthesize``
+    state (and ``certify`` of the written file agrees)."""
+    data = tomllib.loads((EXAMPLES / "ur5_circle.toml").read_text())
+    data["simulation"]["duration"] = 0.05
+    data["synthesize"] = {"gamma": 0.5}
+    (tmp_path / "s.toml").write_text(tomli_w.dumps(data))
+    target = tmp_path / "syn.toml"
+    result = runner.invoke(app, ["synthesize", str(tmp_path / "s.toml"), "--out", str(target), "--json",
+                                 str(tmp_path / "syn.json")], env={"COLUMNS": "400"})  # fmt: skip
+    assert result.exit_code == 0 and target.exists(), result.output
+    record = json.loads((tmp_path / "syn.json").read_text())
     assert np.ptp(record["point"]["gains"]["k_c"]) > 0
     start = record["start"]
     assert start["original_certified"] and not start["written_certified"] and start["lost"]
-    assert "START NOT CERTIFIED" in text and "K_c is not isotropic" in text
+    assert "START NOT CERTIFIED" in result.stdout and "K_c is not isotropic" in result.stdout
     assert envelope_record(Case.load(target), search=False)["start"]["inside"] is False
+
+
+@pytest.mark.slow
+def test_the_minimum_gamma_design_keeps_an_isotropic_start(windowed):
+    """The box's corner (fact 6) has ``K_c`` equal across axes: the written design keeps the start
+    certificate of the scenario's own gains (fact 16b), and ``synthesize`` says nothing of a lost start."""
+    _, record, text, _ = windowed
+    assert np.ptp(record["point"]["gains"]["k_c"]) == 0
+    assert record["start"]["original_certified"] and record["start"]["written_certified"]
+    assert not record["start"]["lost"] and "START NOT CERTIFIED" not in text
 
 
 @pytest.mark.slow

@@ -1132,6 +1132,21 @@ MUTATIONS = (
         'analysis/synthesize.py',
         (('        constraints.append(hold - cp.diag(k_xi) >> 0)',
           '        constraints.append(cp.diag(hold) - k_xi >= 0)'),),
+        ('tests/test_synthesize.py::test_the_target_speed_sdp_keeps_every_gain_inside_its_window_with_margin',),
+    ),
+    Mutation(
+        'synthesis-design-from-the-solvers-face',
+        "the minimum-gamma design is the solver's point on the optimal face, not the box's corner (machine-dependent)",
+        'analysis/synthesize.py',
+        (('    if isinstance(s, cp.Variable):  # no target', '    if False:  # no target'),),
+        ('tests/test_synthesize.py::test_the_design_is_the_same_when_the_data_move_by_round_off',),
+    ),
+    Mutation(
+        'synthesis-corner-past-the-hold',
+        "the corner's K_xi left at the box's upper bounds, past the windows' hold LMI",
+        'analysis/synthesize.py',
+        (('        upper *= min(1.0, float(np.linalg.eigvalsh(root[:, None] * hold * root[None, :])[0]))',
+          '        upper *= min(1.0, float(np.linalg.eigvalsh(root[:, None] * hold * root[None, :])[-1]))'),),
         ('tests/test_synthesize.py::test_the_sdp_keeps_every_gain_inside_its_window_with_margin',),
     ),
     Mutation(
