@@ -1,15 +1,20 @@
 """Compiled right-hand sides: C code generated from the symbolic loop, built once with
-the system C compiler and cached on disk by the hash of its source; loaded once per process
-for each function (the same function built again, by another design of the same arm, is not
-generated again)."""
+the system C compiler and cached on disk by the hash of the function's structure (a cache hit
+generates no C), one lock per cache entry (two processes never build the same library); loaded
+once per process for each function (the same function built again, by another design of the same
+arm, is not generated again)."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import functools
 import hashlib
 import os
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import casadi as cs
@@ -25,8 +30,7 @@ thousands of times per run (the sampled loop's control period) is worth ``-O2``:
 10 s more to build once, about 10% faster."""
 
 _loaded: dict[str, cs.Function] = {}
-"""The compiled functions loaded in this process, by the hash of the function's serialisation,
-the build's options and the cache directory."""
+"""The compiled functions loaded in this process, by their library's path (:func:`_library`)."""
 
 
 def cache_dir() -> Path:
@@ -61,29 +65,59 @@ def compiled(function: cs.Function, *, jacobian: bool = True, level: str = "-O1"
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
         return function
-    key = hashlib.sha256(f"{function.serialize()} {jacobian} {level} {cache_dir()}".encode()).hexdigest()
-    if key not in _loaded:
-        _loaded[key] = _build(function, jacobian, level, compiler)
-    return _loaded[key]
+    library = _library(function, jacobian, level, compiler)
+    if str(library) not in _loaded:
+        _build(function, jacobian, level, compiler, library)
+        _loaded[str(library)] = cs.external(function.name(), str(library))
+    return _loaded[str(library)]
 
 
-def _build(function: cs.Function, jacobian: bool, level: str, compiler: str) -> cs.Function:
-    """``function`` (and its Jacobian) generated, built by ``compiler`` unless its library is
-    in :func:`cache_dir`, and loaded."""
-    name = function.name()
-    with tempfile.TemporaryDirectory() as tmp:
-        text = _source(function, jacobian, tmp)
-        flags = (level, *CC_FLAGS)
-        digest = hashlib.sha256((text + " ".join(flags)).encode()).hexdigest()[:24]
-        library = cache_dir() / f"{name}-{digest}.so"
-        if not library.exists():
-            library.parent.mkdir(parents=True, exist_ok=True)
-            source = Path(tmp) / f"{name}-final.c"
-            source.write_text(text)
+@functools.cache
+def _compiler_identity(compiler: str) -> str:
+    """``compiler``'s path and the first line of its ``--version``: a library built by another
+    compiler is another cache entry."""
+    run = subprocess.run([compiler, "--version"], capture_output=True, text=True, check=False)
+    return f"{compiler} {run.stdout.splitlines()[0] if run.stdout else ''}"
+
+
+def _library(function: cs.Function, jacobian: bool, level: str, compiler: str) -> Path:
+    """The cache entry of ``function``'s library: named after the function and keyed by the hash of
+    its serialisation (its structure, from which the C source is generated), the build's options,
+    CasADi's version and the compiler, so that a cache hit generates no C."""
+    text = " ".join((function.serialize(), str(jacobian), level, *CC_FLAGS, cs.__version__,
+                     _compiler_identity(compiler)))  # fmt: skip
+    digest = hashlib.sha256(text.encode()).hexdigest()[:24]
+    return cache_dir() / f"{function.name()}-{digest}.so"
+
+
+@contextlib.contextmanager
+def _locked(library: Path) -> Iterator[None]:
+    """An exclusive lock on ``library``'s cache entry (``<library>.lock``), held while it is built:
+    processes that need the same library wait for the one building it instead of building it again."""
+    with open(library.with_suffix(".lock"), "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _build(function: cs.Function, jacobian: bool, level: str, compiler: str, library: Path) -> None:
+    """``function`` (and its Jacobian) generated and built by ``compiler`` into ``library``, unless
+    it is there already (built by this or another process, which holds the entry's lock meanwhile)."""
+    if library.exists():
+        return
+    library.parent.mkdir(parents=True, exist_ok=True)
+    with _locked(library):
+        if library.exists():  # built while this process waited for the lock
+            return
+        with tempfile.TemporaryDirectory() as tmp:
+            source = Path(tmp) / f"{function.name()}-final.c"
+            source.write_text(_source(function, jacobian, tmp))
             partial = library.with_suffix(f".{os.getpid()}.tmp")
-            subprocess.run([compiler, *flags, str(source), "-o", str(partial)], check=True, capture_output=True)
+            subprocess.run([compiler, level, *CC_FLAGS, str(source), "-o", str(partial)], check=True,
+                           capture_output=True)  # fmt: skip
             partial.replace(library)
-    return cs.external(name, str(library))
 
 
 class Buffered:

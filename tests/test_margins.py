@@ -102,9 +102,9 @@ def test_margins_command_writes_the_contract(tmp_path):
     and control rate) in words; provenance."""
     data = tomllib.loads(DEFAULT_SCENARIO.read_text())
     # long enough for the scenario's own run to settle within the envelope's ultimate bound over its
-    # last half (the start transient takes about 1.6 s); not compiled: the payload's runs would
-    # compile a plant each
-    data["simulation"].update(duration=4.0, jit=False)
+    # last half (the start transient takes about 1.6 s); compiled: a payload is an input of the
+    # compiled plant, so its runs compile nothing
+    data["simulation"].update(duration=4.0)
     path = tmp_path / "tiny.toml"
     path.write_text(tomli_w.dumps(data))
     result = CliRunner().invoke(app, ["margins", str(path), "--out", str(tmp_path / "m"), "--workers", "2",

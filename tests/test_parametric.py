@@ -4,6 +4,7 @@ one build (and one compiled library) for every design of an arm."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,30 +103,29 @@ def test_sampled_run_equals_the_per_design_build(monkeypatch):
 
 
 @pytest.mark.slow
-def test_compiled_once_for_two_designs(tmp_path, monkeypatch):
-    """Compiled (a fresh cache): the second design of the default scenario compiles nothing and
-    its runs use the first's libraries (one for the right-hand side, one for the signals, one
-    for the control period); the sampled runs equal the per-design build's to 1e-9 relative (it folds
-    the design, ``K_I`` included, into constants: round-off, 1.0e-10 at most measured); the
-    continuous runs to 1e-8 (their right-hand sides are equal bit for bit, the Jacobians CVODES's
-    Newton steps use differ by round-off, so each run is within its own 1e-10 tolerance)."""
-    monkeypatch.setenv("DVFC_CACHE", str(tmp_path))
+def test_compiled_once_for_two_designs(monkeypatch):
+    """Compiled (the shared cache, nothing loaded in this process): the second design of the default
+    scenario loads nothing new and its runs use the first's libraries (one for the right-hand side, one
+    for the signals, one for the control period); the sampled runs equal the per-design build's to 1e-9
+    relative (it folds the design, ``K_I`` included, into constants: round-off, 1.0e-10 at most
+    measured); the continuous runs to 1e-8 (their right-hand sides are equal bit for bit, the Jacobians
+    CVODES's Newton steps use differ by round-off, so each run is within its own 1e-10 tolerance)."""
+    monkeypatch.setattr(compile_module, "_loaded", {})
     scenario, base = load(DEFAULT_SCENARIO)
     loop, s0, settings = build(scenario, base)
     settings = replace(settings, jit=True, duration=2.0)
     designs = (loop, other_design(loop))
-    builds = []
+    builds: list[Path] = []
     build_once = compile_module._build
-    monkeypatch.setattr(compile_module, "_build", lambda f, *a: builds.append(f.name()) or build_once(f, *a))
+    monkeypatch.setattr(compile_module, "_build", lambda *a: builds.append(a[-1]) or build_once(*a))
 
     def both(design):
         return Simulator(replace(design, plant=None), settings).run(s0), as_implemented(design, settings).run(s0)
 
     first = both(designs[0])
-    libraries = sorted(tmp_path.glob("*.so"))
-    compiled_first = list(builds)
+    libraries = sorted(builds)
     second = both(designs[1])
-    assert builds == compiled_first and sorted(tmp_path.glob("*.so")) == libraries
+    assert sorted(builds) == libraries and all(library.exists() for library in libraries)
     assert sorted(p.name.split("-")[0] for p in libraries) == ["dvfc_camera", "dvfc_dynamics", "dvfc_last",
                                                                 "dvfc_period", "signals", "signals"]  # fmt: skip
     per_design(monkeypatch)

@@ -1135,6 +1135,21 @@ MUTATIONS = (
         ('tests/test_synthesize.py::test_the_target_speed_sdp_keeps_every_gain_inside_its_window_with_margin',),
     ),
     Mutation(
+        'compile-cache-unlocked',
+        "a cache entry built without its lock: processes needing the same library at once each build it",
+        'analysis/compile.py',
+        (('        fcntl.flock(handle, fcntl.LOCK_EX)\n', '        pass\n'),),
+        ('tests/test_compile_cache.py::test_processes_needing_one_library_at_once_build_it_once',),
+    ),
+    Mutation(
+        'compile-cache-hit-generates-c',
+        "a cache hit generates the function's C again (the entry keyed as if by its source)",
+        'analysis/compile.py',
+        (('    if library.exists():\n        return\n    library.parent', '    library.parent'),
+         ('        if library.exists():  # built while', '        if False:  # built while')),
+        ('tests/test_compile_cache.py::test_a_cache_hit_generates_no_c_source',),
+    ),
+    Mutation(
         'synthesis-design-from-the-solvers-face',
         "the minimum-gamma design is the solver's point on the optimal face, not the box's corner (machine-dependent)",
         'analysis/synthesize.py',

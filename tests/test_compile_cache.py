@@ -1,0 +1,84 @@
+"""The compiled functions' disk cache (``analysis/compile.py``): an entry keyed by the function's
+structure, so that a hit generates no C; one lock per entry, so that processes needing the same
+library build it once; another structure, another entry."""
+
+from __future__ import annotations
+
+import multiprocessing
+
+import casadi as cs
+import numpy as np
+import pytest
+
+from dvfc.analysis import compile as compile_module
+from dvfc.analysis.compile import compiled
+
+
+def square(name: str = "dvfc_square", power: float = 2.0) -> cs.Function:
+    x = cs.SX.sym("x", 3)
+    return cs.Function(name, [x], [x**power])
+
+
+@pytest.fixture
+def cold(tmp_path, monkeypatch):
+    """A fresh cache directory and no function loaded in this process."""
+    monkeypatch.setenv("DVFC_CACHE", str(tmp_path))
+    monkeypatch.setattr(compile_module, "_loaded", {})
+    return tmp_path
+
+
+def test_a_cache_hit_generates_no_c_source(cold, monkeypatch):
+    """Built once; in a process that has not loaded it (the in-process table emptied), the same
+    function is loaded from the cache without generating its C (generating it here fails the test)."""
+    first = compiled(square(), jacobian=False)
+    assert len(list(cold.glob("dvfc_square-*.so"))) == 1
+    monkeypatch.setattr(compile_module, "_loaded", {})
+    monkeypatch.setattr(compile_module, "_source", lambda *a: pytest.fail("C generated on a cache hit"))
+    again = compiled(square(), jacobian=False)
+    assert np.array_equal(np.asarray(again([1.0, 2.0, 3.0])), np.asarray(first([1.0, 2.0, 3.0])))
+
+
+def test_another_structure_or_build_is_another_entry(cold):
+    """A different expression, a Jacobian or another optimisation level: each its own library,
+    each computing its own function."""
+    compiled(square(), jacobian=False)
+    cube = compiled(square(power=3.0), jacobian=False)
+    compiled(square(), jacobian=True)
+    compiled(square(), jacobian=False, level="-O2")
+    assert len(list(cold.glob("dvfc_square-*.so"))) == 4
+    assert np.allclose(np.asarray(cube([1.0, 2.0, 3.0])).ravel(), [1.0, 8.0, 27.0])
+
+
+def _build_in_child(cache: str, marks: str, barrier) -> None:
+    """In a child process: compile ``square`` into ``cache``, leaving a file in ``marks`` when this
+    process generated the C (it built the library)."""
+    import os
+    from pathlib import Path
+
+    os.environ["DVFC_CACHE"] = cache
+    compile_module._loaded.clear()
+    generate = compile_module._source
+
+    def marked(*args):
+        Path(marks, str(os.getpid())).touch()
+        return generate(*args)
+
+    compile_module._source = marked
+    barrier.wait()
+    compiled(square(), jacobian=False)
+
+
+def test_processes_needing_one_library_at_once_build_it_once(cold, tmp_path_factory):
+    """Three processes released together ask for the same library of a fresh cache: one builds it,
+    the others wait on the entry's lock and load it; no partial file is left."""
+    marks = tmp_path_factory.mktemp("marks")
+    context = multiprocessing.get_context("fork")
+    barrier = context.Barrier(3)
+    children = [context.Process(target=_build_in_child, args=(str(cold), str(marks), barrier)) for _ in range(3)]
+    for child in children:
+        child.start()
+    for child in children:
+        child.join(60)
+    assert [child.exitcode for child in children] == [0, 0, 0]
+    assert len(list(marks.iterdir())) == 1
+    assert len(list(cold.glob("dvfc_square-*.so"))) == 1 and not list(cold.glob("*.tmp"))
