@@ -217,10 +217,9 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
     """The settings with one parameter changed (latency and camera rate on the grid of
     :func:`grid_value`).
 
-    A payload changes the plant's equations, so each mass is a new right-hand side: its runs
-    are made in CasADi's virtual machine (``jit = False``) rather than compiling C code for
-    every mass (see ``benchmarks/margins.py``). The other parameters are inputs of the
-    compiled code, or act between its calls; the plant-error parameters replace one entry of
+    Every parameter is an input of the compiled code (a payload's mass, centre and inertia are
+    inputs of the plant's functions: a new mass compiles nothing), or acts between its calls; the
+    plant-error parameters replace one entry of
     the settings' ``errors`` (none: :meth:`PlantErrors.none`), keeping the others."""
     if name == "payload_mass":
         plant = settings.plant
@@ -228,7 +227,7 @@ def with_value(loop: ClosedLoop, settings: Settings, name: str, value: float) ->
         old = plant.payload if plant is not None and plant.payload is not None else Payload(0.0)
         scale = 1.0 if plant is None else plant.mass_scale
         payload = Robot(r.urdf, r.frame, r.mount, r.armature, replace(old, mass=value), scale)
-        return replace(settings, plant=payload, jit=False)
+        return replace(settings, plant=payload)
     if name in ("mount_rotation", "focal_length_error", "friction_scale"):
         errors = settings.errors or PlantErrors.none(loop.camera, loop.robot.n)
         if name == "mount_rotation":

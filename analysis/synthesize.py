@@ -613,9 +613,10 @@ def designed_loop(case: Case, point: GainPoint) -> ClosedLoop:
 
 def design_runner(case: Case) -> Callable[[GainPoint], dict]:
     """Runs of designs (gains and weights) of one case as implemented (its controller,
-    plant and image; each design runs once, so without compiling): for a design, the run's
-    status and, per joint, the peak torques and speed against the URDF's limits."""
-    settings = replace(case.settings, jit=False)
+    plant and image; compiled as the case says: the gains and weights are inputs of the compiled
+    functions, so every design runs on the same libraries): for a design, the run's status and, per
+    joint, the peak torques and speed against the URDF's limits."""
+    settings = case.settings
     limits = robot_limits(case.loop, settings)
 
     def run(point: GainPoint) -> dict:

@@ -766,12 +766,12 @@ def verify(
 ) -> list[Claim]:
     """All claims, in the paper's order, on the paper's loop (continuous, exact model, no
     image border), then the operating envelope's (facts 7-8) when given, then the run as
-    implemented against the robot's limits. Each variant of the paper's loop runs once, so
-    its right-hand sides are evaluated by CasADi's virtual machine rather than compiled; the
-    run as implemented follows the scenario's ``jit`` (``implemented_run``: that run, when
+    implemented against the robot's limits. Every run follows the scenario's ``jit`` (the paper's
+    loop compiled once per arm: its design and variants are inputs of the compiled functions); the
+    run as implemented (``implemented_run``: that run, when
     already made; ``rest``: the run from rest of Theorem 2's checks, ``paper_run``: the paper's loop
     run from ``s0`` in the loop's own mode, each when already made)."""
-    paper = replace(settings, jit=False, implementation=None, plant=None, view=False)
+    paper = replace(settings, implementation=None, plant=None, view=False)
     return [
         *verify_paper(loop, s0, paper, gamma, envelope, rest, paper_run),
         *implemented(loop, s0, settings, implemented_run),
