@@ -117,16 +117,30 @@ def peak_sinusoid(lin: Linearization, amplitude: float = 1e-2) -> Callable[[cs.S
     return lambda t: cs.DM(scale * np.real(v)) * cs.cos(omega * t) - cs.DM(scale * np.imag(v)) * cs.sin(omega * t)
 
 
-def run_from_rest(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[cs.SX], cs.SX], horizon: float,
-                  dt: float = 0.01) -> tuple[float, Trajectory]:
-    """Integrate the ideal loop from its equilibrium (``x(0) = 0``, so ``V(0) = 0``) driven by
-    ``disturbance`` (all of the normalised ``d``, ``w = D_w d``, docs/math.md, fact 17) with CVODES;
-    returns ``sqrt(int |z|^2 / int |d|^2)`` at the horizon and the trajectory (``|x|`` and ``|w|`` at
-    unit weights). Theorem 2 says this ratio is at most every certified gamma."""  # fmt: skip
+def rest_simulator(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[cs.SX], cs.SX], horizon: float,
+                   dt: float = 0.01) -> tuple[Simulator, np.ndarray]:  # fmt: skip
+    """The ideal loop driven by ``disturbance`` (all of the normalised ``d``, ``w = D_w d``, docs/math.md,
+    fact 17), simulated by CVODES over ``horizon``, and its equilibrium state (``x(0) = 0``, so
+    ``V(0) = 0``)."""
     _, s_eq = driven_at_rest(loop, cs.SX.zeros(loop.robot.n + loop.task_dim), lin.q_eq)
     d_w = cs.DM(weight_diagonals(loop)[1])
-    traj = Simulator(driven(loop, lambda t: d_w * disturbance(t)), Settings(duration=horizon, dt=dt)).run(s_eq)
-    return float(np.sqrt(traj.integrals["z_squared"][-1] / traj.integrals["d_squared"][-1])), traj
+    return Simulator(driven(loop, lambda t: d_w * disturbance(t)), Settings(duration=horizon, dt=dt)), s_eq
+
+
+def gain_of(traj: Trajectory, k: int = -1) -> float:
+    """``sqrt(int |z|^2 / int |d|^2)`` of a run from rest at its sample ``k`` (the last by default):
+    Theorem 2 says it is at most every certified gamma."""
+    return float(np.sqrt(traj.integrals["z_squared"][k] / traj.integrals["d_squared"][k]))
+
+
+def run_from_rest(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[cs.SX], cs.SX], horizon: float,
+                  dt: float = 0.01) -> tuple[float, Trajectory]:
+    """Integrate the ideal loop from its equilibrium driven by ``disturbance`` (:func:`rest_simulator`);
+    returns :func:`gain_of` the run at the horizon and the trajectory (``|x|`` and ``|w|`` at unit
+    weights)."""  # fmt: skip
+    simulator, s_eq = rest_simulator(loop, lin, disturbance, horizon, dt)
+    traj = simulator.run(s_eq)
+    return gain_of(traj), traj
 
 
 FROM_REST_HORIZON = 20.0
@@ -148,15 +162,17 @@ def sharpest_from_rest(
     its rise from ``T/2`` to ``T``; the search stops when that rise is at most ``tolerance``
     of the gain (within about ``tolerance`` of the run's sharpness), or at ``longest`` seconds.
     A longer run that stops (the disturbance, a constant target velocity say, drives the arm to
-    a singularity) is dropped for the last one that completed. Returns the gain of the run kept,
-    that run, and whether its gain had converged."""
+    a singularity) is dropped for the last one that completed. Each longer run continues the last
+    (:meth:`Simulator.continued`): the horizons cost the longest alone. Returns the gain of
+    the run kept, that run, and whether its gain had converged."""
+    simulator, s_eq = rest_simulator(loop, lin, peak_sinusoid(lin), horizon)
     kept: tuple[float, Trajectory] | None = None
     while True:
-        ratio, traj = run_from_rest(loop, lin, peak_sinusoid(lin), horizon)
+        traj = simulator.run(s_eq) if kept is None else simulator.continued(s_eq, kept[1], horizon)
+        ratio = gain_of(traj)
         if traj.status is not RunStatus.OK:
             return (*kept, False) if kept is not None else (ratio, traj, False)
-        half = int(np.searchsorted(traj.t, traj.t[-1] / 2))
-        rise = ratio - float(np.sqrt(traj.integrals["z_squared"][half] / traj.integrals["d_squared"][half]))
+        rise = ratio - gain_of(traj, int(np.searchsorted(traj.t, traj.t[-1] / 2)))
         if rise <= tolerance * ratio:
             return ratio, traj, True
         if 2 * horizon > longest:

@@ -332,17 +332,36 @@ class Simulator:
 
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:
         """Integrate from ``s0`` over the settings' horizon."""
+        return self._integrate(s0, round(self.settings.duration / self.settings.dt), None, progress)
+
+    def continued(self, s0: np.ndarray, after: Trajectory, until: float) -> Trajectory:
+        """:meth:`run` from ``s0`` to ``until`` seconds, continuing ``after``, a completed run of this
+        simulator from ``s0`` over a shorter horizon, instead of starting again: its samples, integrals
+        and signals are kept and CVODES restarts from its last state, as it does between two of its own
+        calls (the run made at once, to the integrator's tolerance). For the continuous loop's runs
+        (a subclass that runs otherwise has none to continue)."""
+        assert type(self).run is Simulator.run, "a continuous loop's run"
+        assert after.status is RunStatus.OK and after.t[-1] <= until, "a completed, shorter run"
+        return self._integrate(s0, round(until / self.settings.dt), after, None)
+
+    def _integrate(self, s0: np.ndarray, steps: int, after: Trajectory | None,
+                   progress: Callable[[float], None] | None) -> Trajectory:  # fmt: skip
+        """CVODES from ``s0`` over ``steps`` output steps, continuing ``after`` when given."""
         st = self.settings
-        steps = round(st.duration / st.dt)
         t = np.arange(steps + 1) * st.dt
         states = np.empty((self.loop.n_state, steps + 1))
         integrals = np.zeros((len(QUADRATURES), steps + 1))
-        states[:, 0] = s0
-        chunks = [self._signals(t[:1], states[:, :1])]  # signals, evaluated as the run goes
+        k, n_steps, spent = 0, 0, 0.0
+        if after is None:
+            states[:, 0] = s0
+            chunks = [self._signals(t[:1], states[:, :1])]  # signals, evaluated as the run goes
+        else:
+            k, n_steps, spent = len(after.t) - 1, int(after.stats["steps"]), after.wall_time
+            states[:, : k + 1] = after["state"].T
+            integrals[:, : k + 1] = np.array([after.integrals[name] for name in QUADRATURES])
+            chunks = [{name: v for name, v in after.signals.items() if name != "state"}]
         stop = Stop()
-        start = time.perf_counter()
-        k = 0
-        n_steps = 0
+        start = time.perf_counter() - spent
         size = st.chunk
         refining = False  # after a failed chunk: one output step at a time, to locate the failure
         while k < steps:
