@@ -22,6 +22,7 @@ import numpy as np
 from dvfc.analysis.parametric import Inputs
 from dvfc.analysis.schema import DistributionSection, Scenario, ScenarioError
 from dvfc.analysis.simulate import Settings
+from dvfc.analysis.start import image_start
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.robot import Payload
@@ -210,7 +211,9 @@ def with_values(
     settings: Settings, s0: np.ndarray, loop: ClosedLoop, scenario: Scenario, values: dict[str, np.ndarray]
 ) -> tuple[Settings, np.ndarray]:
     """The settings and initial state of one run: ``values`` (absolute, per key of :data:`FIELDS`)
-    applied to the case's ``settings`` (whose ``errors`` are set) and start ``s0``."""
+    applied to the case's ``settings`` (whose ``errors`` are set) and start ``s0``. A drawn ``q0`` or
+    ``qd0`` starts the observer as the scenario does (``[start] observer = "image"``: from the first
+    image at that ``q0``), a drawn observer error from that error."""
     imp, errors, n = settings.implementation, settings.errors, loop.robot.n
     assert imp is not None and errors is not None, "a campaign's settings (campaign_settings)"
     imp_changes: dict[str, Any] = {}
@@ -249,13 +252,19 @@ def with_values(
             entry = name.rpartition(".")[2]
             payload_changes[entry] = float(v[0]) if entry == "mass" else tuple(map(float, v))
     s = s0.copy()
-    if "robot.q0" in values or "robot.qd0" in values or any(k.startswith("observer.") for k in values):
+    observer = any(k.startswith("observer.") for k in values)
+    if "robot.q0" in values or "robot.qd0" in values or observer:
         o = scenario.observer
-        q0 = values.get("robot.q0", s0[:n])
-        qd0 = values.get("robot.qd0", s0[n : 2 * n])
+        q0 = np.asarray(values.get("robot.q0", s0[:n]), float)
+        qd0 = np.asarray(values.get("robot.qd0", s0[n : 2 * n]), float)
         error = SE3.from_xyz_rpy(values.get("observer.error_xyz", o.error_xyz), values.get("observer.error_rpy",
                                                                                             o.error_rpy))  # fmt: skip
-        s = loop.initial_state(np.asarray(q0, float), np.asarray(qd0, float), error)
+        if scenario.start.observer == "image" and not observer:  # gbar(0) from the first image at q0, as s0's
+            written = scenario.implementation
+            noise, seed = (0.0, 0) if written is None else (written.pixel_noise, written.seed)
+            s = image_start(loop, q0, qd0, noise, seed)
+        else:
+            s = loop.initial_state(q0, qd0, error)
     settings = replace(settings, implementation=replace(imp, **imp_changes), errors=replace(errors, **err_changes))
     if input_changes or payload_changes:
         inputs = settings.inputs or Inputs.of(loop.target, settings.plant)

@@ -1150,6 +1150,13 @@ MUTATIONS = (
         ('tests/test_compile_cache.py::test_a_cache_hit_generates_no_c_source',),
     ),
     Mutation(
+        'continued-run-restarts-its-integrals',
+        "a run continued from a shorter one (the horizon search from rest) starts its integrals from zero again",
+        'analysis/simulate.py',
+        (('            integrals[:, : k + 1] = np.array([after.integrals[name] for name in QUADRATURES])\n', ''),),
+        ('tests/test_theorem2.py::test_a_continued_run_from_rest_is_the_run_made_at_once',),
+    ),
+    Mutation(
         'synthesis-design-from-the-solvers-face',
         "the minimum-gamma design is the solver's point on the optimal face, not the box's corner (machine-dependent)",
         'analysis/synthesize.py',
@@ -1578,6 +1585,63 @@ MUTATIONS = (
         "analysis/results.py",
         (('        record["start"] = for_plant(record["start"], WITHOUT_FRICTION)\n', ""),),
         ("tests/test_start.py::test_the_start_computed_without_friction_says_so_wherever_it_is_printed",),
+    ),
+    # --- behaviours guarded by their contract, not by a golden file ---
+    Mutation(
+        "campaign-latency-truncated",
+        "a campaign's drawn latency truncated to the whole control period below, not rounded to the nearest",
+        "analysis/dispersion.py",
+        (("                value = round(value * imp.control_rate) / imp.control_rate\n",
+          "                value = int(value * imp.control_rate) / imp.control_rate\n"),),
+        ("tests/test_contract_latency.py::test_a_drawn_latency_rounds_to_the_nearest_control_period",
+         "tests/test_contract_latency.py::test_a_drawn_latency_that_is_a_whole_number_of_periods_is_kept"),
+    ),
+    Mutation(
+        "tolerance-bound-reads-stopped-runs",
+        "the campaign's tolerance bound reads a stopped run's partial tracking error, not an infinite one",
+        "analysis/campaign.py",
+        (('            values = np.where(np.asarray(data["status"]) == "ok", np.asarray(data[name], dtype=float), '
+          'math.inf)\n',
+          "            values = np.asarray(data[name], dtype=float)\n"),),
+        ("tests/test_contract_stopped_runs.py::test_a_stopped_run_counts_as_an_infinite_tracking_error_at_every_quantile",
+         "tests/test_contract_stopped_runs.py::test_the_bound_does_not_depend_on_the_error_a_stopped_run_reached"),
+    ),
+    Mutation(
+        "auto-substeps-relative-to-state-size",
+        'substeps = "auto" judges the step-doubling difference relative to the state\'s size, not its change '
+        "over the period",
+        "analysis/sampled.py",
+        (("    gap, change = np.abs(a - b).max(), np.abs(b - s).max()\n",
+          "    gap, change = np.abs(a - b).max(), np.abs(b).max()\n"),),
+        ("tests/test_contract_substeps.py::test_the_step_error_estimate_is_the_doubling_difference_over_the_states_change",
+         "tests/test_contract_substeps.py::test_auto_asks_for_the_steps_the_states_change_requires_not_its_size"),
+    ),
+    Mutation(
+        "zeroed-inertial-carries-mass",
+        "a moved URDF link whose <inertial> gives zero mass and inertia counts as carrying mass (M(q) singular)",
+        "models/robot.py",
+        (("            if any(float(v) > 0 for v in values):\n", "            if values:\n"),),
+        ("tests/test_contract_massless_link.py::test_a_moved_link_without_mass_or_inertia_is_refused_naming_it",),
+    ),
+    Mutation(
+        "campaign-drawn-start-restarts-observer",
+        'a campaign run with a drawn q0 or qd0 starts its observer from the [observer] error, not from the first '
+        'image as the scenario\'s start does ([start] observer = "image")',
+        "analysis/dispersion.py",
+        (('        if scenario.start.observer == "image" and not observer:  # gbar(0) from the first image at q0, '
+          "as s0's\n",
+          "        if False:\n"),),
+        ("tests/test_contract_dispersion.py::test_a_drawn_start_changes_the_runs_initial_state_only",
+         "tests/test_contract_dispersion.py::test_drawing_the_scenarios_own_values_gives_the_scenarios_run"),
+    ),
+    Mutation(
+        "campaign-worst-ignores-outcome",
+        "the campaign's worst runs ranked by closeness alone: a failure closer to holding than a holding run "
+        "is not listed first",
+        "analysis/campaign.py",
+        (('    order = np.lexsort((np.asarray(data["run"]), -closeness, holds))',
+          '    order = np.lexsort((np.asarray(data["run"]), -closeness))'),),
+        ("tests/test_contract_campaign_summary.py::test_the_worst_runs_are_the_failures_first_then_the_closest_to_failing",),
     ),
 )
 
