@@ -34,7 +34,7 @@ from dvfc.analysis.batches import BatchRun
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import INPUTS, MASSES, Dispersion, base_values, with_values
 from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_bound, tracking_error
-from dvfc.analysis.multirate import RHO_MARGIN, DeclaredPlant, applicability
+from dvfc.analysis.multirate import DeclaredPlant, LocalVerdict, applicability
 from dvfc.analysis.output import write_json
 from dvfc.analysis.parametric import parametrised
 from dvfc.analysis.record import ABSENT, Absent, Record
@@ -127,9 +127,9 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
     """One run's dataset row: outcome, tracking error, peak ratios, drawn values, wall time."""
     loop = spec.case.loop
     holds, reason = judge(traj, loop, settings, spec.bound)
-    rho = local_rho(spec.case, settings)
-    if rho is not None and rho >= 1 - RHO_MARGIN:  # a failure whatever its run shows
-        reason = (f"fact 14 for this draw's plant: rho = {rho:.6g} >= 1 (not locally stable at rest); "
+    verdict = local_verdict_of(spec.case, settings)
+    if verdict is not None and not verdict.certified:  # a failure whatever its run shows
+        reason = (f"fact 14 for this draw's plant: not certified locally at rest ({verdict.reason}); "
                   + ("its run held: the horizon is too short to show it" if holds else reason))  # fmt: skip
         holds = False
     position, angle = tracking_error(traj)
@@ -144,7 +144,9 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
         "tracking_position": position, "tracking_angle_deg": angle, "tracking_ratio": ratio,
         "peak_torque_ratio": max(record["torque_commanded_ratio"]), "peak_speed_ratio": max(record["speed_ratio"]),
         "position_ratio": max(record["position_ratio"]), "closeness": max(ratio, *limits),
-        "end_time": float(traj.t[-1]), "wall_time": traj.wall_time, "local_rho": rho,
+        "end_time": float(traj.t[-1]), "wall_time": traj.wall_time,
+        "local_rho": None if verdict is None else verdict.rho,
+        "local_certified": None if verdict is None else verdict.certified,
     }  # fmt: skip
     for key in spec.dispersion.keys:
         columns = spec.dispersion.columns_of(key)
@@ -152,27 +154,30 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
     return out
 
 
-def local_rho(case: Case, settings: Settings) -> float | None:
-    """``rho`` of fact 14 for one run's plant as drawn (its masses, camera, friction; at the scenario's
-    latency and rates: docs/math.md, fact 25), None where the statement does not
-    apply to the loop."""
+def local_verdict_of(case: Case, settings: Settings) -> LocalVerdict | None:
+    """Fact 14 for one run's plant as drawn (its masses, camera, friction; at the scenario's latency and
+    rates: docs/math.md, fact 25), by the one function ``certify`` and ``margins`` use too
+    (:func:`dvfc.analysis.multirate.local_verdict`: every check, the self-motion's included); None where
+    the statement does not apply to the loop."""
     if applicability(case.loop, settings) is not None:
         return None
-    return DeclaredPlant.of(settings).rho(case.loop, case.s0[: case.loop.robot.n], settings.sampled)
+    return DeclaredPlant.of(settings).verdict(case.loop, case.s0[: case.loop.robot.n], settings.sampled)
 
 
 def local_summary(data: dict) -> dict:
-    """How many runs' plants fact 14 certifies locally (``rho < 1``), the largest ``rho`` and the runs whose
-    ``rho >= 1`` (failures whatever their runs show)."""
-    rho = [(run, r) for run, r in zip(data["run"], data.get("local_rho", [None] * len(data["run"])), strict=True)
-           if r is not None]  # fmt: skip
-    unstable = [int(run) for run, r in rho if r >= 1 - RHO_MARGIN]
-    largest = max((r for _, r in rho), default=None)
-    return {"computed": len(rho), "certified": len(rho) - len(unstable), "largest_rho": largest,
+    """How many runs' plants fact 14 certifies locally (``local_certified``), the largest ``rho`` and the
+    runs it does not certify (failures whatever their runs show)."""
+    checked = [(int(run), rho, certified) for run, rho, certified in zip(data["run"], data["local_rho"],
+                                                                         data["local_certified"], strict=True)
+               if certified is not None]  # fmt: skip
+    unstable = [run for run, _, certified in checked if not certified]
+    largest = max((rho for _, rho, _ in checked), default=None)
+    return {"computed": len(checked), "certified": len(checked) - len(unstable), "largest_rho": largest,
             "unstable_runs": unstable,
-            "statement": (f"{len(rho) - len(unstable)} of {len(data['run'])} draws locally certified (fact 14 for "
-                          f"each draw's plant, linearised at rest, at the scenario's latency and rates: rho < 1), "
-                          f"largest rho {'-' if largest is None else f'{largest:.6g}'}")}  # fmt: skip
+            "statement": (f"{len(checked) - len(unstable)} of {len(data['run'])} draws locally certified (fact 14 "
+                          f"for each draw's plant, linearised at rest, at the scenario's latency and rates: rho < 1 "
+                          f"with every check of the monodromy), largest rho "
+                          f"{'-' if largest is None else f'{largest:.6g}'}")}  # fmt: skip
 
 
 def simulate_run(spec: CampaignSpec, run: int, simulator: SampledSimulator | None = None) -> tuple[dict, Trajectory]:

@@ -40,6 +40,7 @@ from dvfc.analysis.case import Case
 from dvfc.analysis.multirate import (
     RHO_MARGIN,
     DeclaredPlant,
+    LocalVerdict,
     MultirateLoop,
     NotApplicableError,
     implemented_record,
@@ -451,19 +452,26 @@ class LinearCheck:
 
     def rho(self, name: str, value: float) -> float | None:
         """``rho(Pi)`` with ``name = value`` (a value of :func:`grid_value`): of the schedule for
-        :data:`LINEAR`, of the plant as declared with the value for :data:`PLANT`, ``inf`` where that
-        plant has no equilibrium near the model's or saturates there; None where not checked (not a
-        parameter of either, the statement does not apply, no exact schedule)."""
+        :data:`LINEAR`, of the plant as declared with the value for :data:`PLANT` (:meth:`plant_verdict`);
+        None where not checked (not a parameter of either, the statement does not apply, no exact schedule)."""
         if self.system is None or name not in LINEAR + PLANT:
             return None
+        if name in PLANT:
+            verdict = self.plant_verdict(name, value)
+            return None if verdict is None else verdict.rho
         try:
-            if name in LINEAR:
-                return self.system.rho(**{name: value})
-            assert self.case is not None, "LinearCheck.of"
-            loop, changed = self.case.loop, with_value(self.case.loop, self.case.settings, name, value)
-            return DeclaredPlant.of(changed).rho(loop, self.case.s0[: loop.robot.n], changed.sampled)
+            return self.system.rho(**{name: value})
         except NotApplicableError:
             return None
+
+    def plant_verdict(self, name: str, value: float) -> LocalVerdict | None:
+        """Fact 14 for the plant as declared with ``name = value`` (one of :data:`PLANT`), by the one function
+        ``certify`` and campaigns use (:func:`dvfc.analysis.multirate.local_verdict`, every check included;
+        not certified where that plant has no equilibrium near the model's or saturates there); None where the
+        statement does not apply."""
+        assert self.case is not None and name in PLANT, "LinearCheck.of, a plant parameter"
+        loop, changed = self.case.loop, with_value(self.case.loop, self.case.settings, name, value)
+        return DeclaredPlant.of(changed).verdict(loop, self.case.s0[: loop.robot.n], changed.sampled)
 
     def margin(self, name: str, start: float, end: float) -> dict | None:
         """Fact 14's linear margin of a parameter searched from ``start`` to ``end``, a record ``{"value", "unit",
@@ -479,8 +487,8 @@ class LinearCheck:
         p = PARAMETERS[name]
 
         def stable(value: float) -> bool:
-            rho = self.rho(name, value)
-            return rho is not None and rho < 1 - RHO_MARGIN
+            verdict = self.plant_verdict(name, value)
+            return verdict is not None and verdict.certified
 
         out = {"unit": p.unit, "range": [start, end]}
         if stable(end):
@@ -500,9 +508,12 @@ def _simulator(case: Case, name: str, settings: Settings) -> SampledSimulator:
     return shared_simulator(case, settings.errors is not None).for_run(settings)
 
 
-def unstable_text(rho: float) -> str:
-    """Why a run at a value where the linearised sampled loop is unstable does not hold."""
-    return f"the sampled loop linearised at rest is unstable at this value (fact 14: rho = {rho:.6g} >= 1)"
+def unstable_text(rho: float, reason: str | None) -> str:
+    """Why a run at a value where fact 14 does not certify the linearised sampled loop does not hold: its
+    ``rho`` at least 1, or ``reason``, a check of its monodromy that fails (:class:`LocalVerdict`)."""
+    if rho >= 1 - RHO_MARGIN:
+        return f"the sampled loop linearised at rest is unstable at this value (fact 14: rho = {rho:.6g} >= 1)"
+    return f"the sampled loop linearised at rest is not certified at this value (fact 14: {reason})"
 
 
 def trial(
@@ -513,7 +524,9 @@ def trial(
     time (s, setting up the simulators included).
 
     Where ``linear`` checks the parameter and the sampled loop linearised at rest is unstable
-    at the value (``rho >= 1 - RHO_MARGIN``), the point does not hold, whatever its run. Else a
+    at the value (``rho >= 1 - RHO_MARGIN``; for a parameter of the plant, not certified by
+    :meth:`LinearCheck.plant_verdict`, every check of the monodromy included), the point does not
+    hold, whatever its run. Else a
     run that holds by :func:`judge` must have reached a steady state (:func:`envelope_growth`):
     the horizon is doubled (:data:`HORIZONS`) until the envelope stops growing; growing at the
     last, the point does not hold. ``first``: the run on the scenario's horizon, when made."""
@@ -521,8 +534,14 @@ def trial(
     clock = time.perf_counter()
     changed = with_value(loop, case.settings, name, value)
     used = getattr(changed.implementation, name) if name in LINEAR else value
-    rho = None if linear is None else linear.rho(name, used)
-    unstable = rho is not None and rho >= 1 - RHO_MARGIN
+    rho, unstable, reason = None, False, None
+    if linear is not None and linear.system is not None and name in PLANT:
+        verdict = linear.plant_verdict(name, value)
+        if verdict is not None:
+            rho, unstable, reason = verdict.rho, not verdict.certified, verdict.reason
+    elif linear is not None:
+        rho = linear.rho(name, used)
+        unstable = rho is not None and rho >= 1 - RHO_MARGIN
     horizons, growth, period = [], None, judged_period(loop, case.settings.duration)
     for factor in HORIZONS:
         settings = replace(changed, duration=factor * case.settings.duration)
@@ -533,7 +552,7 @@ def trial(
         if unstable or not holds or (growth is not None and not growth.growing):
             break
     if unstable and rho is not None:
-        holds, detail = False, f"{unstable_text(rho)}; its run over {horizons[-1]:g} s: {detail}"
+        holds, detail = False, f"{unstable_text(rho, reason)}; its run over {horizons[-1]:g} s: {detail}"
     elif holds and growth is None:
         holds, detail = False, (f"fewer than {PERIODS} whole periods of {period:.4g} s after the first in "
                                 f"{horizons[-1]:g} s: growth not judged; {detail}")  # fmt: skip

@@ -218,17 +218,16 @@ class DeclaredPlant:
             robot = Robot(robot.urdf, robot.frame, robot.mount, robot.armature, inputs.payload, inputs.mass_scale)
         return DeclaredPlant(robot, settings.errors)
 
-    def rho(self, loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> float | None:
-        """``rho`` of fact 14's monodromy for this plant (across the self-motion on a redundant arm): ``inf``
-        where it has no equilibrium near the model's or saturates there, None where the statement does not
-        apply (:func:`applicability` is the caller's)."""
+    def verdict(self, loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> LocalVerdict | None:
+        """Fact 14 for this plant (:func:`local_verdict`, every check included; not certified, ``rho = inf``,
+        where it has no equilibrium near the model's), None where the statement does not apply
+        (:func:`applicability` is the caller's)."""
         try:
-            system = multirate_loop(loop, q0, imp, self)
-        except NoEquilibriumError:
-            return math.inf
+            return local_verdict(loop, q0, imp, self)
+        except NoEquilibriumError as exc:
+            return LocalVerdict(math.inf, False, str(exc))
         except NotApplicableError:
             return None
-        return math.inf if system.saturated(loop.robot.limits) else system.rho()
 
     def camera_errors(self, camera: Camera) -> np.ndarray | None:
         """The plant's :meth:`~dvfc.models.errors.PlantErrors.camera_vector` where it differs from the
@@ -718,6 +717,50 @@ def not_applicable(reason: str) -> dict:
             "period": None, "lyapunov_margin": None, "scope": None, "margins": None}  # fmt: skip
 
 
+@dataclass(frozen=True)
+class LocalVerdict:
+    """Whether fact 14 certifies a plant's sampled loop locally (:func:`local_verdict`): ``rho`` of the
+    monodromy across the self-motion (``inf`` where it overflows, saturates at the equilibrium or has no
+    equilibrium), ``certified`` (``rho < 1 - RHO_MARGIN``, the Lyapunov check, the self-motion's tangent
+    residual and its poses' equilibrium check: :meth:`Transverse.certified`), ``reason`` when it is not;
+    and what was computed (None where it stopped short): the linearised loop, the monodromy, its
+    schedule's steps, the part across the self-motion and the Lyapunov check."""
+
+    rho: float
+    certified: bool
+    reason: str | None
+    system: MultirateLoop | None = None
+    pi: np.ndarray | None = None
+    steps: int = 0
+    across: Transverse | None = None
+    check: LyapunovCheck | None = None
+    saturated: bool = False
+
+
+SATURATED = "saturation is active at the equilibrium (|tau_eq| not strictly inside the efforts)"
+
+
+def local_verdict(loop: ClosedLoop, q0: np.ndarray, imp: Implementation, plant: DeclaredPlant,
+                  system: MultirateLoop | None = None) -> LocalVerdict:  # fmt: skip
+    """The one answer to "does fact 14 certify this plant's loop as implemented" (docs/math.md, facts 14
+    and 25), for ``certify``, ``margins`` and campaigns alike (``system``: the plant's linearised loop
+    when already built). Raises :class:`NotApplicableError` (:class:`NoEquilibriumError` where the plant
+    has no equilibrium near the model's)."""
+    system = multirate_loop(loop, q0, imp, plant) if system is None else system
+    if system.saturated(loop.robot.limits):
+        return LocalVerdict(math.inf, False, SATURATED, system, saturated=True)
+    with np.errstate(over="ignore", invalid="ignore"):
+        pi, sched = system.monodromy(imp)
+    if not np.isfinite(pi).all():
+        return LocalVerdict(math.inf, False, "the period map overflows: far from stable", system, pi, sched.steps)
+    across = system.transverse(pi)
+    rho, check = spectral_radius(across.pi), lyapunov_check(across.pi)
+    certified = rho < 1 - RHO_MARGIN and across.certified(check)
+    reason = (f"rho = {rho:.6g}, the Lyapunov check (margin {check.margin:.3g}), the self-motion's residual "
+              f"({across.residual:.2g}) or the check that its poses are equilibria fails")  # fmt: skip
+    return LocalVerdict(rho, certified, None if certified else reason, system, pi, sched.steps, across, check)
+
+
 def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> dict:
     """Fact 14 for the scenario's loop as implemented and its plant as declared (JSON-ready,
     :class:`DeclaredPlant`: ``plant`` names it): the monodromy's spectral radius, the certified
@@ -734,23 +777,16 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
     try:
         frictionless = held_linearization(loop, s0[: loop.robot.n], plant)
         system = MultirateLoop(frictionless.with_friction(plant.friction_slope), imp, loop.mode, {})
-        with np.errstate(over="ignore", invalid="ignore"):
-            pi, sched = system.monodromy(imp)
+        verdict = local_verdict(loop, s0[: loop.robot.n], imp, plant, system)
     except ValueError as exc:  # NotApplicableError, no equilibrium configuration, or none of the plant
         return {**not_applicable(str(exc)), **words}
     lin = system.lin
-    if system.saturated(loop.robot.limits):
-        reason = "saturation is active at the equilibrium (|tau_eq| not strictly inside the efforts)"
-        return {**not_applicable(reason), **words}
-    if not np.isfinite(pi).all():
-        return {**not_applicable(""), **words, "applies": True, "reason": "the period map overflows: far from stable"}
-    across = system.transverse(pi)
-    rho = spectral_radius(across.pi)
-    check = lyapunov_check(across.pi)
-    period = sched.steps * imp.period
-    certified = rho < 1 - RHO_MARGIN and across.certified(check)
-    reason = (f"rho = {rho:.6g}, the Lyapunov check (margin {check.margin:.3g}), the self-motion's residual "
-              f"({across.residual:.2g}) or the check that its poses are equilibria fails")  # fmt: skip
+    if verdict.saturated:
+        return {**not_applicable(SATURATED), **words}
+    if verdict.across is None or verdict.check is None or verdict.pi is None:
+        return {**not_applicable(""), **words, "applies": True, "reason": verdict.reason}
+    pi, across, check, rho, certified = verdict.pi, verdict.across, verdict.check, verdict.rho, verdict.certified
+    period = verdict.steps * imp.period
     gap = float(np.abs(lin.c_image - lin.c).max())
     return {
         "integral_state": loop.integral,
@@ -758,11 +794,11 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
         **words,
         "applies": True,
         "certified": certified,
-        "reason": None if certified else reason,
+        "reason": verdict.reason,
         "rho": rho,
         "rate": -math.log(rho) / period if rho < 1 else None,
         "period": period,
-        "steps": sched.steps,
+        "steps": verdict.steps,
         "states": pi.shape[0],
         "self_motion": self_motion_record(across),
         "lyapunov_margin": check.margin,

@@ -422,7 +422,7 @@ def show_campaign(result: CampaignResult) -> None:
     out.print(f"criterion: {result.criterion}", markup=False, soft_wrap=True)
     out.print(result.zero_failure["statement"], markup=False, soft_wrap=True)
     unstable = result.local["unstable_runs"]
-    out.print(f"local: {result.local['statement']}" + (f"; rho >= 1 for runs {unstable}" if unstable else ""),
+    out.print(f"local: {result.local['statement']}" + (f"; not certified for runs {unstable}" if unstable else ""),
               markup=False, soft_wrap=True)  # fmt: skip
     out.print(f"tolerance: {tolerance_text(result.tolerance)}", markup=False, soft_wrap=True)
     table = Table(title="Drivers of the closeness to failing (PAWN, Spearman; measured)")

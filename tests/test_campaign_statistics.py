@@ -17,6 +17,7 @@ from dvfc.analysis.campaign import CampaignSpec, local_summary, tolerance_rank, 
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import Dispersion
 from dvfc.analysis.margins import TrackingBound
+from dvfc.analysis.multirate import LocalVerdict
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.schema import DistributionSection
 
@@ -124,18 +125,20 @@ def test_a_probability_drawn_beyond_one_is_clipped_to_one():
 
 
 def test_the_local_summary_counts_the_draws_fact_14_certifies_and_names_the_unstable_ones():
-    """Of the runs whose plant fact 14 linearised (``local_rho`` not None), those with ``rho < 1`` are
-    locally certified; the largest rho is reported and the runs with ``rho >= 1`` named (failures whatever
-    their runs show)."""
-    data = {"run": [0, 1, 2, 3], "local_rho": [0.9, None, 1.0002, 0.95]}
+    """Of the runs whose plant fact 14 checked (``local_certified`` not None), those it certifies count;
+    the largest rho is reported and the runs it does not certify named (failures whatever their runs show),
+    a run with ``rho < 1`` whose other checks fail among them."""
+    data = {"run": [0, 1, 2, 3, 4], "local_rho": [0.9, None, 1.0002, 0.95, 0.975],
+            "local_certified": [True, None, False, True, False]}  # fmt: skip
     local = local_summary(data)
-    assert local["computed"] == 3 and local["certified"] == 2 and local["unstable_runs"] == [2]
-    assert local["largest_rho"] == 1.0002 and "2 of 4 draws locally certified" in local["statement"]
+    assert local["computed"] == 4 and local["certified"] == 2 and local["unstable_runs"] == [2, 4]
+    assert local["largest_rho"] == 1.0002 and "2 of 5 draws locally certified" in local["statement"]
 
 
 @pytest.mark.slow
 def test_a_draw_whose_plant_is_locally_unstable_fails_whatever_its_run(monkeypatch):
-    """A campaign run that holds on its horizon but whose drawn plant has fact 25's rho >= 1 is a failure, the
+    """A campaign run that holds on its horizon but whose drawn plant fact 25 does not certify (rho >= 1, or
+    another check of its monodromy fails) is a failure, the
     reason saying the horizon was too short to show it; the same run with rho < 1 holds and records its rho.
     (Run 0 of ``examples/ur5_cell.toml`` over 2 s, its rho stood in for; draw 67's plant, joint 3's Coulomb
     friction 8.07 N m, has rho 1.06088 for that plant as drawn.)"""
@@ -144,12 +147,16 @@ def test_a_draw_whose_plant_is_locally_unstable_fails_whatever_its_run(monkeypat
     case = Case.load(CELL).with_scenario(Scenario.model_validate(data))
     spec = CampaignSpec.of(case, TrackingBound(1.0, 180.0, "scenario", ""), 0)
     drawn, _ = spec.run_settings(67)  # joint 3's Coulomb friction drawn at 8.07 N m: it hunts at rest
-    assert campaign.local_rho(case, drawn) == pytest.approx(1.06088, abs=1e-5) and drawn.errors is not None
+    verdict = campaign.local_verdict_of(case, drawn)
+    assert verdict.rho == pytest.approx(1.06088, abs=1e-5) and not verdict.certified and drawn.errors is not None
     values = spec.values(0)
     settings, s0 = spec.run_settings(0, values)
     traj = campaign.shared_simulator(spec.case).for_run(settings).run(s0)
-    for rho, holds in ((0.9, True), (1.01, False)):
-        monkeypatch.setattr(campaign, "local_rho", lambda case, settings, rho=rho: rho)
+    for rho, certified in ((0.9, True), (1.01, False), (0.95, False)):
+        stand_in = LocalVerdict(rho, certified, None if certified else f"rho = {rho}, a check fails")
+        monkeypatch.setattr(campaign, "local_verdict_of", lambda case, settings, v=stand_in: v)
         out = campaign.row(spec, 0, traj, settings, values)
-        assert out["holds"] is holds and out["local_rho"] == rho, out["reason"]
-    assert "rho = 1.01 >= 1" in out["reason"] and "the horizon is too short to show it" in out["reason"]
+        assert out["holds"] is certified and out["local_rho"] == rho and out["local_certified"] is certified
+        if not certified:
+            assert f"rho = {rho}, a check fails" in out["reason"], out["reason"]
+            assert "the horizon is too short to show it" in out["reason"]

@@ -38,6 +38,7 @@ def records(closeness: list[float], holds: list[bool], drawn: list[float] | None
         "status": ["ok"] * runs, "tracking_position": (ratio * BOUND.position).tolist(),
         "tracking_angle_deg": (ratio * BOUND.angle_deg).tolist(), "tracking_ratio": ratio.tolist(),
         "closeness": ratio.tolist(), "end_time": [2.0] * runs, "wall_time": [0.1] * runs, "local_rho": [None] * runs,
+        "local_certified": [None] * runs,
         KEY: drawn if drawn is not None else np.linspace(0.4, 0.6, runs).tolist(),
     })  # fmt: skip
 

@@ -59,7 +59,8 @@ def records(stopped: list[int], partial: float, seed: int = 4) -> dict[str, list
         "run": list(range(RUNS)), "holds": [s == "ok" for s in status], "reason": [""] * RUNS, "status": status,
         "tracking_position": position.tolist(), "tracking_angle_deg": angle.tolist(), "tracking_ratio": ratio.tolist(),
         "closeness": ratio.tolist(), "end_time": [2.0 if s == "ok" else 1.0 for s in status],
-        "wall_time": [0.1] * RUNS, "local_rho": [None] * RUNS, KEY: rng.uniform(0.4, 0.6, RUNS).tolist(),
+        "wall_time": [0.1] * RUNS, "local_rho": [None] * RUNS,
+        "local_certified": [None] * RUNS, KEY: rng.uniform(0.4, 0.6, RUNS).tolist(),
     }  # fmt: skip
 
 

@@ -95,9 +95,9 @@ MUTATIONS = (
     ),
     Mutation(
         "campaign-locally-unstable-draw-holds",
-        "a campaign draw whose plant has rho >= 1 counted as holding when its run held",
+        "a campaign draw whose plant fact 14 does not certify counted as holding when its run held",
         "analysis/campaign.py",
-        (("    if rho is not None and rho >= 1 - RHO_MARGIN:  # a failure whatever its run shows\n",
+        (("    if verdict is not None and not verdict.certified:  # a failure whatever its run shows\n",
           "    if False:\n"),),
         ("tests/test_campaign_statistics.py::test_a_draw_whose_plant_is_locally_unstable_fails_whatever_its_run",),
     ),
@@ -105,7 +105,7 @@ MUTATIONS = (
         "campaign-local-rho-of-the-model",
         "a campaign draw's local rho computed for the controller's model, not the plant as drawn",
         "analysis/campaign.py",
-        (("    return DeclaredPlant.of(settings).rho(", "    return DeclaredPlant().rho("),),
+        (("    return DeclaredPlant.of(settings).verdict(", "    return DeclaredPlant().verdict("),),
         ("tests/test_campaign_statistics.py::test_a_draw_whose_plant_is_locally_unstable_fails_whatever_its_run",),
     ),
     Mutation(
@@ -1155,6 +1155,15 @@ MUTATIONS = (
         'analysis/simulate.py',
         (('            integrals[:, : k + 1] = np.array([after.integrals[name] for name in QUADRATURES])\n', ''),),
         ('tests/test_theorem2.py::test_a_continued_run_from_rest_is_the_run_made_at_once',),
+    ),
+    Mutation(
+        'local-verdict-rho-alone',
+        "fact 14's one verdict on a plant reads the spectral radius alone (the self-motion's and Lyapunov checks "
+        "dropped)",
+        'analysis/multirate.py',
+        (('    certified = rho < 1 - RHO_MARGIN and across.certified(check)\n    reason = (f"rho = {rho:.6g}, the',
+          '    certified = rho < 1 - RHO_MARGIN\n    reason = (f"rho = {rho:.6g}, the'),),
+        ('tests/test_local_verdict.py::test_a_payload_that_moves_the_self_motion_is_certified_nowhere',),
     ),
     Mutation(
         'synthesis-design-from-the-solvers-face',
