@@ -97,6 +97,14 @@ margin is where the plant as declared with the value, linearised anew, stops bei
 equilibrium near the model's, or saturation there; :meth:`LinearCheck.margin`), and at each search point the
 same check is made: a point where it fails does not hold."""
 
+UNCHECKED = {
+    "pixel_noise": "noise is an input of the linearised loop, not a change of it: its stability does not depend on "
+                   "the noise's size",
+    "frame_drop": "a dropped frame changes the schedule at random, and fact 14's monodromy is that of the fixed "
+                  "schedule: drops are not certified",
+}  # fmt: skip
+"""The searched parameters fact 14 does not check, and why."""
+
 PLANT_STEPS = 10
 """Bisection steps of a plant parameter's linear margin (:meth:`LinearCheck.margin`): its bracket is 1/1024
 of the searched range (a factor ``(end/start)^(1/1024)`` for the torque scale)."""
@@ -579,9 +587,8 @@ def linear_statement(name: str, value: float | None, linear: LinearCheck | None,
     if name in LINEAR and linear is not None and linear.margins is not None:
         margin = linear.margins[name]
     if linear is None or margin is None:
-        why = ("fact 14 has no linear check for this parameter (it does not enter the linearised loop)"
-               if name not in LINEAR + PLANT else "fact 14 not consulted" if linear is None
-               else f"fact 14: {linear.reason}")  # fmt: skip
+        why = (f"fact 14 has no linear check for this parameter ({UNCHECKED[name]})" if name in UNCHECKED
+               else "fact 14 not consulted" if linear is None else f"fact 14: {linear.reason}")  # fmt: skip
         return {"basis": "measured only", "checked": False, "linear_margin": None, "value": value, "clipped": False,
                 "statement": f"measured only, not checked against fact 14: {why}"}  # fmt: skip
     m = margin
@@ -589,8 +596,9 @@ def linear_statement(name: str, value: float | None, linear: LinearCheck | None,
     beyond = lambda v: v is None or (v > m["stable_at"] if p.worse == "up" else v < m["stable_at"])  # noqa: E731
     out = {"basis": basis, "checked": True, "linear_margin": m["value"], "value": value, "clipped": False}
     if m["value"] is None:
-        return {**out, "statement": f"fact 14: the linearised loop is stable throughout its searched range (to "
-                                    f"{m['range'][1]:g} {p.unit}): no linear margin to clip to"}  # fmt: skip
+        return {**out, "statement": f"fact 14: the linearised loop is stable at the scenario's value and at its "
+                                    f"searched range's end ({m['range'][1]:g} {p.unit}), not checked between: no "
+                                    "linear margin found to clip to"}  # fmt: skip
     if beyond(value):
         measured = "holds over the whole searched range" if value is None else f"the measured {value:.4g} {p.unit}"
         return {**out, "value": m["value"], "clipped": True,

@@ -864,11 +864,11 @@ def not_covered(settings: Settings, system: MultirateLoop) -> list[str]:
 
 
 def margin_text(label: str, margin: dict, sign: str, scale: float, unit: str) -> str:
-    """One linear margin in words: ``label sign value unit``, or, when stable over the whole
-    searched range, that and the range's end."""
+    """One linear margin in words: ``label sign value unit``, or, when stable at the searched range's end
+    (the bisection then checks no value between), that and the range's end."""
     if margin["value"] is None:
         way = "up" if sign == "<=" else "down"
-        return f"{label} stable throughout the searched range {way} to {margin['range'][1] * scale:.4g} {unit}"
+        return f"{label} stable at the searched range's end {way} to {margin['range'][1] * scale:.4g} {unit}"
     return f"{label} {sign} {margin['value'] * scale:.4g} {unit}"
 
 

@@ -21,10 +21,13 @@ from dvfc.analysis.cli import app
 from dvfc.analysis.margins import (
     DEFAULT_FRICTION,
     GROWTH_RATE,
+    LINEAR,
     PARAMETERS,
     PAYLOAD_FACTOR,
     PERIODS,
+    PLANT,
     PLANT_STEPS,
+    UNCHECKED,
     LinearCheck,
     TrackingBound,
     base_value,
@@ -297,9 +300,18 @@ def test_a_measured_margin_beyond_the_linear_one_is_clipped_to_it():
         assert record["basis"] == "measured only" and record["statement"].startswith("measured only")
 
 
-def test_a_linear_margin_stable_over_the_whole_range_reads_as_such():
-    """Fact 14's line when a margin is stable throughout its searched range: the range's end in
-    words, not "<= none in range"."""
+def test_every_searched_parameter_is_checked_by_fact_14_or_says_why_not():
+    """Each parameter the margins search is a schedule parameter of fact 14 (:data:`LINEAR`), a plant
+    parameter it linearises anew (:data:`PLANT`) or one it does not check, with the reason (:data:`UNCHECKED`):
+    exactly one of the three."""
+    groups = (set(LINEAR), set(PLANT), set(UNCHECKED))
+    assert set(PARAMETERS) == set().union(*groups) and sum(map(len, groups)) == len(PARAMETERS)
+    assert "schedule" in UNCHECKED["frame_drop"] and "not certified" in UNCHECKED["frame_drop"]
+
+
+def test_a_linear_margin_stable_at_the_ranges_end_reads_as_such():
+    """Fact 14's line when a margin is stable at its searched range's end (the bisection checks no value
+    between): the range's end in words, not "<= none in range" nor "throughout"."""
     margin = lambda value, end: {"value": value, "stable_at": end, "unstable_at": None, "range": [0, end]}  # noqa: E731
     record = {"rho": 0.9, "certified": True, "reason": None, "rate": 1.0, "period": 0.05, "lyapunov_margin": 1.0,
               "plant": "the plant equal to the controller's model",
@@ -307,8 +319,8 @@ def test_a_linear_margin_stable_over_the_whole_range_reads_as_such():
                           "control_rate": margin(47.0, 10.0)}}  # fmt: skip
     text = implemented_text(record)
     assert "none in range" not in text
-    assert "latency stable throughout the searched range up to 250 ms" in text
-    assert "camera stable throughout the searched range down to 1 Hz" in text and "control >= 47 Hz" in text
+    assert "latency stable at the searched range's end up to 250 ms" in text and "throughout" not in text
+    assert "camera stable at the searched range's end down to 1 Hz" in text and "control >= 47 Hz" in text
 
 
 def test_the_payload_range_scales_with_the_arms_mass():
