@@ -41,6 +41,7 @@ from dvfc.analysis.batches import batches
 from dvfc.analysis.campaign import CampaignSpec, campaign_batch, clopper_pearson_upper, zero_failure_runs
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify
+from dvfc.analysis.console import remaining
 from dvfc.analysis.margins import TrackingBound, tracking_bound
 from dvfc.analysis.multirate import DeclaredPlant, lyapunov_check, multirate_loop, spectral_radius
 from dvfc.analysis.synthesize import scenario_text
@@ -246,15 +247,21 @@ def surrogate(rows: dict[str, list]) -> float:
     return float(c[-tail:].mean())
 
 
-def run_rows(specs: list[CampaignSpec], runs: int, workers: int) -> list[dict[str, list]]:
-    """Runs ``0 .. runs - 1`` of each spec (split in ``workers`` batches a spec), their rows as columns."""
+def run_rows(specs: list[CampaignSpec], runs: int, workers: int,
+             progress: Callable[[int, int], None] | None = None) -> list[dict[str, list]]:  # fmt: skip
+    """Runs ``0 .. runs - 1`` of each spec (split in ``workers`` batches a spec), their rows as columns;
+    ``progress(done, total)`` is told the runs made so far of all of them after each batch."""
     size = max(1, math.ceil(runs / max(1, workers)))
     tasks = [(spec, a, b) for spec in specs for a, b in batches(0, runs, size)]
     columns: list[dict[str, list]] = [{} for _ in specs]
-    for (spec, _, _), result in zip(tasks, run_tasks(campaign_batch, tasks, workers), strict=True):
+    done = 0
+    for (spec, a, b), result in zip(tasks, run_tasks(campaign_batch, tasks, workers), strict=True):
         target = columns[specs.index(spec)]
         for key, values in result.items():
             target.setdefault(key, []).extend(values)
+        done += b - a
+        if progress is not None:
+            progress(done, runs * len(specs))
     return columns
 
 
@@ -277,7 +284,7 @@ def synthesize_for_campaign(
     start = time.perf_counter()
     evaluated: dict[tuple, tuple[float, Design, Checks]] = {}
 
-    def evaluate(xs: list[np.ndarray]) -> list[float]:
+    def evaluate(xs: list[np.ndarray], generation: int) -> list[float]:
         designs = [design_of(case, x) for x in xs]
         values: list[Any] = []  # None until its campaign's runs are made
         specs, where = [], []
@@ -294,7 +301,15 @@ def synthesize_for_campaign(
             values.append(None)
             specs.append(CampaignSpec.of(candidate_case(case, d, horizon=search.horizon), bound, SEARCH_SEED))
             where.append((i, key, d, c))
-        for (i, key, d, c), rows in zip(where, run_rows(specs, search.runs, search.workers), strict=True):
+        started = time.perf_counter()
+
+        def told(done: int, total: int) -> None:
+            elapsed = time.perf_counter() - started
+            say(f"generation {generation} of {search.generations}: {done} of {total} runs of its "
+                f"{len(specs)} campaigns, {remaining(done, total, elapsed)}")  # fmt: skip
+
+        told(0, search.runs * len(specs))
+        for (i, key, d, c), rows in zip(where, run_rows(specs, search.runs, search.workers, told), strict=True):
             evaluated[key] = (surrogate(rows), d, c)
             values[i] = evaluated[key][0]
         return [float(v) for v in values]
@@ -307,7 +322,7 @@ def synthesize_for_campaign(
     es.inject([x0])  # the first generation holds the scenario's own design
     for g in range(search.generations):
         xs = es.ask()
-        es.tell(xs, evaluate(xs))
+        es.tell(xs, evaluate(xs, g + 1))
         say(f"generation {g + 1} of {search.generations}: best {min(v[0] for v in evaluated.values()):.4g}")
     value, best, best_checks = min(evaluated.values(), key=lambda v: v[0])
     search_seconds = time.perf_counter() - start

@@ -55,9 +55,19 @@ def warn(text: str) -> None:
     say(text, err)
 
 
+def remaining(done: float, total: float, elapsed: float) -> str:
+    """The estimate of the time left when ``done`` of ``total`` took ``elapsed`` seconds (at the rate so far),
+    in words; "estimate after the first" before anything is done."""
+    if done <= 0:
+        return "estimate after the first"
+    left = max(total - done, 0.0) * elapsed / done
+    return f"about {left / 60:.0f} min left" if left >= 600 else f"about {left:.0f} s left"
+
+
 class ProgressLines:
     """Progress for a standard error that is not a terminal: one plain line every
-    :data:`PROGRESS_EVERY` seconds (and at the end), ``label: done / total unit (percent), rate``."""
+    :data:`PROGRESS_EVERY` seconds (and at the end), ``label: done / total unit (percent), rate, elapsed,
+    the time left at that rate``."""
 
     def __init__(self, label: str, total: float, unit: str) -> None:
         self.label, self.total, self.unit, self.every = label, total, unit, PROGRESS_EVERY
@@ -70,7 +80,8 @@ class ProgressLines:
         self.last = now
         elapsed = max(now - self.start, 1e-9)
         warn(f"{self.label}: {done:,.4g} / {self.total:,.4g} {self.unit} ({100 * done / self.total:.0f}%), "
-             f"{done / elapsed:,.3g} {self.unit} a second, {elapsed:.0f} s elapsed")  # fmt: skip
+             f"{done / elapsed:,.3g} {self.unit} a second, {elapsed:.0f} s elapsed, "
+             f"{remaining(done, self.total, elapsed)}")  # fmt: skip
 
 
 @contextmanager
