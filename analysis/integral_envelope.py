@@ -590,7 +590,7 @@ def statement(record: dict) -> str:
     fact = record["integral"]
     t_i, start = fact["T_I"], record["start"]
     when = (f"for t >= T_I = {t_i:.3g} s while q stays in the box R (ideal continuous loop with integral action, "
-            f"fact 23)")  # fmt: skip
+            f"the plant equal to the law's model, fact 23)")  # fmt: skip
     fast = fact["rate_multipliers"]
     level = (f"V_eps(t) <= c = {record['level']:.4g} and ultimately c_inf = {record['ultimate_V']:.4g} (eps = "
              f"{fact['eps']:.3g}); V_eps decays at {record['rate']:.4g} 1/s (eps = {fast['eps']:.3g}, on V_eps <= "
@@ -610,7 +610,13 @@ def statement(record: dict) -> str:
 def fastest_rate(program: RateProgram, rate: Rate, speed2: float) -> Rate:
     """The largest certified rate on a level between ``rate.c`` and ``c_max(theta_bar)`` (:data:`RATE_LEVELS`)
     with ``c_inf`` below it: a larger level allows a smaller ``s`` (a larger ``kappa``) at the cost of a
-    larger ``zbar``. Each inequality holds on its own level set, which contains ``{V_eps <= rate.c}``."""
+    larger ``zbar``. Each inequality holds on its own level set ``{V_eps' <= c'}`` (its own ``eps'``,
+    ``c' >= rate.c``). Where ``z_I = 0`` every storage is ``V``, so a run with ``V(T_I) <= rate.c`` (the
+    chained start, or a run the statement covers from ``T_I``) starts inside each of them. Elsewhere
+    ``V_eps' - V_eps = (eps' - eps) z_I^T M xi`` takes both signs: for ``eps' != eps`` the level sets of one
+    level are not nested, so ``{V_eps <= rate.c}`` need not lie in ``{V_eps' <= c'}``. It does when ``c' >=
+    rho rate.c`` (sufficient, not necessary), ``rho = 1 + |eps' - eps| sqrt(beta) + 2 eps beta max(0, eps -
+    eps')``, ``beta = max_i D_i / (k_I,i - eps^2 D_i)`` (``M <= D``); that is not checked here."""
     design = program.p.design
     c_max = float(self_consistent_level(np.asarray(design.weights), rate.theta_bar))
     best = rate

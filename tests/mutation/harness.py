@@ -1652,6 +1652,27 @@ MUTATIONS = (
           '    order = np.lexsort((np.asarray(data["run"]), -closeness))'),),
         ("tests/test_contract_campaign_summary.py::test_the_worst_runs_are_the_failures_first_then_the_closest_to_failing",),
     ),
+    Mutation(
+        "integral-rate-not-rechecked",
+        "fact 23's rate taken at multipliers the literal matrices do not certify (the a posteriori re-check skipped)",
+        "analysis/integral_envelope.py",
+        (("        if kappa <= 0 or margin < 0:\n            return\n", "        if False:\n            return\n"),),
+        ("tests/test_integral_envelope.py::test_multipliers_the_literal_matrices_do_not_certify_give_no_rate",),
+    ),
+    Mutation(
+        "integral-level-below-the-start",
+        "fact 23's level lowered to c_inf without the start's bound on V_eps(T_I) = V(T_I) (the chained start dropped)",
+        "analysis/integral_envelope.py",
+        (("            c = max(start_level, rate.c_inf) * (1 + 1e-6)\n", "            c = rate.c_inf * (1 + 1e-6)\n"),),
+        ("tests/test_integral_envelope.py::test_a_start_above_c_inf_raises_the_level_to_it_and_one_above_c_max_raises_theta_bar",),
+    ),
+    Mutation(
+        "integral-literal-matrix-loses-a-term",
+        "fact 23's literal F0 without eps D (the bound of eps xi^T M xi) in each joint's xi entry: looser than the SDP",
+        "analysis/integral_envelope.py",
+        (("    a0 = k_xi - m.s_t - eps * d - coriolis\n", "    a0 = k_xi - m.s_t - coriolis\n"),),
+        ("tests/test_integral_envelope.py::test_at_the_programs_optimum_every_block_of_the_literal_matrices_limits_the_rate",),
+    ),
 )
 
 
