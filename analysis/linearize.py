@@ -133,16 +133,6 @@ def gain_of(traj: Trajectory, k: int = -1) -> float:
     return float(np.sqrt(traj.integrals["z_squared"][k] / traj.integrals["d_squared"][k]))
 
 
-def run_from_rest(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[cs.SX], cs.SX], horizon: float,
-                  dt: float = 0.01) -> tuple[float, Trajectory]:
-    """Integrate the ideal loop from its equilibrium driven by ``disturbance`` (:func:`rest_simulator`);
-    returns :func:`gain_of` the run at the horizon and the trajectory (``|x|`` and ``|w|`` at unit
-    weights)."""  # fmt: skip
-    simulator, s_eq = rest_simulator(loop, lin, disturbance, horizon, dt)
-    traj = simulator.run(s_eq)
-    return gain_of(traj), traj
-
-
 FROM_REST_HORIZON = 20.0
 """Seconds of the first run from rest of :func:`sharpest_from_rest`, which doubles it until the
 measured gain converges (the transient from ``x = 0`` costs the rest)."""
@@ -156,7 +146,7 @@ def sharpest_from_rest(
     tolerance: float = 0.01,
     longest: float = 1280.0,
 ) -> tuple[float, Trajectory, bool]:
-    """:func:`run_from_rest` under :func:`peak_sinusoid`, its horizon doubled from ``horizon``
+    """The run from rest (:func:`rest_simulator`) under :func:`peak_sinusoid`, its horizon doubled from ``horizon``
     until the measured gain has converged: from rest the transient costs a fixed energy, so
     the gain's shortfall from its steady value decays like ``1/T`` and equals, to first order,
     its rise from ``T/2`` to ``T``; the search stops when that rise is at most ``tolerance``

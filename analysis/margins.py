@@ -510,7 +510,7 @@ class LinearCheck:
 
 def _simulator(case: Case, name: str, settings: Settings) -> SampledSimulator:
     """The simulator of a search point: the process's :func:`shared_simulator` for ``settings``, but
-    for a payload (a new plant, made in CasADi's virtual machine)."""
+    for a payload (a new plant: a simulator of its own, on the same compiled libraries under ``jit``)."""
     if name == "payload_mass":
         return sampled_simulator(case.loop, settings)
     return shared_simulator(case, settings.errors is not None).for_run(settings)

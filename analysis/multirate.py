@@ -723,13 +723,12 @@ class LocalVerdict:
     monodromy across the self-motion (``inf`` where it overflows, saturates at the equilibrium or has no
     equilibrium), ``certified`` (``rho < 1 - RHO_MARGIN``, the Lyapunov check, the self-motion's tangent
     residual and its poses' equilibrium check: :meth:`Transverse.certified`), ``reason`` when it is not;
-    and what was computed (None where it stopped short): the linearised loop, the monodromy, its
-    schedule's steps, the part across the self-motion and the Lyapunov check."""
+    and what was computed (None where it stopped short): the monodromy, its schedule's steps, the part
+    across the self-motion and the Lyapunov check."""
 
     rho: float
     certified: bool
     reason: str | None
-    system: MultirateLoop | None = None
     pi: np.ndarray | None = None
     steps: int = 0
     across: Transverse | None = None
@@ -748,17 +747,17 @@ def local_verdict(loop: ClosedLoop, q0: np.ndarray, imp: Implementation, plant: 
     has no equilibrium near the model's)."""
     system = multirate_loop(loop, q0, imp, plant) if system is None else system
     if system.saturated(loop.robot.limits):
-        return LocalVerdict(math.inf, False, SATURATED, system, saturated=True)
+        return LocalVerdict(math.inf, False, SATURATED, saturated=True)
     with np.errstate(over="ignore", invalid="ignore"):
         pi, sched = system.monodromy(imp)
     if not np.isfinite(pi).all():
-        return LocalVerdict(math.inf, False, "the period map overflows: far from stable", system, pi, sched.steps)
+        return LocalVerdict(math.inf, False, "the period map overflows: far from stable", pi, sched.steps)
     across = system.transverse(pi)
     rho, check = spectral_radius(across.pi), lyapunov_check(across.pi)
     certified = rho < 1 - RHO_MARGIN and across.certified(check)
     reason = (f"rho = {rho:.6g}, the Lyapunov check (margin {check.margin:.3g}), the self-motion's residual "
               f"({across.residual:.2g}) or the check that its poses are equilibria fails")  # fmt: skip
-    return LocalVerdict(rho, certified, None if certified else reason, system, pi, sched.steps, across, check)
+    return LocalVerdict(rho, certified, None if certified else reason, pi, sched.steps, across, check)
 
 
 def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> dict:
