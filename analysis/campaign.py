@@ -27,11 +27,11 @@ import casadi as cs
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-from scipy import stats
 
 from dvfc.analysis import sensitivity
 from dvfc.analysis.batches import BatchRun
 from dvfc.analysis.case import Case
+from dvfc.analysis.defaults import CONFIDENCE, P_FAIL, QUANTILE
 from dvfc.analysis.dispersion import INPUTS, MASSES, Dispersion, base_values, with_values
 from dvfc.analysis.margins import CRITERION, TrackingBound, judge, tracking_bound, tracking_error
 from dvfc.analysis.multirate import DeclaredPlant, LocalVerdict, applicability
@@ -54,10 +54,6 @@ LOCAL = (
     "and friction, at the scenario's latency and rates) has rho < 1: a draw with rho >= 1 fails whatever its run"
 )
 """Added to the campaign's criterion: a run judged on its horizon cannot show a slow local instability."""
-
-CONFIDENCE, P_FAIL, QUANTILE = 0.95, 0.01, 0.9
-"""The defaults of a campaign's statements: the confidence, the P(fail) whose zero-failure run
-count is stated, the quantile of the tracking error bounded."""
 
 
 @dataclass(frozen=True)
@@ -264,6 +260,8 @@ def run_campaign(
 def clopper_pearson_upper(failures: int, runs: int, confidence: float) -> float:
     """The one-sided Clopper-Pearson upper bound on P(fail) from ``failures`` of ``runs``:
     ``Beta.ppf(confidence, k + 1, n - k)`` (1 when every run fails)."""
+    from scipy import stats
+
     if failures >= runs:
         return 1.0
     return float(stats.beta.ppf(confidence, failures + 1, runs - failures))
@@ -279,6 +277,8 @@ def tolerance_rank(runs: int, quantile: float, confidence: float) -> int | None:
     """The smallest rank ``r`` (1-based, ascending) whose order statistic bounds the ``quantile``
     of the distribution from above with ``confidence``: ``P(Binomial(n, q) <= r - 1) >= c``;
     None when ``runs`` are too few."""
+    from scipy import stats
+
     ranks = np.arange(1, runs + 1)
     ok = stats.binom.cdf(ranks - 1, runs, quantile) >= confidence
     return int(ranks[ok][0]) if ok.any() else None
@@ -342,6 +342,8 @@ def sensitivities(spec: CampaignSpec, data: dict, ratio: np.ndarray, holds: np.n
     floor of an independent input) and the failure rate per quantile bin; the quantity's
     strongest entry (by PAWN, else by the rank correlation) stated, strongest quantity first.
     Also the floor and what it means."""
+    from scipy import stats
+
     columns = [c for key in spec.dispersion.keys for c in spec.dispersion.columns_of(key)]
     x = np.column_stack([np.asarray(data[c], dtype=float) for c in columns])
     horizon = spec.case.settings.duration

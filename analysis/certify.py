@@ -35,18 +35,19 @@ import warnings
 from dataclasses import dataclass
 from enum import IntEnum
 from functools import cache
+from typing import TYPE_CHECKING
 
 import casadi as cs
-import cvxpy as cp
 import numpy as np
-from scipy.optimize import minimize_scalar
-from scipy.spatial.transform import Rotation
 
 from dvfc.analysis.output import interrupted
 from dvfc.models.lie import SE3, SO3
 from dvfc.models.loop import PlantWeights, Weights, disturbance_matrix, disturbance_weight, output_matrix
 from dvfc.models.planar import planar_disturbance_matrix, planar_output_matrix
 from dvfc.models.robot import spans_the_task
+
+if TYPE_CHECKING:
+    import cvxpy as cp
 
 INFLATION = 1e-6
 """Relative inflation of a computed gamma before the a posteriori check: at the exact
@@ -279,7 +280,7 @@ def exact_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray) -> tuple[flo
     return float(gamma_of(s)[0]), Reason(reason[0])
 
 
-SOLVERS = (cp.CLARABEL, cp.SCS)
+SOLVERS = ("CLARABEL", "SCS")
 """Conic solvers in the order tried: Clarabel (interior point, accurate), then SCS."""
 
 
@@ -301,7 +302,7 @@ def solve(problem: cp.Problem, solver_options: dict | None = None) -> tuple[str 
                 raise KeyboardInterrupt from exc
             failures.append(f"{solver}: {type(exc).__name__}: {exc}".splitlines()[0])
             continue
-        if problem.status == cp.OPTIMAL:
+        if problem.status == "optimal":
             return solver, failures
         failures.append(f"{solver}: status {problem.status}")
     return None, failures
@@ -318,6 +319,8 @@ def sdp_gamma(point: GainPoint, reference: SE3, r_ec: np.ndarray, solver_options
 
 def sdp_gamma_of(a: np.ndarray, w: np.ndarray, solver_options: dict | None = None):
     """:func:`sdp_gamma` for given ``A = N^T K N - I/2`` and ``W``."""
+    import cvxpy as cp
+
     s = cp.Variable()
     problem = cp.Problem(cp.Maximize(s), [a - s * w >> 0])
     solver, failures = solve(problem, solver_options)
@@ -388,6 +391,8 @@ def alpha_by_search(a: np.ndarray, g: np.ndarray, output_squared: np.ndarray | N
     linear in ``(alpha, gamma^2)``, so ``gamma(alpha)^2`` is convex on
     ``alpha > 1/(2 lambda_min(S^-1 A S^-1))`` and a bounded scalar search on ``log alpha`` (Brent)
     finds its minimum."""
+    from scipy.optimize import minimize_scalar
+
     s_inv = 1.0 / np.sqrt(np.ones(a.shape[0]) if output_squared is None else output_squared)
     lowest = 1.0 / (2.0 * np.linalg.eigvalsh(s_inv[:, None] * a * s_inv[None, :])[0])
 
@@ -419,6 +424,8 @@ def tight_gamma_of(a: np.ndarray, g: np.ndarray, solver_options: dict | None = N
     When neither solver returns a clean optimum, ``alpha`` comes from :func:`alpha_by_search`
     (the method says so): the certificate never rests on the solver, only on the exact gamma at
     ``alpha`` and its a posteriori check."""  # fmt: skip
+    import cvxpy as cp
+
     nx, nw = g.shape
     alpha, g2 = cp.Variable(nonneg=True), cp.Variable(nonneg=True)
     half = 0.5 * _diagonal(output_squared, nx)
@@ -446,6 +453,8 @@ def tight_gamma_of(a: np.ndarray, g: np.ndarray, solver_options: dict | None = N
 
 def random_rotations(count: int, theta_max: float, rng: np.random.Generator) -> np.ndarray:
     """Rotations with angle at most ``theta_max``: uniform axis, angle uniform in [0, theta_max]."""
+    from scipy.spatial.transform import Rotation
+
     axes = rng.normal(size=(count, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     angles = rng.uniform(0.0, theta_max, size=(count, 1))
@@ -477,6 +486,8 @@ def worst_rotation(
     """The largest smallest-gamma over ``|theta_ec| <= theta_max`` found by batched random
     sampling, then batched local refinement around the best rotation with a shrinking
     radius. A lower bound on the worst case, never a certificate."""
+    from scipy.spatial.transform import Rotation
+
     rng = np.random.default_rng(seed)
     rotvecs = np.concatenate(
         [np.zeros((1, 3)), Rotation.from_matrix(random_rotations(samples, theta_max, rng)).as_rotvec()]

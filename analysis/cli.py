@@ -17,23 +17,20 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 
-from dvfc.analysis import jobs, show
-from dvfc.analysis.campaign import CONFIDENCE, P_FAIL, QUANTILE
-from dvfc.analysis.case import Case
-from dvfc.analysis.certify import NOT_APPLICABLE
 from dvfc.analysis.console import announcing, err, progress_bar, say, status, warn
-from dvfc.analysis.export import ExportError
-from dvfc.analysis.margins import planned_runs, runs_done
+from dvfc.analysis.defaults import CONFIDENCE, DEFAULT_SCENARIO, MAX_GRID_BYTES, MAX_GRID_POINTS, P_FAIL, QUANTILE
 from dvfc.analysis.output import interrupt_aware, interrupted, provenance, raise_if_interrupted, write_json
-from dvfc.analysis.record import Serialisable
-from dvfc.analysis.results import certificate_result, verification_result
-from dvfc.analysis.scenario import DEFAULT_SCENARIO, ScenarioError
-from dvfc.analysis.synthesize import synthesize_scenario
-from dvfc.analysis.windows import case_windows
+
+if TYPE_CHECKING:
+    from dvfc.analysis.case import Case
+    from dvfc.analysis.record import Serialisable
+
+# The jobs, and the numerical libraries under them, are imported by the command that runs them, so that
+# ``dvfc --help`` and a command's option parsing load none of them.
 
 app = typer.Typer(
     add_completion=False,
@@ -111,6 +108,9 @@ def resumable(command: str) -> Iterator[None]:
 def library_errors(flags: dict[str, str], out: Path | None = None) -> Iterator[None]:
     """Bad input raised by a job (``"argument: why"``): one line, exit 2, the argument named by its
     option (``flags``), a scenario field as it is; the output folder ``out`` not writable as ``--out``."""
+    from dvfc.analysis.export import ExportError
+    from dvfc.analysis.schema import ScenarioError
+
     try:
         yield
     except ScenarioError as exc:
@@ -130,6 +130,9 @@ def command_provenance(scenario: Path) -> dict:
 def load_case(path: Path, mode: Literal["ideal", "image"] | None = None, check_view: bool = True) -> Case:
     """Read, validate and build a scenario once for the command, or exit with status 2 and one
     line: every command rejects the same bad input, whether or not it uses the faulty part."""
+    from dvfc.analysis.case import Case
+    from dvfc.analysis.schema import ScenarioError
+
     try:
         case = Case.load(path, mode=mode, check_view=check_view)
         if case.scenario.grid is not None:  # its ranges are checked here, before any work
@@ -148,6 +151,8 @@ def warn_fewer_than_six(case: Case) -> None:
 def warn_windows(case: Case) -> None:
     """One warning line on standard error, before any run, when a gain ``k_xi,i`` lies outside
     its window (:func:`dvfc.analysis.windows.case_windows`), naming the limit it breaks."""
+    from dvfc.analysis.windows import case_windows
+
     windows = case_windows(case)
     if windows is not None and (line := windows.warning()) is not None:
         warn(f"warning: {line}")
@@ -156,6 +161,8 @@ def warn_windows(case: Case) -> None:
 def require_six(case: Case, command: str) -> None:
     """Refuse ``command`` (status 2, before any work) when it rests on Theorems 1-2 and they do
     not apply (:attr:`Case.theorems_do_not_apply`)."""
+    from dvfc.analysis import jobs
+
     with library_errors({}):
         jobs.require_theorems(case, command)
 
@@ -190,6 +197,8 @@ def simulate(
     campaign_seed: Annotated[int, typer.Option(min=0, help="The campaign's --seed.")] = 0,
 ) -> None:
     """Simulate the closed loop (36), (42) and check its energy identities."""
+    from dvfc.analysis import jobs, show
+
     case = load_case(scenario, mode.value if mode else None)
     check_json_target(json_target)
     directory = out_dir or Path("out") / case.name
@@ -225,6 +234,8 @@ def pose(
     the target in view (see [target] relative_to_camera). With --solve, q0 is first solved for
     the camera at the reference pose relative to the target, within the position limits, and
     printed with its conditioning, pose error and limits. Exit 1 when a point is out of view."""
+    from dvfc.analysis import jobs, show
+
     case = load_case(scenario, check_view=False)
     check_json_target(json_target)
     warn_fewer_than_six(case)
@@ -248,8 +259,8 @@ def certify_command(
     workers: Annotated[int, typer.Option(min=1, help="Local worker processes for a grid.")] = 1,
     scheduler: SchedulerOpt = None,
     resume: Annotated[bool, typer.Option(help="Continue an interrupted grid sweep in --out.")] = False,
-    large: Annotated[bool, typer.Option(help=f"Allow grids of more than {jobs.MAX_GRID_POINTS:.0e} points or "
-                                             f"{jobs.MAX_GRID_BYTES:.0e} bytes.")] = False,
+    large: Annotated[bool, typer.Option(help=f"Allow grids of more than {MAX_GRID_POINTS:.0e} points or "
+                                             f"{MAX_GRID_BYTES:.0e} bytes.")] = False,
     batch_size: Annotated[int, typer.Option(min=1, help="Grid points per batch (one Parquet file each).")] = 20000,
     csv: Annotated[bool, typer.Option("--csv", help="Grid: also export the points as DIR/points.csv.")] = False,
     lower_bounds: Annotated[
@@ -258,6 +269,10 @@ def certify_command(
 ) -> None:
     """Certify Theorem 2 (L2 gain <= gamma) for the scenario's gains, or every point of its
     [grid], over the [certify] region. Exit 0: all certified; 1: some not; 2: bad input."""
+    from dvfc.analysis import jobs, show
+    from dvfc.analysis.certify import NOT_APPLICABLE
+    from dvfc.analysis.results import certificate_result
+
     case = load_case(scenario)
     check_json_target(json_target)
     warn_windows(case)
@@ -304,6 +319,9 @@ def synthesize_command(
     (fact 6), reach [synthesize] gamma with the smallest gains, or (objective = "target_speed")
     maximise the envelope's certified target speed (facts 7-8); with --for-campaign, gains and
     integral action that hold on the scenario's campaign; write them as a scenario."""
+    from dvfc.analysis import jobs, show
+    from dvfc.analysis.synthesize import synthesize_scenario
+
     if what and not for_campaign:
         raise fail("--what-would-pass: searches the hardware for the synthesis --for-campaign; give --for-campaign")
     case = load_case(scenario)
@@ -341,6 +359,9 @@ def margins_command(
     mass, pixel noise and torque-limit scale, each by bisection on the nonlinear loop; and
     the linear margins of the sampled loop linearised at rest (fact 14). Exit 0 done, 1 no
     margin (the scenario's own run fails), 2 bad input."""
+    from dvfc.analysis import jobs, show
+    from dvfc.analysis.margins import planned_runs, runs_done
+
     case = load_case(scenario)
     check_json_target(json_target)
     directory = out_dir or Path("out") / f"{case.name}-margins"
@@ -368,6 +389,9 @@ def verify_command(
 ) -> None:
     """Check every claim of the paper (Lemmas 1-2, Theorems 1-2, the passivity remarks, the
     Lyapunov derivative) on simulated trajectories; measure the image loop's gap."""
+    from dvfc.analysis import show
+    from dvfc.analysis.results import verification_result
+
     case = load_case(scenario)
     check_json_target(json_target)
     warn_fewer_than_six(case)
@@ -404,6 +428,8 @@ def campaign_command(
     """Run the scenario's [dispersion] as a campaign of independent runs of the loop as implemented,
     each judged by the margins criterion; state the failure probability with its confidence.
     Exit 0 no failure, 1 some run fails, 2 bad input."""
+    from dvfc.analysis import jobs, show
+
     case = load_case(scenario)
     check_json_target(json_target)
     directory = out_dir or Path("out") / f"{case.name}-campaign"
@@ -430,6 +456,8 @@ def export_command(
     check: Annotated[bool, typer.Option("--check", help="Compile, replay a simulated run, compare.")] = False,
 ) -> None:
     """Export the controller as C (dvfc_controller.h/.c over CasADi's generated step)."""
+    from dvfc.analysis import jobs, show
+
     case = load_case(scenario)
     check_json_target(json_target)
     directory = out_dir or Path("out") / case.name / "controller"

@@ -30,8 +30,6 @@ from dataclasses import dataclass, replace
 
 import casadi as cs
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.stats import qmc
 
 from dvfc.analysis.quiet import silenced
 from dvfc.models.robot import Robot
@@ -92,6 +90,8 @@ def _bounds(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
 
 def sobol(lower: np.ndarray, upper: np.ndarray, size: int, seed: int) -> np.ndarray:
     """``size`` (a power of 2) points of a scrambled Sobol sequence in the box ``[lower, upper]``."""
+    from scipy.stats import qmc
+
     sample = qmc.Sobol(lower.size, scramble=True, seed=seed).random_base2(int(np.log2(size)))
     return qmc.scale(sample, lower, upper)
 
@@ -136,6 +136,8 @@ class _Search:
 
     def reach(self, start: np.ndarray) -> np.ndarray:
         """Bounded least squares from ``start`` (inside the box)."""
+        from scipy.optimize import least_squares
+
         x0 = np.clip(start, self.lower, self.upper)
         fit = least_squares(self.residual, x0, self.jacobian, bounds=(self.lower, self.upper), method="trf",
                             xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=100)  # fmt: skip

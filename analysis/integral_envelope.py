@@ -29,7 +29,6 @@ import math
 from dataclasses import dataclass, replace
 
 import casadi as cs
-import cvxpy as cp
 import numpy as np
 
 from dvfc.analysis.envelope import (
@@ -348,6 +347,8 @@ class RateProgram:
     ``c`` and ``theta_bar``)."""
 
     def __init__(self, p: Problem) -> None:
+        import cvxpy as cp
+
         n, arm = p.n, p.arm
         self.p = p
         self.kappa = cp.Variable()
@@ -374,6 +375,8 @@ class RateProgram:
 
     def solve(self, eps: float, s: float, mu: float, s_t: float, theta_bar: float, c: float) -> Multipliers | None:
         """The multipliers maximising ``kappa`` at these values; None when infeasible or on solver trouble."""
+        import cvxpy as cp
+
         p, arm = self.p, self.p.arm
         zbar = p.zbar(eps, c)
         if not math.isfinite(zbar):

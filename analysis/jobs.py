@@ -24,6 +24,7 @@ from dvfc.analysis.campaign import row as campaign_row
 from dvfc.analysis.case import Case
 from dvfc.analysis.cell import Design, Search, design_text, synthesize_for_campaign
 from dvfc.analysis.cell import record as cell_record
+from dvfc.analysis.defaults import MAX_GRID_BYTES, MAX_GRID_POINTS
 from dvfc.analysis.export import ExportResult, export_controller, exportable
 from dvfc.analysis.grid import BYTES_PER_POINT, POINTS, GridSpec, export_csv, run_sweep
 from dvfc.analysis.hardware import what_would_pass
@@ -105,11 +106,6 @@ def pose(case: Case, *, solve: bool = False) -> PoseResult:
     return PoseResult(scenario=case.name, solution=solution, **initial_view(case.loop, case.s0),
                       gain_windows=None if windows is None else windows.as_dict(),
                       windows_warning=None if windows is None else windows.warning())  # fmt: skip
-
-
-MAX_GRID_POINTS = 10**8
-MAX_GRID_BYTES = 10**9
-"""Grids of more points, or whose results are expected to take more bytes on disk, need ``large``."""
 
 
 def grid_points(case: Case) -> int:

@@ -21,9 +21,9 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import casadi as cs
-import control
 import numpy as np
 
 from dvfc.analysis.simulate import RunStatus, Settings, Simulator, Trajectory
@@ -31,6 +31,9 @@ from dvfc.models.lie import SE3, SO3, quaternion_rate, quaternion_to_matrix
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import TASK, PlanarLoop
 from dvfc.models.target import TargetMotion
+
+if TYPE_CHECKING:
+    import control
 
 
 @dataclass
@@ -266,6 +269,8 @@ def _linearization(rate, output, z, w, t, q_eq: np.ndarray, weights: tuple[np.nd
     """The Jacobians of ``dz/dt = rate(z, w)`` and ``x = output(z, w)`` at ``z = 0, w = 0``, as a
     python-control system from ``d`` to ``S x`` (``weights = (S, D_w)`` diagonals, ``w = D_w d``,
     docs/math.md, fact 17), with its H-infinity norm and frequency peak."""
+    import control
+
     jacobians = [cs.jacobian(rate, z), cs.jacobian(rate, w), cs.jacobian(output, z), cs.jacobian(output, w)]
     f = cs.Function("lin", [z, w, t], jacobians)
     a, b, c, d = (np.asarray(m) for m in f(np.zeros(z.shape[0]), np.zeros(w.shape[0]), 0.0))
@@ -349,6 +354,8 @@ def observable_quotient(sys: control.StateSpace, tol: float = 1e-9) -> control.S
     With ``V`` an orthonormal basis of its complement, ``(V^T A V, V^T B, C V, D)`` has
     the same transfer function and no poles at 0.
     """
+    import control
+
     a, b, c, d = sys.A, sys.B, sys.C, sys.D
     _, sv, vh = np.linalg.svd(np.vstack([a, c]))
     rank = int(np.sum(sv > tol * sv[0]))
@@ -374,6 +381,8 @@ def hinf_norm(sys: control.StateSpace) -> float:
     ``control.system_norm`` 0.10.2 mis-sizes a non-square ``D``; zero input columns (which
     change no singular value) make the system square first.
     """
+    import control
+
     poles = np.linalg.eigvals(sys.A)
     if poles.size and np.any(poles.real > -MARGINAL * np.maximum(1.0, np.abs(poles))):
         return math.inf

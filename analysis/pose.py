@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import casadi as cs
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from dvfc.analysis.ik import Configuration
 from dvfc.models.loop import ClosedLoop
@@ -16,6 +15,8 @@ from dvfc.models.robot import JointLimits
 def xyz_rpy(matrix: np.ndarray) -> dict[str, list[float]]:
     """A 4x4 pose as ``xyz`` and ``rpy`` (URDF convention ``Rz(yaw) Ry(pitch) Rx(roll)``:
     SciPy's extrinsic ``"xyz"``)."""
+    from scipy.spatial.transform import Rotation
+
     m = np.asarray(matrix, dtype=float)
     return {"xyz": m[:3, 3].tolist(), "rpy": Rotation.from_matrix(m[:3, :3]).as_euler("xyz").tolist()}
 

@@ -18,6 +18,7 @@ from pydantic import ValidationError
 
 from dvfc.analysis.calibration import CalibrationError, read_calibration
 from dvfc.analysis.certify import GainPoint
+from dvfc.analysis.defaults import DEFAULT_SCENARIO
 from dvfc.analysis.ik import Configuration, NoConfigurationError, solve_configuration
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.messages import one_line
@@ -50,9 +51,6 @@ from dvfc.models.robot import (
     joint_dynamics,
 )
 from dvfc.models.target import TargetMotion
-
-DEFAULT_SCENARIO = Path(__file__).parent / "scenarios" / "ur5_circle.toml"
-"""The built-in default scenario (a copy of ``examples/ur5_circle.toml``)."""
 
 __all__ = ["DEFAULT_SCENARIO", "Scenario", "ScenarioError", "build", "gain_point", "load"]
 

@@ -32,7 +32,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from SALib.analyze import pawn
 
 REFERENCES = 19
 """Independent reference inputs: their largest PAWN score is the floor (a rank test at level 0.05)."""
@@ -79,6 +78,8 @@ def moment_independent(x: np.ndarray, y: np.ndarray, seed: int = 0) -> tuple[lis
     floor of :data:`REFERENCES` independent inputs drawn with ``seed``. A column that does not
     vary has no score (None); nothing is scored when the outcome does not vary or there are
     fewer than 10 runs."""
+    from SALib.analyze import pawn
+
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     runs = len(y)
     if runs < 10:

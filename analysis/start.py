@@ -37,7 +37,6 @@ from typing import Any
 import casadi as cs
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from dvfc.analysis.certify import GainPoint
 from dvfc.analysis.envelope import (
@@ -91,6 +90,8 @@ def image_pose(camera: Camera, features: np.ndarray) -> SE3:
     ``solvePnP`` (``SOLVEPNP_IPPE`` for a planar target, ``SOLVEPNP_ITERATIVE`` otherwise) on the
     centred image coordinates ``f_i = lambda [x/z, y/z]`` (11), with the camera matrix
     ``diag(lambda, lambda, 1)``. ``features`` (2m,)."""
+    from scipy.spatial.transform import Rotation
+
     points = np.asarray(camera.points, dtype=float)
     flat = np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-9) < 3
     method = cv2.SOLVEPNP_IPPE if flat else cv2.SOLVEPNP_ITERATIVE
@@ -117,6 +118,8 @@ def image_start(loop: ClosedLoop, q0: np.ndarray, qd0: np.ndarray, noise_px: flo
 
 def path_centres(plan: ReferencePlan, points: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """``g_d(tau) p_oi`` (K, m, 3) at the plan's progress values ``tau`` (K,)."""
+    from scipy.spatial.transform import Rotation
+
     dp, omega = plan.step
     p0 = np.asarray(cs.DM(plan.start.translation)).ravel()
     r0 = np.asarray(cs.DM(plan.start.rotation.matrix))

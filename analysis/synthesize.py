@@ -38,9 +38,8 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import cvxpy as cp
 import numpy as np
 import tomlkit
 
@@ -92,6 +91,9 @@ SAMPLED_CRITERION = (
     f"certified with margin: rho <= {RHO_MAX:g} and the linear control-rate margin at most "
     f"{CONTROL_RATE_FRACTION:g} x the control rate"
 )
+
+if TYPE_CHECKING:
+    import cvxpy as cp
 
 
 @dataclass(frozen=True)
@@ -145,6 +147,8 @@ def window_constraints(windows: WindowSpec | None, k_xi: cp.Variable) -> list:
     """The gain windows with the synthesis' margins (docs/math.md, "Gain windows"): ``k_xi >=``
     :meth:`WindowSpec.synthesis_lower` and ``K_xi <=`` :meth:`WindowSpec.synthesis_hold` (an LMI);
     none without ``windows``."""
+    import cvxpy as cp
+
     if windows is None:
         return []
     constraints = [k_xi >= windows.synthesis_lower()]
@@ -162,6 +166,8 @@ def _sdp(weights: Weights, reference: SE3, n: int, bounds: Bounds, gamma_target:
     the gains beyond what the LMI needs are free), and where on that face a solver stops depends on the
     last bits of the arithmetic (on another BLAS kernel the same problem moved the gains by 2e-4). The
     design is then :func:`corner` at the solver's ``s`` less :data:`CORNER_SLACK`."""  # fmt: skip
+    import cvxpy as cp
+
     w = weights.as_array()[None]
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)
@@ -275,6 +281,8 @@ def _speed_problem(weights: Weights, reference: SE3, n: int, bounds: Bounds, mas
     the rate of (10.4), docs/math.md, fact 10, since ``rho`` is ``lambda_max`` of the symmetric
     ``(K_xi - s)^-1/2 B (K_xi - s)^-1/2``), the gain bounds and windows (:func:`window_constraints`).
     Returns ``(problem, s, kappa, gains)``."""
+    import cvxpy as cp
+
     w = weights.as_array()[None]
     n_ce = output_blocks(w, reference, np.eye(3)[None])[0]
     k_xi, k_c = cp.Variable(n), cp.Variable(6)

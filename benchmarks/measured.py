@@ -11,7 +11,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-BENCHMARKS = ("simulate", "certify", "margins", "campaign", "report", "controller_step")
+BENCHMARKS = ("startup", "simulate", "certify", "margins", "campaign", "report", "controller_step")
 """The benchmarks of ``benchmarks/``, in the order they are run and written."""
 
 

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from dvfc.analysis.cli import (
-    DEFAULT_SCENARIO,
     OutOpt,
     ScenarioArg,
     command_provenance,
@@ -19,10 +18,11 @@ from dvfc.analysis.cli import (
 )
 from dvfc.analysis.cli import app as analysis
 from dvfc.analysis.console import progress_bar, say
+from dvfc.analysis.defaults import DEFAULT_SCENARIO
 from dvfc.analysis.output import atomic_write
-from dvfc.reports.document import STEPS, ReportResult
-from dvfc.reports.document import report as write_report
-from dvfc.reports.stages import CACHE, TIMINGS, StageCache, StepTimes
+
+if TYPE_CHECKING:
+    from dvfc.reports.document import ReportResult
 
 app = typer.Typer(
     add_completion=False,
@@ -42,6 +42,10 @@ def report(
 ) -> None:
     """Write the design-review report of a scenario: report.html (self-contained) and report.pdf.
     Exit 0: certified and every check passes; 1: not certified, or a check fails or is inconclusive."""
+    from dvfc.reports.document import STEPS
+    from dvfc.reports.document import report as write_report
+    from dvfc.reports.stages import CACHE, TIMINGS, StageCache, StepTimes
+
     times = StepTimes()
     times("scenario built")
     case = load_case(scenario)
