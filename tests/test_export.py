@@ -249,10 +249,11 @@ def test_check_over_ten_seconds_on_the_default_ur5(case, exported):
 
 
 @pytest.mark.slow
-def test_check_over_ten_seconds_on_a_seven_joint_arm_from_a_urdf_file(tmp_path):
-    """The same on a 7-joint arm read from the user's URDF file (2 kHz, 20000 samples)."""
+def test_check_over_two_seconds_on_a_seven_joint_arm_from_a_urdf_file(tmp_path):
+    """The same on a 7-joint arm read from the user's URDF file over 2 s (2 kHz, 4000 samples: the long run's
+    error growth is the UR5's 10 s test's to show; this one, that the arm's own code replays)."""
     user = dvfc.load(user_arm_scenario(tmp_path))
-    assert_check(user, generate(user, tmp_path / "export"), 10.0)
+    assert_check(user, generate(user, tmp_path / "export"), 2.0)
 
 
 @pytest.mark.slow

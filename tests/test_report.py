@@ -348,23 +348,34 @@ def test_as_implemented_section_says_which_statement_covers_which_part(report):
     assert "measured margins and runs of this section, which are measurements, not certificates" in coverage
 
 
-@pytest.mark.slow
-def test_dispersions_section_states_the_campaigns_statement(tmp_path):
-    """A scenario with a [dispersion] (the cell example over 2 s, 6 runs): the report's section
-    "Dispersions" has its four figures, and its statement, the same on page 1's row "dispersion
-    campaign", equals the summary.json of ``dvfc campaign`` on the same scenario and runs."""
+@pytest.fixture(scope="module")
+def cell_report(tmp_path_factory) -> tuple[Path, Path, str]:
+    """The report of the cell example over 2 s with a campaign of 6 runs, made by the installed command line:
+    the scenario, the scenario of the design it was synthesised from ([synthesized_from]) and the HTML."""
+    folder = tmp_path_factory.mktemp("cell")
     data = tomllib.loads((EXAMPLES / "ur5_cell.toml").read_text())
     data["simulation"]["duration"] = 2.0
     data["report"] = {"campaign_runs": 6}
-    scenario = tmp_path / "cell.toml"
+    scenario, before = folder / "cell.toml", folder / "before.toml"
     scenario.write_text(tomli_w.dumps(data))
-    made = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(scenario), "--out", str(tmp_path / "r")],
+    before_data = {**data, "gains": data["synthesized_from"]["gains"]}
+    del before_data["synthesized_from"]
+    before.write_text(tomli_w.dumps(before_data))
+    made = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(scenario), "--out", str(folder / "r")],
                           capture_output=True, text=True)  # fmt: skip
     assert made.returncode in (0, 1), made.stderr
+    return scenario, before, unescape((folder / "r" / "report.html").read_text())
+
+
+@pytest.mark.slow
+def test_dispersions_section_states_the_campaigns_statement(cell_report, tmp_path):
+    """A scenario with a [dispersion] (the cell example over 2 s, 6 runs): the report's section
+    "Dispersions" has its four figures, and its statement, the same on page 1's row "dispersion
+    campaign", equals the summary.json of ``dvfc campaign`` on the same scenario and runs."""
+    scenario, _, html = cell_report
     campaign = CliRunner().invoke(app, ["campaign", str(scenario), "--runs", "6", "--out", str(tmp_path / "c")])
     assert campaign.exit_code in (0, 1), campaign.output
     statement = json.loads((tmp_path / "c" / "summary.json").read_text())["statement"]
-    html = unescape((tmp_path / "r" / "report.html").read_text())
     for figure in ("fig-campaign-ecdf", "fig-campaign-sensitivity", "fig-campaign-drivers", "fig-campaign-worst"):
         assert re.search(rf'<figure id="{figure}"><svg', html), figure
     shown = re.search(r'<p class="verdict measured" id="campaign-statement">(.*?)</p>', html, re.S)
@@ -375,23 +386,12 @@ def test_dispersions_section_states_the_campaigns_statement(tmp_path):
 
 
 @pytest.mark.slow
-def test_dispersions_section_sets_the_design_before_the_synthesis_beside_this_one(tmp_path):
+def test_dispersions_section_sets_the_design_before_the_synthesis_beside_this_one(cell_report, tmp_path):
     """The cell example (2 s, 6 runs) names the design it was synthesised from ([synthesized_from]): the
     section "Dispersions" has both columns, each equal to ``dvfc campaign`` on that design's scenario with
     the same runs and seed (common random numbers: failures, P(fail) bound, worst closeness and its
     run), and the figure of both distributions."""
-    data = tomllib.loads((EXAMPLES / "ur5_cell.toml").read_text())
-    data["simulation"]["duration"] = 2.0
-    data["report"] = {"campaign_runs": 6}
-    scenario, before = tmp_path / "cell.toml", tmp_path / "before.toml"
-    scenario.write_text(tomli_w.dumps(data))
-    before_data = {**data, "gains": data["synthesized_from"]["gains"]}
-    del before_data["synthesized_from"]
-    before.write_text(tomli_w.dumps(before_data))
-    made = subprocess.run([sys.executable, "-m", "dvfc.reports", "report", str(scenario), "--out", str(tmp_path / "r")],
-                          capture_output=True, text=True)  # fmt: skip
-    assert made.returncode in (0, 1), made.stderr
-    html = unescape((tmp_path / "r" / "report.html").read_text())
+    scenario, before, html = cell_report
     table = re.search(r'<table id="campaign-before-after">(.*?)</table>', html, re.S).group(1)
     cells = {row[0]: row[1:] for row in (re.findall(r"<t[hd][^>]*>(.*?)</t[hd]>", r) for r in table.split("</tr>"))
              if row}  # fmt: skip
