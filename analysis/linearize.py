@@ -20,14 +20,14 @@ import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cached_property
 from typing import TYPE_CHECKING
 
 import casadi as cs
 import numpy as np
 
 from dvfc.analysis.simulate import RunStatus, Settings, Simulator, Trajectory
-from dvfc.models.lie import SE3, SO3, quaternion_rate, quaternion_to_matrix
+from dvfc.models.driven import DrivenPlanarLoop, DrivenTargetLoop, Sinusoid
+from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import TASK, PlanarLoop
 from dvfc.models.target import TargetMotion
@@ -36,58 +36,18 @@ if TYPE_CHECKING:
     import control
 
 
-@dataclass
-class DisturbanceDriven(ClosedLoop):
-    """Mixin for a loop whose whole disturbance ``w = [tau_d; target velocity]`` is the
-    signal ``disturbance_input(t)`` (the target's motion then becomes a state)."""
-
-    disturbance_input: Callable[[cs.SX], cs.SX] | None = None
-
-    @cached_property
-    def w(self):
-        assert self.disturbance_input is not None, "a driven loop is given its disturbance"
-        return self.disturbance_input(self.t)
-
-    @cached_property
-    def tau_d(self):
-        return self.w[: self.robot.n]
-
-
-@dataclass
-class DrivenTargetLoop(DisturbanceDriven, ClosedLoop):
-    """The loop driven by a disturbance signal ``w(t) = [tau_d; V_wo]``: the target's pose
-    is a state ``(p_o, quat_o)`` moved by ``V_wo`` (5), so any ``w`` can be applied."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.p_o, self.quat_o = cs.SX.sym("p_o", 3), cs.SX.sym("quat_o", 4)
-        self.quaternions = [*self.quaternions, slice(self.n_state + 3, self.n_state + 7)]
-        self.state = cs.vertcat(self.state, self.p_o, self.quat_o)
-        self.n_state += 7
-
-    @cached_property
-    def target_pose(self) -> SE3:
-        return SE3(self.p_o, SO3(quaternion_to_matrix(self.quat_o)))
-
-    @cached_property
-    def relative_pose(self) -> SE3:
-        return self.robot.camera_pose.inverse() @ self.target_pose
-
-    @cached_property
-    def state_rate(self):
-        v = self.w[self.robot.n :]
-        target = cs.vertcat(self.target_pose.rotation.matrix @ v[0:3], quaternion_rate(self.quat_o, v[3:6]))
-        return cs.vertcat(super().state_rate, target)
-
-
-def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX]) -> ClosedLoop:
+def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX] | Sinusoid) -> ClosedLoop:
     """``loop`` in ideal mode, its target at rest at ``g_wo(0)`` unless moved by
-    ``disturbance_input``, which supplies all of ``w`` (a :class:`DrivenTargetLoop`, or a
-    :class:`DrivenPlanarLoop` for the planar loop), with the constant reference ``g_d`` (a planned
-    one ends there: the equilibrium and the L2 gain are those of the paper's loop)."""
+    ``disturbance_input``, which supplies all of ``w`` (a :class:`~dvfc.models.driven.DrivenTargetLoop`, or a
+    :class:`~dvfc.models.driven.DrivenPlanarLoop` for the planar loop), with the constant reference ``g_d`` (a
+    planned one ends there: the equilibrium and the L2 gain are those of the paper's loop). A
+    :class:`~dvfc.models.driven.Sinusoid` is the loop's data (its numbers enter the compiled functions as inputs);
+    any other signal is an expression of ``t``."""
     fields = {f: getattr(loop, f) for f in ClosedLoop.__dataclass_fields__}
     fields.update(target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None, plan=None)
     kind = DrivenPlanarLoop if isinstance(loop, PlanarLoop) else DrivenTargetLoop
+    if isinstance(disturbance_input, Sinusoid):
+        return kind(**fields, drive=disturbance_input)
     return kind(**fields, disturbance_input=disturbance_input)
 
 
@@ -107,7 +67,7 @@ def weight_diagonals(loop: ClosedLoop) -> tuple[np.ndarray, np.ndarray]:
     return loop.performance.output(task), loop.performance.disturbance(task)
 
 
-def peak_sinusoid(lin: Linearization, amplitude: float = 1e-2) -> Callable[[cs.SX], cs.SX]:
+def peak_sinusoid(lin: Linearization, amplitude: float = 1e-2) -> Sinusoid:
     """The linearisation's worst input: ``Re(v exp(j omega t))`` with ``v`` the right singular
     vector of ``G(j omega)`` at the peak frequency (a constant when the peak is at ``omega = 0``),
     scaled so that its mean square is ``amplitude^2``. Over a long run from rest its L2 gain
@@ -115,19 +75,20 @@ def peak_sinusoid(lin: Linearization, amplitude: float = 1e-2) -> Callable[[cs.S
     v, omega = lin.worst_input, lin.peak_frequency
     if omega == 0.0:
         v = np.real(v)
-        return lambda t: cs.DM(amplitude * v / np.linalg.norm(v))
+        return Sinusoid(amplitude * v / np.linalg.norm(v), np.zeros(v.size), 0.0)
     scale = amplitude * np.sqrt(2.0) / np.linalg.norm(v)
-    return lambda t: cs.DM(scale * np.real(v)) * cs.cos(omega * t) - cs.DM(scale * np.imag(v)) * cs.sin(omega * t)
+    return Sinusoid(scale * np.real(v), -scale * np.imag(v), omega)
 
 
-def rest_simulator(loop: ClosedLoop, lin: Linearization, disturbance: Callable[[cs.SX], cs.SX], horizon: float,
-                   dt: float = 0.01) -> tuple[Simulator, np.ndarray]:  # fmt: skip
+def rest_simulator(loop: ClosedLoop, lin: Linearization, disturbance: Sinusoid, horizon: float, dt: float = 0.01,
+                   jit: bool = False) -> tuple[Simulator, np.ndarray]:  # fmt: skip
     """The ideal loop driven by ``disturbance`` (all of the normalised ``d``, ``w = D_w d``, docs/math.md,
-    fact 17), simulated by CVODES over ``horizon``, and its equilibrium state (``x(0) = 0``, so
-    ``V(0) = 0``)."""
+    fact 17), simulated by CVODES over ``horizon`` (compiled under ``jit``: the sinusoid's numbers are inputs of
+    the arm's one compiled driven loop), and its equilibrium state (``x(0) = 0``, so ``V(0) = 0``)."""
     _, s_eq = driven_at_rest(loop, cs.SX.zeros(loop.robot.n + loop.task_dim), lin.q_eq)
-    d_w = cs.DM(weight_diagonals(loop)[1])
-    return Simulator(driven(loop, lambda t: d_w * disturbance(t)), Settings(duration=horizon, dt=dt)), s_eq
+    d_w = weight_diagonals(loop)[1]
+    scaled = Sinusoid(d_w * disturbance.cos_part, d_w * disturbance.sin_part, disturbance.omega)
+    return Simulator(driven(loop, scaled), Settings(duration=horizon, dt=dt, jit=jit)), s_eq
 
 
 def gain_of(traj: Trajectory, k: int = -1) -> float:
@@ -148,6 +109,7 @@ def sharpest_from_rest(
     *,
     tolerance: float = 0.01,
     longest: float = 1280.0,
+    jit: bool = False,
 ) -> tuple[float, Trajectory, bool]:
     """The run from rest (:func:`rest_simulator`) under :func:`peak_sinusoid`, its horizon doubled from ``horizon``
     until the measured gain has converged: from rest the transient costs a fixed energy, so
@@ -156,9 +118,9 @@ def sharpest_from_rest(
     of the gain (within about ``tolerance`` of the run's sharpness), or at ``longest`` seconds.
     A longer run that stops (the disturbance, a constant target velocity say, drives the arm to
     a singularity) is dropped for the last one that completed. Each longer run continues the last
-    (:meth:`Simulator.continued`): the horizons cost the longest alone. Returns the gain of
+    (:meth:`Simulator.continued`): the horizons cost the longest alone; compiled under ``jit``. Returns the gain of
     the run kept, that run, and whether its gain had converged."""
-    simulator, s_eq = rest_simulator(loop, lin, peak_sinusoid(lin), horizon)
+    simulator, s_eq = rest_simulator(loop, lin, peak_sinusoid(lin), horizon, jit=jit)
     kept: tuple[float, Trajectory] | None = None
     while True:
         traj = simulator.run(s_eq) if kept is None else simulator.continued(s_eq, kept[1], horizon)
@@ -259,11 +221,12 @@ class FromRest:
     converged: bool
 
 
-def from_rest(loop: ClosedLoop, q0: np.ndarray) -> FromRest:
-    """:func:`linearize` at ``q0`` and :func:`sharpest_from_rest` (``ValueError`` when the loop
-    has no equilibrium near ``q0``)."""
+def from_rest(loop: ClosedLoop, q0: np.ndarray, jit: bool = False) -> FromRest:
+    """:func:`linearize` at ``q0`` and :func:`sharpest_from_rest` (compiled under ``jit``; ``ValueError`` when
+    the loop has no equilibrium near ``q0``)."""
     lin = linearize(loop, q0)
-    return FromRest(lin.peak_gain, lin.peak_frequency, lin.hinf, *sharpest_from_rest(loop, lin))
+    return FromRest(lin.peak_gain, lin.peak_frequency, lin.hinf, *sharpest_from_rest(loop, lin, jit=jit))
+
 
 def _linearization(rate, output, z, w, t, q_eq: np.ndarray, weights: tuple[np.ndarray, np.ndarray]) -> Linearization:
     """The Jacobians of ``dz/dt = rate(z, w)`` and ``x = output(z, w)`` at ``z = 0, w = 0``, as a
@@ -280,26 +243,6 @@ def _linearization(rate, output, z, w, t, q_eq: np.ndarray, weights: tuple[np.nd
     reduced = observable_quotient(system)
     peak, omega, direction = frequency_peak(reduced)
     return Linearization(system, reduced, q_eq, hinf_norm(reduced), peak, omega, direction)
-
-
-@dataclass
-class DrivenPlanarLoop(DisturbanceDriven, PlanarLoop):
-    """The reduced planar loop driven by ``w(t) = [tau_d; v_o]``: the target's horizontal
-    position ``o`` is a state moved by ``v_o``."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.o = cs.SX.sym("o", TASK)
-        self.state = cs.vertcat(self.state, self.o)
-        self.n_state += TASK
-
-    @cached_property
-    def target_position(self):
-        return self.o
-
-    @cached_property
-    def state_rate(self):
-        return cs.vertcat(super().state_rate, self.w[self.robot.n :])
 
 
 def _planar_rest(loop: PlanarLoop) -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,7 @@ and loop structure, and pass a design's numbers (:func:`parameter_vector`) at ru
 
     p = [k_xi (n); k_c (6); k_e (6); w_pc; w_rc; w_pe; w_re; p_d (3); vec(R_d) (9, column-major);
          radius; (mass_scale; payload mass; payload com (3); payload inertia (6)) with a plant;
-         (k_i (n)) with integral action]
+         (k_i (n)) with integral action; (cos part (n + 6); sin part (n + 6); omega) driven by a sinusoid]
 
 so that the generated code, and the compiled library cached by the hash of its source, does
 not depend on the design: another design of the same arm, another target radius, another
@@ -21,10 +21,12 @@ from __future__ import annotations
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 from functools import cached_property
+from typing import Any
 
 import casadi as cs
 import numpy as np
 
+from dvfc.models.driven import DrivenTargetLoop, Sinusoid
 from dvfc.models.lie import SE3, SO3, Matrix, hat, vee
 from dvfc.models.loop import ClosedLoop, Gains, Weights
 from dvfc.models.robot import Payload, Robot
@@ -38,8 +40,14 @@ _symbolic: OrderedDict[tuple, tuple[tuple, ClosedLoop]] = OrderedDict()
 
 def parametrised(loop: ClosedLoop) -> bool:
     """Whether the loop's design enters its functions as :func:`parameter_vector`: the paper's
-    loop (the reduced planar loop keeps its numbers in its expressions)."""
-    return type(loop) is ClosedLoop
+    loop, and the paper's loop driven by a :class:`~dvfc.models.driven.Sinusoid` (the run from rest), whose
+    numbers enter too (the reduced planar loop keeps its numbers in its expressions)."""
+    return type(loop) is ClosedLoop or (type(loop) is DrivenTargetLoop and loop.drive is not None)
+
+
+def _drive_size(loop: ClosedLoop) -> int:
+    """Entries of ``p`` for the loop's sinusoid: ``2 (n + 6) + 1`` when driven by one, else none."""
+    return 2 * (loop.robot.n + loop.task_dim) + 1 if isinstance(loop, DrivenTargetLoop) else 0
 
 
 PLANT_ENTRIES = 11
@@ -94,9 +102,10 @@ def parameter_vector(loop: ClosedLoop, inputs: Inputs | None = None) -> np.ndarr
     rotation = np.asarray(cs.DM(r.rotation.matrix), dtype=float).ravel(order="F")
     extra = (inputs or Inputs.of(loop.target, loop.plant)).vector(loop.plant is not None)
     k_i = [] if g.k_i is None else [g.k_i]
-    return np.concatenate([g.k_xi, g.k_c, g.k_e, loop.weights.as_array(), translation, rotation, extra, *k_i]).astype(
-        float
-    )
+    drive = [loop.drive.vector()] if isinstance(loop, DrivenTargetLoop) and loop.drive is not None else []
+    return np.concatenate(
+        [g.k_xi, g.k_c, g.k_e, loop.weights.as_array(), translation, rotation, extra, *k_i, *drive]
+    ).astype(float)
 
 
 @dataclass(frozen=True)
@@ -158,6 +167,9 @@ def _structure(loop: ClosedLoop) -> tuple:
     ``dataclasses.replace`` of a loop keeps them) and the flags."""
     objects = (loop.robot, loop.camera, loop.target, loop.inputs, loop.plant, loop.plan, *loop.disturbances)
     flags: tuple = (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance)
+    if isinstance(loop, DrivenTargetLoop):  # a new target at rest each time a loop is driven: its pose counts
+        objects = tuple(o for o in objects if o is not loop.target)
+        flags = (*flags, tuple(np.asarray(cs.DM(loop.target.start.as_matrix())).ravel()))
     if loop.integral or loop.friction is not None or loop.compensation is not None:
         numbers = (None if v is None else tuple(map(float, v)) for v in (loop.friction, loop.compensation))
         flags = (*flags, loop.integral, loop.integral_start, *numbers)
@@ -177,15 +189,19 @@ def symbolic(loop: ClosedLoop) -> ClosedLoop:
         return _symbolic[key][1]
     n, task = loop.robot.n, loop.task_dim
     plant = loop.plant is not None
-    p = cs.SX.sym("p", parameter_count(n, plant, loop.integral))
+    driving = _drive_size(loop)
+    p = cs.SX.sym("p", parameter_count(n, plant, loop.integral) + driving)
     k_xi, k_c, k_e = p[:n], p[n : n + task], p[n + task : n + 2 * task]
     w = p[n + 2 * task : n + 2 * task + 4]
     position = p[n + 2 * task + 4 : n + 2 * task + 7]
     end = n + 2 * task + 16
     rotation = cs.reshape(p[n + 2 * task + 7 : end], 3, 3)
+    changes: dict[str, Any] = {"drive": Sinusoid.of(p[p.shape[0] - driving :], n + task)} if driving else {}
+    k_i = p[p.shape[0] - driving - n : p.shape[0] - driving] if loop.integral else None
     model = replace(
         loop,
-        gains=Gains(k_xi, k_c, k_e, p[-n:] if loop.integral else None),
+        **changes,
+        gains=Gains(k_xi, k_c, k_e, k_i),
         weights=Weights(w[0], w[1], w[2], w[3]),
         reference=SE3(position, SO3(rotation)),
         target=replace(loop.target, radius=p[end]),

@@ -371,13 +371,14 @@ def channels_text(point: dict, planar: bool) -> str:
 
 
 def lower_bound_record(loop: ClosedLoop, s0: np.ndarray, point: CertificatePoint,
-                       rest: FromRest | None = None) -> dict[str, Any]:  # fmt: skip
+                       rest: FromRest | None = None, jit: bool = False) -> dict[str, Any]:  # fmt: skip
     """Lower bounds on the true L2 gain and how far the certificates sit above them: the
     linearisation's peak gain and the gain of the run from rest that ``verify`` checks Theorem 2 on
     (:func:`dvfc.analysis.linearize.sharpest_from_rest`, driven to its sharpness; ``rest``: both,
-    when already made by :func:`dvfc.analysis.linearize.from_rest`): the fields of ``point`` they set."""
+    when already made by :func:`dvfc.analysis.linearize.from_rest`; compiled under ``jit``): the fields of
+    ``point`` they set."""
     try:
-        rest = from_rest(loop, s0[: loop.robot.n]) if rest is None else rest
+        rest = from_rest(loop, s0[: loop.robot.n], jit) if rest is None else rest
     except ValueError as exc:
         return {"gamma_lower": None, "lower_bound_reason": str(exc)}
     nonlinear, converged = rest.gain, rest.converged
@@ -490,7 +491,7 @@ def certificate_result(
     tight = tight_gamma_planar(point) if planar else tight_gamma(point, case.reference)
     record = point_record(point, cert, tight if cert.gamma is not None else None)
     if lower_bounds:
-        record = replace(record, **lower_bound_record(case.loop, case.s0, record, rest))
+        record = replace(record, **lower_bound_record(case.loop, case.s0, record, rest, case.settings.jit))
     record = replace(record, envelope=envelope_record(case))
     if (coverage := integral_coverage(point)) is not None:
         record = replace(record, integral=coverage)

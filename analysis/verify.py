@@ -360,7 +360,7 @@ def theorem_2(
         return [*claims, Claim("dissipation inequality at the certified gamma", "Theorem 2, (44)-(45)",
                                float("nan"), "a gamma from P >= 0", False, "P >= 0 holds for no gamma")]  # fmt: skip
     try:
-        rest = from_rest(loop, s0[: loop.robot.n]) if rest is None else rest
+        rest = from_rest(loop, s0[: loop.robot.n], settings.jit) if rest is None else rest
     except ValueError as exc:  # no configuration puts the camera at the reference (n < 6)
         return [*claims, Claim("dissipation inequality at the certified gamma from x(0) = 0", "Theorem 2, (44)-(45)",
                                float("nan"), "a run from the equilibrium", None, f"not run: {exc}",

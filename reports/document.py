@@ -267,7 +267,7 @@ def assemble(
 def _from_rest(case: Case) -> FromRest | str:
     """The case's run from rest (:func:`dvfc.analysis.linearize.from_rest`), or why there is none."""
     try:
-        return from_rest(case.loop, case.s0[: case.loop.robot.n])
+        return from_rest(case.loop, case.s0[: case.loop.robot.n], case.settings.jit)
     except ValueError as exc:
         return str(exc)
 

@@ -11,9 +11,11 @@ import pytest
 
 from dvfc.analysis import compile as compile_module
 from dvfc.analysis import parametric
+from dvfc.analysis.linearize import linearize, peak_sinusoid, rest_simulator
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
 from dvfc.analysis.simulate import Simulator, dynamics_function
+from dvfc.models.driven import Sinusoid
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Gains, Weights
 
@@ -133,3 +135,24 @@ def test_compiled_once_for_two_designs(monkeypatch):
         reference_continuous, reference_sampled = both(design)
         assert_same_run(sampled, reference_sampled, 1e-9)
         assert np.abs(continuous["state"] - reference_continuous["state"]).max() < 1e-8
+
+
+def test_a_run_from_rest_takes_its_sinusoid_as_an_input(monkeypatch):
+    """The run from rest under the linearisation's worst sinusoid (the lower bound, Theorem 2 from rest) with the
+    sinusoid's numbers and the design entries of ``p`` equals the run built with its numbers, to the round-off of
+    what is built from the target's velocity; another sinusoid and another design of the arm reuse the one
+    symbolic driven loop."""
+    loop, s0, _ = build_loop()
+    lin = linearize(loop, s0[: loop.robot.n])
+    sinusoid = peak_sinusoid(lin)
+    simulator, s_eq = rest_simulator(loop, lin, sinusoid, 0.5)
+    other = Sinusoid(0.5 * sinusoid.sin_part, 2.0 * sinusoid.cos_part, 3.0)
+    model = simulator.model
+    assert model.parameters is not None and simulator.design[0][-1] == sinusoid.omega
+    assert rest_simulator(other_design(loop), lin, other, 0.5)[0].model is model
+    runs = [simulator.run(s_eq), rest_simulator(loop, lin, other, 0.5)[0].run(s_eq)]
+    per_design(monkeypatch)
+    for run, drive in zip(runs, (sinusoid, other), strict=True):
+        reference = rest_simulator(loop, lin, drive, 0.5)[0]
+        assert reference.model.parameters is None
+        assert_same_run(run, reference.run(s_eq), 1e-12)

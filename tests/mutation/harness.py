@@ -936,9 +936,17 @@ MUTATIONS = (
         'compiled-integral-gain-zeroed',
         'the compiled loop reads K_I as zero from its parameter vector',
         'analysis/parametric.py',
-        (('gains=Gains(k_xi, k_c, k_e, p[-n:] if loop.integral else None),',
-          'gains=Gains(k_xi, k_c, k_e, p[-n:] * 0 if loop.integral else None),'),),
+        (('k_i = p[p.shape[0] - driving - n : p.shape[0] - driving] if loop.integral else None',
+          'k_i = p[p.shape[0] - driving - n : p.shape[0] - driving] * 0 if loop.integral else None'),),
         ('tests/test_integral.py::test_fact_20_1_the_augmented_storage_keeps_the_supply_of_43',),
+    ),
+    Mutation(
+        'compiled-rest-run-sinusoid-parts-swapped',
+        "the run from rest reads its worst sinusoid's cosine and sine parts swapped from the parameter vector",
+        'models/driven.py',
+        (('return Sinusoid(vector[:size], vector[size : 2 * size], vector[2 * size])',
+          'return Sinusoid(vector[size : 2 * size], vector[:size], vector[2 * size])'),),
+        ('tests/test_parametric.py::test_a_run_from_rest_takes_its_sinusoid_as_an_input',),
     ),
     # A user's URDF, calibration file and units; the start's inverse kinematics.
     Mutation(
