@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import certify, tight_gamma
 from dvfc.analysis.cli import app
-from dvfc.analysis.linearize import linearize
+from dvfc.analysis.linearize import from_rest, linearize
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario
 from dvfc.analysis.verify import theorem_2
 from dvfc.analysis.windows import gain_windows
@@ -78,10 +78,11 @@ def test_weighted_theorem_2_holds_from_rest_and_bites(weighted):
     bound, and at 0.95 of that bound the measured gain fails (the check is sharp)."""
     case, gamma = weighted["case"], weighted["cert"].gamma
     short = replace(case.settings, duration=2.0, jit=False)
-    claims = theorem_2(case.loop, case.s0, short, gamma)
+    rest = from_rest(case.loop, case.s0[:6])  # the run from rest both checks read
+    claims = theorem_2(case.loop, case.s0, short, gamma, rest)
     assert all(c.passed for c in claims), [c.to_json() for c in claims if not c.passed]
     assert any("|z|^2" in c.name for c in claims)
-    below = theorem_2(case.loop, case.s0, short, 0.95 * weighted["lin"].peak_gain)
+    below = theorem_2(case.loop, case.s0, short, 0.95 * weighted["lin"].peak_gain, rest)
     gain = next(c for c in below if c.name.startswith("measured gain"))
     assert gain.passed is False
 
