@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from fractions import Fraction
@@ -53,6 +54,7 @@ import scipy.linalg
 
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.linearize import _quaternion_product, equilibrium_configuration
+from dvfc.analysis.parametric import parameter_vector, symbolic
 from dvfc.analysis.simulate import Settings
 from dvfc.models.camera import Camera
 from dvfc.models.errors import PlantErrors, controller_features, true_features
@@ -306,20 +308,40 @@ def _solve(residual: cs.Function, y0: np.ndarray, iterations: int = 60) -> tuple
     return y, float(np.linalg.norm(np.asarray(residual(y)[0])))
 
 
-def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | None = None) -> HeldLinearization:
-    """Linearise the sampled loop at its equilibrium, by CasADi's automatic differentiation: the plant
-    the controller's model (configuration by Newton from ``q0``, the camera at the reference), or
-    ``plant`` as declared, its equilibrium found by Newton from the model's (a mount error or a
-    payload moves it; :data:`EQUILIBRIUM_TOLERANCE`), its features those of its true camera."""
-    plant = plant or DeclaredPlant()
-    q_nom = equilibrium_configuration(loop, q0)
-    n, task = loop.robot.n, loop.task_dim
-    model = rest_model(loop, plant.robot)
+@dataclass(frozen=True)
+class HeldFunctions:
+    """Fact 14's linearisation of one loop structure as functions of numbers: ``held`` the rates, the law, the
+    observer's inputs and their Jacobians at ``(z, tau, e, o, t, point, extra)``, ``at_rest`` the residual of the
+    loop at rest and its Jacobian at ``(y, point, extra)`` (:func:`_equilibrium_residual`); ``extra`` the design
+    and the plant's masses (:func:`dvfc.analysis.parametric.parameter_vector`, for a loop that takes them as
+    inputs) and the true camera's :meth:`~dvfc.models.errors.PlantErrors.camera_vector` (with camera errors)."""
+
+    held: cs.Function
+    at_rest: cs.Function
+
+
+HELD_CACHE = 8
+"""Linearisations' functions kept (least recently used dropped): one per arm, loop structure and camera kind."""
+
+_held: OrderedDict[tuple, tuple[ClosedLoop, HeldFunctions]] = OrderedDict()
+
+
+def held_functions(rest: ClosedLoop, camera: bool) -> HeldFunctions:
+    """:class:`HeldFunctions` of the loop at rest ``rest`` (:func:`rest_model`), with the true camera an input
+    when ``camera``: built once per structure (:func:`dvfc.analysis.parametric.symbolic`) and shared by every
+    design, payload, mass scale and camera of it, so that a campaign draw or a margin point linearises by
+    evaluating them; a loop that keeps its numbers (the planar one) builds its own."""
+    model = symbolic(rest)
+    key = (id(model), camera)
+    if model.parameters is not None and key in _held and _held[key][0] is model:
+        _held.move_to_end(key)
+        return _held[key][1]
+    n, task = model.robot.n, model.task_dim
     tau, e, observer = model.hold[:n], model.hold[n : n + task], model.hold[n + task :]
     dq, dqd, dp, dth = cs.SX.sym("dq", n), cs.SX.sym("dqd", n), cs.SX.sym("dp", 3), cs.SX.sym("dth", 3)
-    dz_i = cs.SX.sym("dz_I", n if loop.integral else 0)
+    dz_i = cs.SX.sym("dz_I", n if model.integral else 0)
     z = cs.vertcat(dq, dqd, dp, dth, dz_i)
-    point = cs.SX.sym("point", loop.n_state)  # the state linearised at
+    point = cs.SX.sym("point", model.n_state)  # the state linearised at
     o = 2 * n + 3
     state = cs.vertcat(point[: 2 * n] + cs.vertcat(dq, dqd), point[2 * n : o] + dp,
                        _quaternion_product(point[o : o + 4], cs.vertcat(1, dth / 2)),
@@ -329,34 +351,60 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
     # the law and the observer's inputs at the sample read neither the held torque nor those inputs
     at_sample = cs.substitute([model.tau, cs.vertcat(model.camera_velocity, model.u[n + task : n + 2 * task])],
                               [model.hold], [cs.vertcat(cs.DM.zeros(n), e, cs.DM.zeros(2 * task))])  # fmt: skip
-    camera, differs = plant.camera_errors(loop.camera), plant.differs(loop.camera)
-    if camera is None:
+    extra = [] if model.parameters is None else [model.parameters]
+    if not camera:
         e_image = model.e_e_image
     else:  # the true camera's image read with the nominal intrinsics (models/errors.py)
-        pixels = true_features(loop.camera, model.relative_pose, cs.DM(camera))[1]
-        e_image = model.image_estimate(controller_features(loop.camera, pixels))
+        vector = cs.SX.sym("camera", PlantErrors.none(model.camera, n).camera_vector(model.camera).size)
+        pixels = true_features(model.camera, model.relative_pose, vector)[1]
+        e_image = model.image_estimate(controller_features(model.camera, pixels))
+        extra.append(vector)
     exprs = tuple(cs.substitute([rate, *at_sample, model.e_e, e_image, model.xi], [model.state], [state]))
     rate, law, inputs, e_exact, e_image, xi = exprs
-    s_eq = rest_state(loop, q_nom)
-    redundant = n > task
-    if differs or redundant:
-        at_rest = _equilibrium_residual(loop, s_eq, (z, point, model.hold, model.t), exprs)
-    y_eq = np.zeros(loop.n_state - n - 1)  # [dq; dp; dtheta; dz_I] about the model's equilibrium
-    if differs:
-        s_eq, y_eq = _plant_equilibrium(loop, s_eq, at_rest)
-    jac = cs.Function("held", [z, tau, e, observer, model.t, point],
+    jac = cs.Function("held", [z, tau, e, observer, model.t, point, *extra],
                       [law, rate, cs.jacobian(rate, z), cs.jacobian(rate, tau), cs.jacobian(rate, e),
                        cs.jacobian(rate, observer), cs.jacobian(law, z), cs.jacobian(law, e), cs.jacobian(inputs, z),
                        cs.jacobian(inputs, e), cs.jacobian(e_exact, z), cs.jacobian(e_image, z), cs.jacobian(xi, z),
                        cs.jacobian(xi, e), e_exact, e_image, inputs, xi])  # fmt: skip
-    zero_z, zero_o = np.zeros(z.shape[0]), np.zeros(2 * task)
+    functions = HeldFunctions(jac, _equilibrium_residual(model, (z, point, model.hold, model.t, extra), exprs))
+    if model.parameters is not None:
+        _held[key] = (model, functions)  # the model held: its id stays its own while cached
+        if len(_held) > HELD_CACHE:
+            _held.popitem(last=False)
+    return functions
+
+
+def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | None = None) -> HeldLinearization:
+    """Linearise the sampled loop at its equilibrium, by CasADi's automatic differentiation: the plant
+    the controller's model (configuration by Newton from ``q0``, the camera at the reference), or
+    ``plant`` as declared, its equilibrium found by Newton from the model's (a mount error or a
+    payload moves it; :data:`EQUILIBRIUM_TOLERANCE`), its features those of its true camera. The functions are
+    the structure's (:func:`held_functions`), evaluated at this design's and plant's numbers."""
+    plant = plant or DeclaredPlant()
+    q_nom = equilibrium_configuration(loop, q0)
+    n, task = loop.robot.n, loop.task_dim
+    rest = rest_model(loop, plant.robot)
+    camera, differs = plant.camera_errors(loop.camera), plant.differs(loop.camera)
+    functions = held_functions(rest, camera is not None)
+    p = parameter_vector(rest)
+    extra = ([] if p is None else [p]) + ([] if camera is None else [camera])
+    s_eq = rest_state(loop, q_nom)
+    redundant = n > task
+    y_eq = np.zeros(loop.n_state - n - 1)  # [dq; dp; dtheta; dz_I] about the model's equilibrium
+    if differs or redundant:
+        y = cs.MX.sym("y", y_eq.size)
+        at_rest = cs.Function("equilibrium", [y], functions.at_rest.call([y, cs.DM(s_eq), *map(cs.DM, extra)]))
+    if differs:
+        s_eq, y_eq = _plant_equilibrium(loop, s_eq, at_rest)
+    zero_z, zero_o = np.zeros(loop.n_state - 1), np.zeros(2 * task)
+    jac = lambda tau, e, o: functions.held(zero_z, tau, e, o, 0.0, s_eq, *extra)  # noqa: E731
     e_used = np.zeros(task)
     if differs:  # e at the plant's equilibrium: the mode's (exact (15), or (21))
-        values = jac(zero_z, np.zeros(n), e_used, zero_o, 0.0, s_eq)
+        values = jac(np.zeros(n), e_used, zero_o)
         e_used = np.asarray(values[15 if loop.mode == "image" else 14]).ravel()
-    tau_eq = np.asarray(jac(zero_z, np.zeros(n), e_used, zero_o, 0.0, s_eq)[0]).ravel()
-    o_eq = np.asarray(jac(zero_z, tau_eq, e_used, zero_o, 0.0, s_eq)[16]).ravel()
-    values = [np.asarray(m) for m in jac(zero_z, tau_eq, e_used, o_eq, 0.0, s_eq)]
+    tau_eq = np.asarray(jac(np.zeros(n), e_used, zero_o)[0]).ravel()
+    o_eq = np.asarray(jac(tau_eq, e_used, zero_o)[16]).ravel()
+    values = [np.asarray(m) for m in jac(tau_eq, e_used, o_eq)]
     residual = max(np.abs(values[1]).max(), np.abs(values[17]).max() if loop.integral else 0.0)
     if residual > 1e-8:
         raise ValueError(f"the linearisation point is not an equilibrium (|dz/dt| = {residual:.2e})")
@@ -374,11 +422,13 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
                              self_motion_equilibria=equilibria, tangent=tangent)  # fmt: skip
 
 
-def _equilibrium_residual(loop: ClosedLoop, s_nom: np.ndarray, symbols: tuple, exprs: tuple) -> cs.Function:
-    """``y -> (R, dR/dy)``: the rates of the sampled loop at rest (``qd = 0``; the joints' accelerations, the
-    observer's rate and, with integral action, ``xi``) with the held inputs the law, the mode's ``e`` and the
-    observer's inputs make there, at ``y = [dq; dp; dtheta; dz_I]`` about ``s_nom`` (zero at an equilibrium)."""
-    z, point, hold, _ = symbols
+def _equilibrium_residual(loop: ClosedLoop, symbols: tuple, exprs: tuple) -> cs.Function:
+    """``(y, point, extra) -> (R, dR/dy)``: the rates of the sampled loop at rest (``qd = 0``; the joints'
+    accelerations, the observer's rate and, with integral action, ``xi``) with the held inputs the law, the mode's
+    ``e`` and the observer's inputs make there, at ``y = [dq; dp; dtheta; dz_I]`` about ``point`` (zero at an
+    equilibrium; the target at rest: its radius, an entry of ``extra`` for a parametric loop, is zero, and ``t`` is
+    set to 0)."""
+    z, point, hold, t, extra = symbols
     rate, law, inputs, e_exact, e_image, xi = exprs
     n = loop.robot.n
     e = hold[n : n + loop.task_dim]
@@ -387,14 +437,14 @@ def _equilibrium_residual(loop: ClosedLoop, s_nom: np.ndarray, symbols: tuple, e
     rate = cs.substitute(rate, hold, cs.vertcat(law, e_used, inputs))
     residual = cs.vertcat(rate[n : 2 * n + 6], xi if loop.integral else cs.DM.zeros(0))
     y = cs.vertcat(z[:n], z[2 * n :])  # at rest: dqd = 0
-    at_rest = cs.substitute(residual, cs.vertcat(z[n : 2 * n], point), cs.vertcat(cs.DM.zeros(n), cs.DM(s_nom)))
-    return cs.Function("equilibrium", [y], [at_rest, cs.jacobian(at_rest, y)])
+    at_rest = cs.substitute(residual, cs.vertcat(z[n : 2 * n], t), cs.DM.zeros(n + 1))
+    return cs.Function("equilibrium", [y, point, *extra], [at_rest, cs.jacobian(at_rest, y)])
 
 
 def _plant_equilibrium(loop: ClosedLoop, s_nom: np.ndarray, residual: cs.Function) -> tuple[np.ndarray, np.ndarray]:
     """The state at rest of the sampled loop with the plant as declared (``residual``:
-    :func:`_equilibrium_residual`), by :func:`_solve` from the model's equilibrium ``s_nom``, and its ``y``;
-    :class:`NoEquilibriumError` when none is found."""
+    :func:`_equilibrium_residual` about ``s_nom``), by :func:`_solve` from the model's equilibrium ``s_nom``, and
+    its ``y``; :class:`NoEquilibriumError` when none is found."""
     y_eq, size = _solve(residual, np.zeros(residual.size1_in(0)))
     if not size < EQUILIBRIUM_TOLERANCE:
         raise NoEquilibriumError(f"no equilibrium of the plant as declared found near the model's (Newton's "

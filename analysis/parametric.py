@@ -164,16 +164,27 @@ class InertialPlant:
 
 def _structure(loop: ClosedLoop) -> tuple:
     """What a loop's functions depend on besides its design: the objects (held by identity:
-    ``dataclasses.replace`` of a loop keeps them) and the flags."""
-    objects = (loop.robot, loop.camera, loop.target, loop.inputs, loop.plant, loop.plan, *loop.disturbances)
-    flags: tuple = (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance)
-    if isinstance(loop, DrivenTargetLoop):  # a new target at rest each time a loop is driven: its pose counts
-        objects = tuple(o for o in objects if o is not loop.target)
-        flags = (*flags, tuple(np.asarray(cs.DM(loop.target.start.as_matrix())).ravel()))
+    ``dataclasses.replace`` of a loop keeps them) and the flags. The target and the plant enter by value: a
+    target at rest is made anew for every run from rest and every linearisation, a plant for every draw of its
+    masses (which are entries of ``p``: the plant's arm is what counts)."""
+    objects = (loop.robot, loop.camera, loop.inputs, loop.plan, *loop.disturbances)
+    flags: tuple = (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance,
+                    _target_key(loop.target), None if loop.plant is None else _arm_key(loop.plant))  # fmt: skip
     if loop.integral or loop.friction is not None or loop.compensation is not None:
         numbers = (None if v is None else tuple(map(float, v)) for v in (loop.friction, loop.compensation))
         flags = (*flags, loop.integral, loop.integral_start, *numbers)
     return objects, flags
+
+
+def _target_key(target: TargetMotion) -> tuple:
+    """The target's motion but its radius (an entry of ``p``), by value."""
+    start = tuple(np.asarray(cs.DM(target.start.as_matrix())).ravel())
+    return start, float(target.period), tuple(target.normal), tuple(target.spin_axis), float(target.spin_rate)
+
+
+def _arm_key(robot: Robot) -> tuple:
+    """A plant's arm as :func:`_same_arm` compares it: its URDF, link and armature (its masses are in ``p``)."""
+    return robot.urdf, robot.frame, tuple(robot.armature)
 
 
 def symbolic(loop: ClosedLoop) -> ClosedLoop:

@@ -17,7 +17,8 @@ import pytest
 import scipy
 from typer.testing import CliRunner
 
-from dvfc.analysis import multirate
+import dvfc
+from dvfc.analysis import multirate, parametric
 from dvfc.analysis.cli import app
 from dvfc.analysis.multirate import (
     DeclaredPlant,
@@ -32,6 +33,7 @@ from dvfc.analysis.multirate import (
 from dvfc.analysis.sampled import SampledSimulator
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, Scenario, build, load
 from dvfc.analysis.simulate import Trajectory
+from dvfc.models.robot import Payload, Robot
 
 from helpers import default_without_integral
 from loop_reference import linearised_run
@@ -353,3 +355,36 @@ def test_a_payload_on_the_seven_joint_arm_moves_its_equilibria_with_the_integral
     loop, s0, settings = build(Scenario.model_validate(data), XARM7_CELL.parent)
     record = implemented_record(loop, s0, settings)
     assert not record["applies"] and "no equilibrium of the plant as declared" in record["reason"]
+
+
+LINEARISATION_ROUND_OFF = 1e-12
+"""Relative difference allowed between fact 14's matrices evaluated from the structure's functions (the design and
+the plant's masses inputs) and built with the numbers folded in: round-off of a different order of operations."""
+
+
+def test_a_draws_plant_linearises_on_the_structures_functions(monkeypatch):
+    """Fact 14 for a plant as drawn (payload, mass scale, camera mount) evaluates the functions of the arm's
+    structure, built once (:func:`multirate.held_functions`, the same object for every draw), and gives the
+    matrices and equilibrium of the linearisation built with the draw's numbers, to
+    :data:`LINEARISATION_ROUND_OFF`."""
+    case = dvfc.load(XARM7_CELL)
+    loop, q0, errors = case.loop, case.s0[: case.loop.robot.n], case.settings.errors
+    r = case.settings.plant or loop.robot
+    moved = [replace(errors, mount_xyz=np.asarray(errors.mount_xyz) + np.array(d)) for d in ([0.002, -0.001, 0.0],
+                                                                                             [0.0, 0.001, 0.003])]
+    plants = [DeclaredPlant(Robot(r.urdf, r.frame, r.mount, r.armature, Payload(mass, (0.0, 0.0, 0.02)), scale),
+                            drawn) for mass, scale, drawn in ((0.3, 1.0, moved[0]), (0.7, 1.05, moved[1]))]  # fmt: skip
+    built: list = []
+    original = multirate.held_functions
+    monkeypatch.setattr(multirate, "held_functions", lambda *a: built.append(original(*a)) or built[-1])
+    evaluated = [multirate.held_linearization(loop, q0, plant) for plant in plants]
+    assert built[0] is built[1]
+    monkeypatch.setattr(parametric, "parametrised", lambda loop: False)
+    for lin, plant in zip(evaluated, plants, strict=True):
+        reference = multirate.held_linearization(loop, q0, plant)
+        pairs = {name: (getattr(lin, name), getattr(reference, name)) for name in (
+            "a", "b_tau", "b_e", "b_o", "f", "f_e", "o", "o_e", "c", "c_image", "xi", "xi_e", "state", "tau_eq")}
+        pairs["tangent"] = (lin.tangent @ lin.tangent.T, reference.tangent @ reference.tangent.T)  # a basis' sign
+        for name, (x, y) in pairs.items():
+            assert np.abs(x - y).max() <= LINEARISATION_ROUND_OFF * max(1.0, np.abs(y).max()), name
+    assert not np.allclose(evaluated[0].a, evaluated[1].a)  # the draws' plants differ

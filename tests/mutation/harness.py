@@ -941,6 +941,14 @@ MUTATIONS = (
         ('tests/test_integral.py::test_fact_20_1_the_augmented_storage_keeps_the_supply_of_43',),
     ),
     Mutation(
+        'fact-14-draw-linearised-at-the-models-masses',
+        "fact 14 for a drawn plant evaluates the structure's functions at the controller model's masses",
+        'analysis/multirate.py',
+        (('    p = parameter_vector(rest)\n',
+          '    p = parameter_vector(rest if rest.plant is None else replace(rest, plant=loop.robot))\n'),),
+        ('tests/test_multirate.py::test_a_draws_plant_linearises_on_the_structures_functions',),
+    ),
+    Mutation(
         'compiled-rest-run-sinusoid-parts-swapped',
         "the run from rest reads its worst sinusoid's cosine and sine parts swapped from the parameter vector",
         'models/driven.py',
