@@ -116,6 +116,38 @@ def interrupt_aware() -> Iterator[None]:
         _SIGINT.clear()
 
 
+_IN_TASK = threading.Event()
+
+
+def remember_interrupts() -> None:
+    """In a worker process (its pool's initializer): Ctrl-C, or the parent's SIGINT when it stops, is
+    remembered as within :func:`interrupt_aware` and, the first time and within a :func:`worker_task`, raises
+    ``KeyboardInterrupt``, so that a run whose native code swallows it stops as interrupted instead of being
+    recorded as failed and followed by the next; an idle worker, or a second signal, raises nothing (the pool
+    then stops the worker)."""
+
+    def handler(signum, frame):
+        first = not _SIGINT.is_set()
+        _SIGINT.set()
+        if first and _IN_TASK.is_set():
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
+
+
+@contextmanager
+def worker_task() -> Iterator[None]:
+    """One task of a worker process (:func:`remember_interrupts`): not started once interrupted, and Ctrl-C
+    raises ``KeyboardInterrupt`` within it."""
+    raise_if_interrupted()
+    _IN_TASK.set()
+    try:
+        raise_if_interrupted()  # a signal between the check above and the flag
+        yield
+    finally:
+        _IN_TASK.clear()
+
+
 def read_log(path: Path) -> list[dict]:
     """The entries of a JSON-lines log of finished runs (none when it does not exist); a last
     line cut short by an interruption is ignored."""

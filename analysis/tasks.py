@@ -7,14 +7,35 @@ a second while a result is awaited (for progress that counts work done outside t
 
 from __future__ import annotations
 
+import os
+import signal
 from collections.abc import Callable, Generator, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import wait as futures_wait
-from contextlib import ExitStack
+from contextlib import ExitStack, suppress
 from typing import Any
+
+from dvfc.analysis.output import remember_interrupts, worker_task
 
 POLL_SECONDS = 0.5
 """How often ``poll()`` is called while a result is awaited."""
+
+
+def _unless_interrupted(function: Callable, *arguments: Any) -> Any:
+    """``function(*arguments)`` in a worker process as a :func:`~dvfc.analysis.output.worker_task`: a task queued
+    before an interruption is not started, and Ctrl-C stops a running one within its step."""
+    with worker_task():
+        return function(*arguments)
+
+
+def _interrupt_workers(pool: ProcessPoolExecutor) -> bool:
+    """SIGINT to each of ``pool``'s worker processes (when the iterator stops early: Ctrl-C, or its consumer done
+    with it), so that their tasks stop within a step instead of running to their end before the pool shuts down;
+    False (the exception propagates)."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        with suppress(ProcessLookupError):
+            os.kill(process.pid, signal.SIGINT)
+    return False
 
 
 def run_tasks(
@@ -60,10 +81,11 @@ def run_tasks(
                     return True
                 return False
         else:
-            pool = ProcessPoolExecutor(workers)
+            pool = ProcessPoolExecutor(workers, initializer=remember_interrupts)
             stack.callback(lambda: pool.shutdown(cancel_futures=True))
+            stack.push(lambda kind, *_: kind is not None and _interrupt_workers(pool))  # runs before the shutdown
             window = 2 * workers
-            submit = lambda a: pool.submit(function, *lead, *a)  # noqa: E731
+            submit = lambda a: pool.submit(_unless_interrupted, function, *lead, *a)  # noqa: E731
             wait = lambda future: bool(futures_wait([future], timeout=POLL_SECONDS).not_done)  # noqa: E731
 
         def result(future):

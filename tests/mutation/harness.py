@@ -941,6 +941,22 @@ MUTATIONS = (
         ('tests/test_integral.py::test_fact_20_1_the_augmented_storage_keeps_the_supply_of_43',),
     ),
     Mutation(
+        'pool-stopped-without-interrupting-its-workers',
+        'a stopped job waits for its workers to finish their running tasks',
+        'analysis/tasks.py',
+        (('            stack.push(lambda kind, *_: kind is not None and _interrupt_workers(pool))',
+          '            stack.push(lambda kind, *_: False)'),),
+        ('tests/test_tasks.py::test_stopping_early_stops_the_workers_running_tasks_and_starts_no_queued_one',),
+    ),
+    Mutation(
+        'worker-swallows-ctrl-c',
+        "a worker remembers Ctrl-C but lets its running task go on",
+        'analysis/output.py',
+        (('        if first and _IN_TASK.is_set():\n            raise KeyboardInterrupt',
+          '        if first and _IN_TASK.is_set():\n            pass'),),
+        ('tests/test_tasks.py::test_stopping_early_stops_the_workers_running_tasks_and_starts_no_queued_one',),
+    ),
+    Mutation(
         'fact-14-draw-linearised-at-the-models-masses',
         "fact 14 for a drawn plant evaluates the structure's functions at the controller model's masses",
         'analysis/multirate.py',
