@@ -59,7 +59,7 @@ def main(names: list[str]) -> int:
         if (section := measure(name)) is None:
             return 1
         sections[name] = section
-    parts = ["# Measured", "", "Written by `make bench` (or `python benchmarks/measured.py NAME ...` for some): "
+    parts = ["# Measured", "Written by `make bench` (or `python benchmarks/measured.py NAME ...` for some): "
              "measurements, each against a baseline measured in the same run; each section says when and where."]
     parts += [text for name in BENCHMARKS if (text := sections.get(name)) is not None]
     TARGET.write_text("\n\n".join(parts) + "\n")
