@@ -8,7 +8,9 @@ scale each) and the integral gain ``K_I = k_i_factor K_xi`` (docs/math.md, fact 
   hold margin) and Theorem 2 certifies the gains (the ideal continuous loop; fact 20.2: the
   integral state leaves gamma unchanged);
 - the loop as implemented is certified locally with the integral state (facts 14, 21):
-  ``rho(Pi) <= RHO_MAX`` (on a redundant arm across the self-motion) and the a posteriori Lyapunov check;
+  ``rho(Pi) <= RHO_MAX`` (on a redundant arm across the self-motion) and fact 14's one verdict
+  (:func:`dvfc.analysis.multirate.local_verdict`: the a posteriori Lyapunov check, the self-motion's checks, no
+  saturation at rest);
 - the campaign holds: CMA-ES (the ``cma`` package, within a box of the log-scales) minimises a
   surrogate of the campaign, the mean of the largest quarter of the runs' closeness to failing
   by what the gains move (the largest of the tracking ratio, the peak torque and the peak joint
@@ -43,7 +45,7 @@ from dvfc.analysis.case import Case
 from dvfc.analysis.certify import GainPoint, certify
 from dvfc.analysis.console import remaining
 from dvfc.analysis.margins import TrackingBound, tracking_bound
-from dvfc.analysis.multirate import DeclaredPlant, lyapunov_check, multirate_loop, spectral_radius
+from dvfc.analysis.multirate import DeclaredPlant
 from dvfc.analysis.synthesize import scenario_text
 from dvfc.analysis.tasks import run_tasks
 from dvfc.analysis.windows import case_windows
@@ -112,18 +114,19 @@ class Design:
 class Checks:
     """A design's certificates: its gain windows (what breaks them, empty inside), Theorem 2's gamma
     (None: not certified), fact 14's ``rho`` and Lyapunov margin with the integral state (None: the
-    statement does not apply) and whether both pass."""
+    statement does not apply) and its verdict (``local_certified``: :func:`dvfc.analysis.multirate.local_verdict`,
+    every check of the monodromy and saturation at rest), and whether all pass."""
 
     outside: tuple[str, ...]
     gamma: float | None
     rho: float | None
     lyapunov_margin: float | None
-    lyapunov_certified: bool
+    local_certified: bool
 
     @property
     def passes(self) -> bool:
         return (not self.outside and self.gamma is not None and self.rho is not None and self.rho <= RHO_MAX
-                and self.lyapunov_certified)  # fmt: skip
+                and self.local_certified)  # fmt: skip
 
     def violation(self) -> float:
         """How far outside: 0 when the design passes, else at least 1."""
@@ -134,7 +137,7 @@ class Checks:
 
     def as_dict(self) -> dict:
         return {"windows_outside": list(self.outside), "gamma": self.gamma, "rho": self.rho, "rho_max": RHO_MAX,
-                "lyapunov_margin": self.lyapunov_margin, "lyapunov_certified": self.lyapunov_certified,
+                "lyapunov_margin": self.lyapunov_margin, "local_certified": self.local_certified,
                 "passes": self.passes}  # fmt: skip
 
 
@@ -202,18 +205,14 @@ def checks(case: Case, design: Design) -> Checks:
     if outside:  # the hold breaks: fact 14 is not worth computing
         return Checks(outside, gamma, None, None, False)
     loop = replace(case.loop, gains=Gains(design.k_xi, design.k_c, design.k_e, design.k_i_factor * design.k_xi))
-    imp = case.settings.sampled
     try:
-        system = multirate_loop(loop, case.s0[: loop.robot.n], imp, DeclaredPlant.of(case.settings))
-        with np.errstate(over="ignore", invalid="ignore"):
-            pi = system.monodromy(imp)[0]
-    except ValueError:
+        verdict = DeclaredPlant.of(case.settings).verdict(loop, case.s0[: loop.robot.n], case.settings.sampled)
+    except ValueError:  # no linearisation at rest
+        verdict = None
+    if verdict is None:  # the statement does not apply
         return Checks(outside, gamma, None, None, False)
-    if not np.isfinite(pi).all():
-        return Checks(outside, gamma, math.inf, None, False)
-    across = system.transverse(pi)  # on a redundant arm, across the self-motion (fact 14)
-    check = lyapunov_check(across.pi)
-    return Checks(outside, gamma, spectral_radius(across.pi), check.margin, across.certified(check))
+    margin = None if verdict.check is None else verdict.check.margin
+    return Checks(outside, gamma, verdict.rho, margin, verdict.certified)
 
 
 def replace_gains(case: Case, design: Design) -> Case:

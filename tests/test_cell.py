@@ -203,3 +203,17 @@ def test_a_criterion_that_is_not_positive_is_refused_naming_the_field(tmp_path):
     (tmp_path / "bad.toml").write_text(text)
     with pytest.raises(ScenarioError, match=r"^criterion\.angle_deg"):
         load(tmp_path / "bad.toml")
+
+
+def test_a_design_whose_hold_torque_saturates_does_not_pass(shipped):
+    """The shipped design on the cell with saturation on and the efforts scaled below the torque that holds the arm
+    at rest: fact 14's one verdict (:func:`dvfc.analysis.multirate.local_verdict`) refuses it (the linearisation
+    at rest is not the saturated loop's), so the synthesis' checks, which pass without saturation, do not."""
+    data = shipped.scenario.model_dump()
+    data["implementation"] |= {"saturate": True, "torque_scale": 0.05}
+    case = shipped.with_scenario(Scenario.model_validate(data))
+    g = case.point
+    design = cell.Design(g.k_xi, g.k_c, g.k_e, case.scenario.gains.k_i_factor)
+    assert cell.checks(shipped, design).passes
+    refused = cell.checks(case, design)
+    assert not refused.passes and not refused.local_certified and refused.rho == math.inf
