@@ -42,12 +42,17 @@ def parametrised(loop: ClosedLoop) -> bool:
     """Whether the loop's design enters its functions as :func:`parameter_vector`: the paper's
     loop, and the paper's loop driven by a :class:`~dvfc.models.driven.Sinusoid` (the run from rest), whose
     numbers enter too (the reduced planar loop keeps its numbers in its expressions)."""
-    return type(loop) is ClosedLoop or (type(loop) is DrivenTargetLoop and loop.drive is not None)
+    return type(loop) is ClosedLoop or (type(loop) is DrivenTargetLoop and _drive(loop) is not None)
+
+
+def _drive(loop: ClosedLoop) -> Sinusoid | None:
+    """The sinusoid driving the paper's loop, whose numbers are entries of ``p``; None: none."""
+    return loop.drive if isinstance(loop, DrivenTargetLoop) else None
 
 
 def _drive_size(loop: ClosedLoop) -> int:
     """Entries of ``p`` for the loop's sinusoid: ``2 (n + 6) + 1`` when driven by one, else none."""
-    return 2 * (loop.robot.n + loop.task_dim) + 1 if isinstance(loop, DrivenTargetLoop) else 0
+    return 0 if _drive(loop) is None else 2 * (loop.robot.n + loop.task_dim) + 1
 
 
 PLANT_ENTRIES = 11
@@ -102,7 +107,7 @@ def parameter_vector(loop: ClosedLoop, inputs: Inputs | None = None) -> np.ndarr
     rotation = np.asarray(cs.DM(r.rotation.matrix), dtype=float).ravel(order="F")
     extra = (inputs or Inputs.of(loop.target, loop.plant)).vector(loop.plant is not None)
     k_i = [] if g.k_i is None else [g.k_i]
-    drive = [loop.drive.vector()] if isinstance(loop, DrivenTargetLoop) and loop.drive is not None else []
+    drive = [] if (sinusoid := _drive(loop)) is None else [sinusoid.vector()]
     return np.concatenate(
         [g.k_xi, g.k_c, g.k_e, loop.weights.as_array(), translation, rotation, extra, *k_i, *drive]
     ).astype(float)
