@@ -941,6 +941,15 @@ MUTATIONS = (
         ('tests/test_integral.py::test_fact_20_1_the_augmented_storage_keeps_the_supply_of_43',),
     ),
     Mutation(
+        'campaign-synthesis-checks-ignore-saturation',
+        "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
+        'analysis/cell.py',
+        (('    return Checks(outside, gamma, verdict.rho, margin, verdict.certified)',
+          '    return Checks(outside, gamma, 0.9 if verdict.saturated else verdict.rho, margin,\n'
+          '                  verdict.certified or verdict.saturated)'),),
+        ('tests/test_cell.py::test_a_design_whose_hold_torque_saturates_does_not_pass',),
+    ),
+    Mutation(
         'pool-stopped-without-interrupting-its-workers',
         'a stopped job waits for its workers to finish their running tasks',
         'analysis/tasks.py',
