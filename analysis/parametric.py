@@ -7,13 +7,17 @@ and loop structure, and pass a design's numbers (:func:`parameter_vector`) at ru
 
     p = [k_xi (n); k_c (6); k_e (6); w_pc; w_rc; w_pe; w_re; p_d (3); vec(R_d) (9, column-major);
          radius; (mass_scale; payload mass; payload com (3); payload inertia (6)) with a plant;
-         (k_i (n)) with integral action; (cos part (n + 6); sin part (n + 6); omega) driven by a sinusoid]
+         (k_i (n); integral_start) with integral action;
+         (ReferencePlan.vector (20): the planned start's pose, path, duration and hold) with a plan;
+         (cos part (n + 6); sin part (n + 6); omega) driven by a sinusoid]
 
 so that the generated code, and the compiled library cached by the hash of its source, does
 not depend on the design: another design of the same arm, another target radius, another
-payload or mass scale of the plant runs the same code. The plant's masses are inputs because
-rigid-body dynamics are linear in the inertial parameters (:class:`InertialPlant`). The loop
-with numbers stays the one every analysis (certificates, linearisation) uses.
+payload or mass scale of the plant, another planned start (its start pose, duration and hold: the
+latency sets the hold) or another time integral action starts from runs the same code. The
+plant's masses are inputs because rigid-body dynamics are linear in the inertial parameters
+(:class:`InertialPlant`). The loop with numbers stays the one every analysis (certificates,
+linearisation) uses.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ import numpy as np
 
 from dvfc.models.driven import DrivenTargetLoop, Sinusoid
 from dvfc.models.lie import SE3, SO3, Matrix, hat, vee
-from dvfc.models.loop import ClosedLoop, Gains, Weights
+from dvfc.models.loop import ClosedLoop, Gains, ReferencePlan, Weights
 from dvfc.models.robot import Payload, Robot
 from dvfc.models.target import TargetMotion
 
@@ -93,8 +97,13 @@ class Inputs:
 
 def parameter_count(n: int, plant: bool = False, integral: bool = False) -> int:
     """Entries of the parameter vector of an arm with ``n`` joints (with a ``plant``: its masses
-    too; with ``integral`` action: ``K_I``)."""
-    return n + 2 * ClosedLoop.task_dim + 4 + 3 + 9 + 1 + (PLANT_ENTRIES if plant else 0) + (n if integral else 0)
+    too; with ``integral`` action: ``K_I`` and the time it starts from)."""
+    return n + 2 * ClosedLoop.task_dim + 4 + 3 + 9 + 1 + (PLANT_ENTRIES if plant else 0) + (n + 1 if integral else 0)
+
+
+def _plan_size(loop: ClosedLoop) -> int:
+    """Entries of ``p`` for the loop's planned reference: :data:`ReferencePlan.ENTRIES` with one, else none."""
+    return 0 if loop.plan is None else ReferencePlan.ENTRIES
 
 
 def parameter_vector(loop: ClosedLoop, inputs: Inputs | None = None) -> np.ndarray | None:
@@ -106,10 +115,11 @@ def parameter_vector(loop: ClosedLoop, inputs: Inputs | None = None) -> np.ndarr
     translation = np.asarray(cs.DM(r.translation), dtype=float).ravel()
     rotation = np.asarray(cs.DM(r.rotation.matrix), dtype=float).ravel(order="F")
     extra = (inputs or Inputs.of(loop.target, loop.plant)).vector(loop.plant is not None)
-    k_i = [] if g.k_i is None else [g.k_i]
+    k_i = [] if g.k_i is None else [g.k_i, [loop.integral_start]]
+    plan = [] if loop.plan is None else [loop.plan.vector()]
     drive = [] if (sinusoid := _drive(loop)) is None else [sinusoid.vector()]
     return np.concatenate(
-        [g.k_xi, g.k_c, g.k_e, loop.weights.as_array(), translation, rotation, extra, *k_i, *drive]
+        [g.k_xi, g.k_c, g.k_e, loop.weights.as_array(), translation, rotation, extra, *k_i, *plan, *drive]
     ).astype(float)
 
 
@@ -171,13 +181,15 @@ def _structure(loop: ClosedLoop) -> tuple:
     """What a loop's functions depend on besides its design: the objects (held by identity:
     ``dataclasses.replace`` of a loop keeps them) and the flags. The target and the plant enter by value: a
     target at rest is made anew for every run from rest and every linearisation, a plant for every draw of its
-    masses (which are entries of ``p``: the plant's arm is what counts)."""
-    objects = (loop.robot, loop.camera, loop.inputs, loop.plan, *loop.disturbances)
+    masses (which are entries of ``p``: the plant's arm is what counts); of a planned reference only whether
+    there is one (its numbers are entries of ``p``)."""
+    objects = (loop.robot, loop.camera, loop.inputs, *loop.disturbances)
     flags: tuple = (type(loop), loop.mode, loop.sampled, loop.ramp, len(loop.disturbances), loop.performance,
-                    _target_key(loop.target), None if loop.plant is None else _arm_key(loop.plant))  # fmt: skip
+                    _target_key(loop.target), None if loop.plant is None else _arm_key(loop.plant),
+                    loop.plan is not None)  # fmt: skip
     if loop.integral or loop.friction is not None or loop.compensation is not None:
         numbers = (None if v is None else tuple(map(float, v)) for v in (loop.friction, loop.compensation))
-        flags = (*flags, loop.integral, loop.integral_start, *numbers)
+        flags = (*flags, loop.integral, *numbers)
     return objects, flags
 
 
@@ -205,21 +217,27 @@ def symbolic(loop: ClosedLoop) -> ClosedLoop:
         return _symbolic[key][1]
     n, task = loop.robot.n, loop.task_dim
     plant = loop.plant is not None
-    driving = _drive_size(loop)
-    p = cs.SX.sym("p", parameter_count(n, plant, loop.integral) + driving)
+    driving, planning = _drive_size(loop), _plan_size(loop)
+    p = cs.SX.sym("p", parameter_count(n, plant, loop.integral) + planning + driving)
     k_xi, k_c, k_e = p[:n], p[n : n + task], p[n + task : n + 2 * task]
     w = p[n + 2 * task : n + 2 * task + 4]
     position = p[n + 2 * task + 4 : n + 2 * task + 7]
     end = n + 2 * task + 16
     rotation = cs.reshape(p[n + 2 * task + 7 : end], 3, 3)
     changes: dict[str, Any] = {"drive": Sinusoid.of(p[p.shape[0] - driving :], n + task)} if driving else {}
-    k_i = p[p.shape[0] - driving - n : p.shape[0] - driving] if loop.integral else None
+    reference = SE3(position, SO3(rotation))
+    if planning:
+        changes["plan"] = ReferencePlan.of(p[p.shape[0] - driving - planning : p.shape[0] - driving], reference)
+    after_k_i = p.shape[0] - driving - planning - 1
+    k_i = p[after_k_i - n : after_k_i] if loop.integral else None
+    if loop.integral:
+        changes["integral_start"] = p[after_k_i]
     model = replace(
         loop,
         **changes,
         gains=Gains(k_xi, k_c, k_e, k_i),
         weights=Weights(w[0], w[1], w[2], w[3]),
-        reference=SE3(position, SO3(rotation)),
+        reference=reference,
         target=replace(loop.target, radius=p[end]),
         plant=None if not plant else InertialPlant(_same_arm(loop), p[end + 1 : end + 1 + PLANT_ENTRIES]),  # type: ignore[arg-type]
         parameters=p,

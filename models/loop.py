@@ -229,12 +229,32 @@ class ReferencePlan:
     ``tau = 10 u^3 - 15 u^4 + 6 u^5``, ``u = min(max(t - hold, 0) / duration, 1)``: C^2, at rest at
     both ends, and ``g_d = goal`` from ``hold + duration`` on. ``hold``: seconds ``g_d`` stays at
     ``start`` first (the arm held until the first image arrives: the law then commands no motion,
-    ``e_c = 0`` and ``qd_d = 0``). ``start`` and ``goal`` are numeric."""
+    ``e_c = 0`` and ``qd_d = 0``). Numbers, or (:meth:`of`) entries of the parametric loop's symbol,
+    whose ``covered`` then gives ``(dp, omega)``: a plan with another start, duration or hold (another
+    latency) runs the same compiled code."""
 
     start: SE3
     goal: SE3
-    duration: float
-    hold: float = 0.0
+    duration: Matrix
+    hold: Matrix = 0.0
+    covered: tuple[Matrix, Matrix] | None = None
+    """``(dp, omega)`` as given (the symbolic plan of :meth:`of`); None: from ``start`` and ``goal``."""
+
+    ENTRIES = 20
+    """Entries of :meth:`vector`: ``[p_0 (3); vec(R_0) (9, column-major); dp (3); omega (3); duration; hold]``."""
+
+    def vector(self) -> np.ndarray:
+        """The plan's numbers as the parametric loop takes them (:data:`ENTRIES`)."""
+        dp, omega = self.step
+        p0 = np.asarray(cs.DM(self.start.translation), dtype=float).ravel()
+        r0 = np.asarray(cs.DM(self.start.rotation.matrix), dtype=float).ravel(order="F")
+        return np.concatenate([p0, r0, dp, omega, [self.duration, self.hold]]).astype(float)
+
+    @staticmethod
+    def of(vector: Matrix, goal: SE3) -> ReferencePlan:
+        """The plan whose :meth:`vector` is ``vector``, ending at ``goal`` (the loop's reference)."""
+        start = SE3(vector[0:3], SO3(cs.reshape(vector[3:12], 3, 3)))
+        return ReferencePlan(start, goal, vector[18], vector[19], (vector[12:15], vector[15:18]))
 
     def fraction(self, t: Matrix | np.ndarray) -> Matrix | np.ndarray:
         """``u(t) = min(max(t - hold, 0) / duration, 1)``, for CasADi or NumPy ``t``."""
@@ -243,11 +263,18 @@ class ReferencePlan:
         return np.clip((np.asarray(t, dtype=float) - self.hold) / self.duration, 0.0, 1.0)
 
     @cached_property
-    def step(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(dp, omega)``: the translation and the rotation vector the plan covers."""
+    def step(self) -> tuple[Matrix, Matrix]:
+        """``(dp, omega)``: the translation and the rotation vector the plan covers (numbers for a
+        numeric plan)."""
+        if self.covered is not None:
+            return self.covered
         p0, p1 = (np.asarray(cs.DM(g.translation)).ravel() for g in (self.start, self.goal))
         turn = (self.start.rotation.inverse() @ self.goal.rotation).log()
         return p1 - p0, np.asarray(cs.DM(turn)).ravel()
+
+    @property
+    def _step_matrices(self) -> tuple[Matrix, Matrix]:
+        return tuple(cs.DM(v) if isinstance(v, np.ndarray) else v for v in self.step)  # type: ignore[return-value]
 
     def progress(self, t: Matrix) -> tuple[Matrix, Matrix]:
         """``(tau(t), dtau/dt)`` of the quintic time law."""
@@ -256,15 +283,15 @@ class ReferencePlan:
 
     def pose(self, t: Matrix) -> SE3:
         """``g_d(t)``."""
-        dp, omega = self.step
+        dp, omega = self._step_matrices
         tau, _ = self.progress(t)
-        return SE3(self.start.translation + tau * cs.DM(dp), self.start.rotation @ SO3.exp(tau * cs.DM(omega)))
+        return SE3(self.start.translation + tau * dp, self.start.rotation @ SO3.exp(tau * omega))
 
     def velocity(self, t: Matrix) -> Matrix:
         """The body velocity ``V_d = vee(g_d^-1 dg_d/dt) = tau' [R_d^T dp; omega]``."""
-        dp, omega = self.step
+        dp, omega = self._step_matrices
         _, rate = self.progress(t)
-        return rate * cs.vertcat(self.pose(t).rotation.matrix.T @ cs.DM(dp), cs.DM(omega))
+        return rate * cs.vertcat(self.pose(t).rotation.matrix.T @ dp, omega)
 
 
 @dataclass
@@ -341,7 +368,7 @@ class ClosedLoop:
     performance: PlantWeights | None = None
     friction: np.ndarray | None = None
     compensation: np.ndarray | None = None
-    integral_start: float = 0.0
+    integral_start: Matrix = 0.0
 
     task_dim = 6
     """Entries of ``e_c``, ``e_e``, ``u_d`` and ``u_e``."""

@@ -249,12 +249,14 @@ def test_without_integral_action_the_default_run_is_unchanged(as_built):
 
 
 def test_a_change_of_integral_gain_reuses_the_compiled_loop():
-    """``K_I`` is an entry of the compiled functions' parameter vector ``p`` (its last ``n``): two
-    designs with other ``K_I`` share one symbolic loop, and ``p`` ends with each one's ``K_I``."""
+    """``K_I`` is an entry of the compiled functions' parameter vector ``p`` (the ``n`` before the time
+    integral action starts from, its last entry here): two designs with other ``K_I`` share one symbolic loop,
+    and ``p`` ends with each one's ``K_I`` and its start."""
     loop, _, _ = build_loop()
     a, b = with_integral(loop, 10.0), with_integral(loop, 20.0)
     assert symbolic(a) is symbolic(b)
-    assert np.array_equal(parameter_vector(b)[-6:], 20 * np.asarray(loop.gains.k_xi))
+    assert np.array_equal(parameter_vector(b)[-7:-1], 20 * np.asarray(loop.gains.k_xi))
+    assert parameter_vector(b)[-1] == b.integral_start
 
 
 @pytest.mark.parametrize(

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import dvfc
 from dvfc.analysis import compile as compile_module
 from dvfc.analysis import parametric
 from dvfc.analysis.linearize import linearize, peak_sinusoid, rest_simulator
@@ -19,7 +20,7 @@ from dvfc.models.driven import Sinusoid
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Gains, Weights
 
-from helpers import build_loop
+from helpers import CELL, build_loop
 
 
 def other_design(loop):
@@ -156,3 +157,25 @@ def test_a_run_from_rest_takes_its_sinusoid_as_an_input(monkeypatch):
         reference = rest_simulator(loop, lin, drive, 0.5)[0]
         assert reference.model.parameters is None
         assert_same_run(run, reference.run(s_eq), 1e-12)
+
+
+def test_a_planned_start_takes_its_start_duration_and_hold_as_inputs(monkeypatch):
+    """The ``ur5_cell`` loop as implemented with its planned start (docs/math.md, fact 16) and integral action
+    (fact 20): with the plan's start pose, duration and hold (the latency sets it) and the time ``z_I`` starts
+    from entries of ``p``, another latency, start, duration and integral start reuse the one symbolic loop, and
+    each run equals the run built with those numbers to 1e-9 relative (that build folds them into constants:
+    round-off)."""
+    case = dvfc.load(CELL)
+    loop, s0 = case.loop, case.s0
+    settings = replace(case.settings, jit=False, duration=0.3)
+    plan = loop.plan
+    assert plan is not None and plan.hold > 0 and loop.integral and loop.integral_start > settings.duration
+    other = replace(loop, plan=replace(plan, start=SE3.exp([0.01, 0.0, -0.01, 0.02, 0.0, 0.01]) @ plan.start,
+                                       duration=1.5, hold=2 * plan.hold), integral_start=0.1)  # fmt: skip
+    model = parametric.symbolic(replace(loop, sampled=True))
+    assert parametric.symbolic(replace(other, sampled=True)) is model
+    runs = [as_implemented(design, settings).run(s0) for design in (loop, other)]
+    assert not np.allclose(runs[0]["state"], runs[1]["state"])  # the plan's numbers reach the run
+    per_design(monkeypatch)
+    for run, design in zip(runs, (loop, other), strict=True):
+        assert_same_run(run, as_implemented(design, settings).run(s0), 1e-9)
