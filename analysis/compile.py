@@ -2,7 +2,8 @@
 the system C compiler and cached on disk by the hash of the function's structure (a cache hit
 generates no C), one lock per cache entry (two processes never build the same library); loaded
 once per process for each function (the same function built again, by another design of the same
-arm, is not generated again)."""
+arm, is not generated again). The libraries one simulator needs are built together
+(:func:`compiled_together`): one compiler process each, as many at once as there are cores."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ import os
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import casadi as cs
@@ -54,6 +56,10 @@ def _source(function: cs.Function, jacobian: bool, directory: str) -> str:
     return text
 
 
+Request = tuple[cs.Function, bool, str]
+"""What :func:`compiled_together` builds: a function, whether with its Jacobian, the optimisation level."""
+
+
 def compiled(function: cs.Function, *, jacobian: bool = True, level: str = "-O1") -> cs.Function:
     """``function`` (and its Jacobian) as compiled C, loaded as a CasADi external.
 
@@ -62,14 +68,24 @@ def compiled(function: cs.Function, *, jacobian: bool = True, level: str = "-O1"
     (see :data:`JACOBIAN_PRAGMA`). Falls back to ``function`` itself (CasADi's virtual
     machine) when no C compiler is on the PATH.
     """
+    return compiled_together([(function, jacobian, level)])[0]
+
+
+def compiled_together(requests: Sequence[Request]) -> list[cs.Function]:
+    """:func:`compiled` of each request, in order; the libraries not in the cache are generated one after the
+    other and compiled at once, at most one compiler process per core (a simulator's functions are independent:
+    their builds overlap instead of adding up)."""
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
-        return function
-    library = _library(function, jacobian, level, compiler)
-    if str(library) not in _loaded:
-        _build(function, jacobian, level, compiler, library)
-        _loaded[str(library)] = cs.external(function.name(), str(library))
-    return _loaded[str(library)]
+        return [function for function, _, _ in requests]
+    libraries = [_library(function, jacobian, level, compiler) for function, jacobian, level in requests]
+    missing = {str(library): (request, library) for request, library in zip(requests, libraries, strict=True)
+               if str(library) not in _loaded}  # fmt: skip
+    _build_all([missing[key] for key in sorted(missing)], compiler)  # sorted: one order of locks for every process
+    for (function, _, _), library in zip(requests, libraries, strict=True):
+        if str(library) not in _loaded:
+            _loaded[str(library)] = cs.external(function.name(), str(library))
+    return [_loaded[str(library)] for library in libraries]
 
 
 @functools.cache
@@ -102,21 +118,28 @@ def _locked(library: Path) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-def _build(function: cs.Function, jacobian: bool, level: str, compiler: str, library: Path) -> None:
-    """``function`` (and its Jacobian) generated and built by ``compiler`` into ``library``, unless
-    it is there already (built by this or another process, which holds the entry's lock meanwhile)."""
-    if library.exists():
-        return
-    library.parent.mkdir(parents=True, exist_ok=True)
-    with _locked(library):
-        if library.exists():  # built while this process waited for the lock
-            return
-        with tempfile.TemporaryDirectory() as tmp:
+def _build_all(builds: list[tuple[Request, Path]], compiler: str) -> None:
+    """Each request built by ``compiler`` into its library, unless it is there already (built by this or another
+    process, which holds the entry's lock meanwhile): the locks taken in the order given, the sources generated one
+    after the other, the compilers run at once (at most one a core)."""
+    with contextlib.ExitStack() as stack:
+        commands = []
+        for (function, jacobian, level), library in builds:
+            if library.exists():
+                continue
+            library.parent.mkdir(parents=True, exist_ok=True)
+            stack.enter_context(_locked(library))
+            if library.exists():  # built while this process waited for the lock
+                continue
+            tmp = stack.enter_context(tempfile.TemporaryDirectory())
             source = Path(tmp) / f"{function.name()}-final.c"
             source.write_text(_source(function, jacobian, tmp))
             partial = library.with_suffix(f".{os.getpid()}.tmp")
-            subprocess.run([compiler, level, *CC_FLAGS, str(source), "-o", str(partial)], check=True,
-                           capture_output=True)  # fmt: skip
+            commands.append(([compiler, level, *CC_FLAGS, str(source), "-o", str(partial)], partial, library))
+        with ThreadPoolExecutor(max_workers=max(1, min(len(commands), os.cpu_count() or 1))) as pool:
+            done = list(pool.map(lambda c: subprocess.run(c[0], check=False, capture_output=True), commands))
+        for run, (_, partial, library) in zip(done, commands, strict=True):
+            run.check_returncode()
             partial.replace(library)
 
 

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field, replace
 import casadi as cs
 import numpy as np
 
-from dvfc.analysis.compile import Buffered, compiled
+from dvfc.analysis.compile import Buffered, compiled, compiled_together
 from dvfc.analysis.controller import image_update, sample_update
 from dvfc.analysis.implementation import MAX_AUTO_SUBSTEPS, SubstepChoice
 from dvfc.analysis.output import interrupted
@@ -207,12 +207,7 @@ class SampledSimulator(Simulator):
         self._symbols = (t, s, e, effort, friction, design, commanded, applied, observer, estimate, integral)
         # at t = T: the sample's law and observer inputs only
         last = cs.Function("dvfc_last", [t, s, e, effort, *design], [commanded, applied, observer])
-        if settings.jit and implementation.integrator == "rk4":
-            last = compiled(last, jacobian=False)
-        self._last = Buffered(last)
         self._periods = _Periods()  # shared by the copies of :meth:`for_run`
-        if implementation.integrator == "cvodes" or implementation.substeps != "auto":
-            self._periods.set(SubstepChoice.fixed(implementation), self._compiled_period)
         noise = cs.SX.sym("noise", model.features.numel())
         p = [] if model.parameters is None else [model.parameters]  # the image depends on the target's radius
         if self.errors is None:
@@ -222,7 +217,21 @@ class SampledSimulator(Simulator):
             image = self._true_image(noise, errors)
             camera = cs.Function("dvfc_true_camera", [model.t, model.state, noise, errors, *p], image)
             self._errors = self.errors.camera_vector(loop.camera)
-        self._image_function = Buffered(compiled(camera, jacobian=False) if settings.jit else camera)
+        rk4 = implementation.integrator == "rk4"
+        fixed = not rk4 or implementation.substeps != "auto"  # otherwise chosen at the first run (settle)
+        period = self._period_function(SubstepChoice.fixed(implementation).substeps) if fixed else None
+        own = {"signals": self.signal_function, "camera": camera}
+        if rk4:  # under CVODES the law is compiled (update) and the period is CVODES's
+            own["last"] = last
+            if period is not None:
+                own["period"] = period
+        if settings.jit:  # built together, the RK4 period whole at -O2
+            requests = [(f, False, "-O2" if name == "period" else "-O1") for name, f in own.items()]
+            own = dict(zip(own, compiled_together(requests), strict=True))
+        self.signal_function, self._image_function = own["signals"], Buffered(own["camera"])
+        self._last = Buffered(own.get("last", last))
+        if period is not None:
+            self._periods.set(SubstepChoice.fixed(implementation), lambda _: own.get("period", period))
         self._read_image = Buffered(image_update(loop))  # the program's (21) and its check, by the VM
         self._window = None  # the image as bounds on f, point by point (when the run checks it)
         if settings.view and loop.camera.has_image:

@@ -18,7 +18,7 @@ from functools import cached_property
 import casadi as cs
 import numpy as np
 
-from dvfc.analysis.compile import compiled
+from dvfc.analysis.compile import compiled_together
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.parametric import Inputs, parameter_vector, symbolic
@@ -236,17 +236,19 @@ class Simulator:
         self.signal_names = list(model.signals)
         self._mapped: dict[int, tuple] = {}
         signals = model.signals_function()
-        self.signal_function = compiled(signals, jacobian=False) if settings.jit else signals
+        self.signal_function = signals
+        if settings.jit and not loop.sampled:  # the sampled simulator compiles its signals with its own functions
+            requests = [(signals, False, "-O1"), (dynamics_function(model), True, "-O1")]
+            self.signal_function, self.dae = compiled_together(requests)
         (arm, arm_jac), (image, image_jac) = model.conditioning.items()
         self._monitored = (arm, image)
         self._shapes = (arm_jac.shape, image_jac.shape)
 
     @cached_property
     def dae(self) -> cs.Function:
-        """The DAE of :func:`dynamics_function`, compiled with its Jacobian under ``jit``
-        (built at first use: the fixed-step sampled loop never needs it)."""
-        dae = dynamics_function(self.model)
-        return compiled(dae) if self.settings.jit else dae
+        """The DAE of :func:`dynamics_function` (under ``jit`` compiled with its Jacobian at construction,
+        beside the signals; otherwise built at first use: the fixed-step sampled loop never needs it)."""
+        return dynamics_function(self.model)
 
     def cvodes_options(self) -> dict:
         """CVODES's options for a run: the settings' tolerances on the states and quadratures."""

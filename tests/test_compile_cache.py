@@ -82,3 +82,33 @@ def test_processes_needing_one_library_at_once_build_it_once(cold, tmp_path_fact
     assert [child.exitcode for child in children] == [0, 0, 0]
     assert len(list(marks.iterdir())) == 1
     assert len(list(cold.glob("dvfc_square-*.so"))) == 1 and not list(cold.glob("*.tmp"))
+
+
+def test_the_libraries_of_one_batch_are_built_at_once(cold, monkeypatch, tmp_path_factory):
+    """:func:`compiled_together` with two functions not in the cache: each built once, each computing its own
+    function, their compilers running at the same time on a machine with two cores or more (a compiler that
+    records when it starts, sleeps 1 s, runs the real one and records when it ends: the two intervals overlap)."""
+    import os
+    import shutil
+    import time
+
+    from dvfc.analysis.compile import compiled_together
+
+    log = tmp_path_factory.mktemp("log")
+    wrapper = log / "cc"
+    real = shutil.which("gcc") or shutil.which("cc")
+    wrapper.write_text(f'#!/bin/sh\n[ "$1" = --version ] && exec {real} --version\ndate +%s.%N > "{log}/start.$$"\n'
+                       f'sleep 1\n{real} "$@"\nstatus=$?\ndate +%s.%N > "{log}/end.$$"\nexit $status\n')  # fmt: skip
+    wrapper.chmod(0o755)
+    monkeypatch.setattr(compile_module.shutil, "which", lambda name: str(wrapper))
+    started = time.perf_counter()
+    square_, cube = compiled_together([(square(), False, "-O1"), (square(power=3.0), False, "-O1")])
+    assert len(list(cold.glob("dvfc_square-*.so"))) == 2
+    assert np.allclose(np.asarray(cube([1.0, 2.0, 3.0])).ravel(), [1.0, 8.0, 27.0])
+    assert np.allclose(np.asarray(square_([1.0, 2.0, 3.0])).ravel(), [1.0, 4.0, 9.0])
+    runs = [(float((log / f"start.{pid}").read_text()), float((log / f"end.{pid}").read_text()))
+            for pid in sorted(p.name.split(".")[1] for p in log.glob("start.*"))]  # fmt: skip
+    assert len(runs) == 2 and time.perf_counter() - started > 1.0
+    if (os.cpu_count() or 1) >= 2:
+        (a_start, a_end), (b_start, b_end) = runs
+        assert a_start < b_end and b_start < a_end

@@ -170,9 +170,9 @@ def test_compiled_dynamics_match_virtual_machine(monkeypatch):
     loop, s0, settings = build_loop()
     vm = run(loop, s0, settings, duration=1.0)
     built = []
-    build_once = compile_module._build
+    build_all = compile_module._build_all
     monkeypatch.setattr(compile_module, "_loaded", {})
-    monkeypatch.setattr(compile_module, "_build", lambda *a: built.append(a[-1]) or build_once(*a))
+    monkeypatch.setattr(compile_module, "_build_all", lambda b, c: built.extend(x[-1] for x in b) or build_all(b, c))
     jit = run(loop, s0, settings, duration=1.0, jit=True)
     assert any(library.name.startswith("dvfc_dynamics-") and library.exists() for library in built)
     assert np.abs(jit["state"] - vm["state"]).max() < 1e-8

@@ -119,8 +119,8 @@ def test_compiled_once_for_two_designs(monkeypatch):
     settings = replace(settings, jit=True, duration=2.0)
     designs = (loop, other_design(loop))
     builds: list[Path] = []
-    build_once = compile_module._build
-    monkeypatch.setattr(compile_module, "_build", lambda *a: builds.append(a[-1]) or build_once(*a))
+    build_all = compile_module._build_all
+    monkeypatch.setattr(compile_module, "_build_all", lambda b, c: builds.extend(x[-1] for x in b) or build_all(b, c))
 
     def both(design):
         return Simulator(replace(design, plant=None), settings).run(s0), as_implemented(design, settings).run(s0)

@@ -956,6 +956,13 @@ MUTATIONS = (
         ('tests/test_parametric.py::test_a_planned_start_takes_its_start_duration_and_hold_as_inputs',),
     ),
     Mutation(
+        'compile-batch-serial',
+        "the libraries of one batch compiled one after the other (their builds add up)",
+        'analysis/compile.py',
+        (('max_workers=max(1, min(len(commands), os.cpu_count() or 1))', 'max_workers=1'),),
+        ('tests/test_compile_cache.py::test_the_libraries_of_one_batch_are_built_at_once',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
@@ -1098,8 +1105,8 @@ MUTATIONS = (
         'explicit-substeps-overridden',
         'an explicit substeps setting replaced by the automatic choice',
         'analysis/sampled.py',
-        (('        if implementation.integrator == "cvodes" or implementation.substeps != "auto":',
-          '        if implementation.integrator == "cvodes":'),),
+        (('        fixed = not rk4 or implementation.substeps != "auto"  # otherwise',
+          '        fixed = not rk4  # otherwise'),),
         ('tests/test_sampled.py::test_explicit_substeps_are_run_as_given',),
     ),
     Mutation(
@@ -1201,8 +1208,9 @@ MUTATIONS = (
         'compile-cache-hit-generates-c',
         "a cache hit generates the function's C again (the entry keyed as if by its source)",
         'analysis/compile.py',
-        (('    if library.exists():\n        return\n    library.parent', '    library.parent'),
-         ('        if library.exists():  # built while', '        if False:  # built while')),
+        (('            if library.exists():\n                continue\n            library.parent',
+          '            library.parent'),
+         ('            if library.exists():  # built while', '            if False:  # built while')),
         ('tests/test_compile_cache.py::test_a_cache_hit_generates_no_c_source',),
     ),
     Mutation(
