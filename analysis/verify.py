@@ -33,7 +33,6 @@ from dvfc.models.kinematic import VisualFeedbackSystem
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import PlanarLoop
-from dvfc.models.target import TargetMotion
 
 IDENTITY_TOL = 1e-6
 
@@ -159,8 +158,9 @@ def _error_state(traj: Trajectory) -> np.ndarray:
 
 
 def static(loop: ClosedLoop) -> ClosedLoop:
-    """The same loop with the target at rest and no torque disturbance (w = 0)."""
-    return replace(loop, target=TargetMotion(loop.target.start), disturbances=[])
+    """The same loop with the target at rest (:meth:`~dvfc.models.target.TargetMotion.at_rest`) and no torque
+    disturbance (w = 0)."""
+    return replace(loop, target=loop.target.at_rest(), disturbances=[])
 
 
 def theorem_1(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> list[Claim]:
@@ -767,9 +767,9 @@ def verify(
     """All claims, in the paper's order, on the paper's loop (continuous, exact model, no
     image border), then the operating envelope's (facts 7-8) when given, then the run as
     implemented against the robot's limits. Every run follows the scenario's ``jit``: the design is an input of
-    the compiled functions, but each variant with disturbances of its own (a torque noise, a step) is a structure
-    of its own, compiled once per arm (on the xArm 7 cell 7 continuous ones, the run from rest's among them: 222 s
-    on an empty cache, measured); the
+    the compiled functions, and the loop with ``w = 0`` is the scenario's with the target's radius at zero, but
+    each variant with disturbances or inputs of its own (Lemma 2's input, a torque noise, a step) is a structure
+    of its own, compiled once per arm (on the xArm 7 cell 5 continuous ones, the run from rest's among them); the
     run as implemented (``implemented_run``: that run, when
     already made; ``rest``: the run from rest of Theorem 2's checks, ``paper_run``: the paper's loop
     run from ``s0`` in the loop's own mode, each when already made)."""

@@ -6,7 +6,7 @@ obtained by automatic differentiation of that closed form, so it is exact.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as cs
 import numpy as np
@@ -54,6 +54,11 @@ class TargetMotion:
         axis = np.asarray(self.spin_axis, dtype=float)
         spin = SO3.exp(cs.DM(axis / np.linalg.norm(axis)) * (self.spin_rate * t))
         return SE3(self.start.translation + offset, self.start.rotation @ spin)
+
+    def at_rest(self) -> TargetMotion:
+        """The same target held at ``start``: no radius, no spin (the motion's other numbers kept, so that a
+        loop with it runs the moving target's compiled functions, whose radius is an input)."""
+        return replace(self, radius=0.0, spin_rate=0.0)
 
     @property
     def speed(self) -> float:

@@ -42,3 +42,18 @@ def test_circle_starts_at_start_and_has_radius():
     assert np.allclose(p0, np.asarray(START.translation).ravel(), rtol=0, atol=1e-15)
     radii = [np.linalg.norm(np.asarray(p(s)).ravel() - np.asarray(p(s + 2.0)).ravel()) / 2 for s in (0.0, 0.5, 1.3)]
     assert np.allclose(radii, 0.05, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", MOTIONS)
+def test_a_target_at_rest_stays_at_its_start(kind):
+    """:meth:`TargetMotion.at_rest`: ``g_wo(t) = g_wo(0)`` and ``V_wo = 0`` at every time (exactly: zero radius
+    and spin rate multiply every term of the motion), the motion's period and axes kept."""
+    motion = MOTIONS[kind].at_rest()
+    t = cs.SX.sym("t")
+    pose = cs.Function("g", [t], [motion.pose(t).as_matrix()])
+    velocity = cs.Function("V", [t], [motion.velocity(t)])
+    for time in (0.0, 0.7, 3.1):
+        assert np.array_equal(np.asarray(pose(time)), np.asarray(START.as_matrix()))
+        assert not np.asarray(velocity(time)).any()
+    assert (motion.period, motion.normal, motion.spin_axis) == (MOTIONS[kind].period, MOTIONS[kind].normal,
+                                                                MOTIONS[kind].spin_axis)  # fmt: skip

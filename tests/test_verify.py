@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from dvfc.analysis.certify import GainPoint, certify
+from dvfc.analysis.parametric import parameter_vector, symbolic
 from dvfc.analysis.results import ClaimsSummary, VerificationResult, verdict
 from dvfc.analysis.simulate import RunStatus, Trajectory
 from dvfc.analysis.verify import (
@@ -23,6 +24,7 @@ from dvfc.analysis.verify import (
     lemma_2,
     lyapunov_derivative,
     on_run,
+    static,
     storage_floor,
     verify_paper,
 )
@@ -208,3 +210,15 @@ def test_a_claim_holding_on_a_run_that_stopped_early_is_inconclusive_and_so_is_t
     outcome = verdict({"points": [{"certified": True}]}, result.to_json())
     assert not outcome.passed and "every check passes" not in outcome.headline
     assert "4 check(s) INCONCLUSIVE" in outcome.headline and len(outcome.inconclusive) == 4
+
+
+def test_the_loop_at_rest_runs_the_moving_loops_compiled_functions():
+    """verify's loop with ``w = 0`` (:func:`static`: the target at rest, no torque disturbance) is the scenario's
+    loop with its target's radius, an input of the compiled functions, at zero: one symbolic loop for both, so
+    that verify builds no structure for it."""
+    loop, _, _ = build_loop()
+    assert loop.target.radius > 0 and not loop.disturbances
+    assert symbolic(static(loop)) is symbolic(loop)
+    at_rest, moving = parameter_vector(static(loop)), parameter_vector(loop)
+    (changed,) = np.flatnonzero(at_rest != moving)  # the radius alone
+    assert at_rest[changed] == 0.0 and moving[changed] == loop.target.radius

@@ -963,6 +963,13 @@ MUTATIONS = (
         ('tests/test_compile_cache.py::test_the_libraries_of_one_batch_are_built_at_once',),
     ),
     Mutation(
+        'target-at-rest-keeps-spin',
+        "verify's target at rest (w = 0 for Theorem 1, Lemma 2) keeps the scenario's spin",
+        'models/target.py',
+        (('return replace(self, radius=0.0, spin_rate=0.0)', 'return replace(self, radius=0.0)'),),
+        ('tests/test_target.py::test_a_target_at_rest_stays_at_its_start',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
