@@ -131,7 +131,7 @@ class InertialPlant:
     by ``s`` and the payload fixed to the camera link (:func:`dvfc.models.robot.perturbed_urdf`).
 
     Rigid-body dynamics are linear in the links' masses and inertias, so the links contribute
-    ``s M_links(q)``, ``s C_links``, ``s g_links`` (the armature is not scaled); the payload adds
+    ``s M_links(q)`` and ``s (C qd + g)_links`` (the armature is not scaled); the payload adds
     ``M_b = m J_c^T J_c + J_w^T I_c J_w`` (``J_c`` the Jacobian of its centre of mass in the
     world, ``J_w`` of the link's body angular velocity ``w``), the Newton-Euler ``C_b = m J_c^T
     dJ_c/dt + J_w^T (I_c dJ_w/dt + hat(w) I_c J_w)`` (its ``C_b qd`` the Christoffel one's, at a
@@ -169,12 +169,9 @@ class InertialPlant:
         return self.masses[0] * r.rigid_mass_matrix + armature + self._payload[0]
 
     @cached_property
-    def coriolis(self) -> Matrix:
-        return self.masses[0] * self.robot.coriolis + self._payload[1]
-
-    @cached_property
-    def gravity(self) -> Matrix:
-        return self.masses[0] * self.robot.gravity + self._payload[2]
+    def bias(self) -> Matrix:
+        """``C qd + g``: the links' scaled, the payload's added."""
+        return self.masses[0] * self.robot.bias + self._payload[1] @ self.qd + self._payload[2]
 
 
 def _structure(loop: ClosedLoop) -> tuple:

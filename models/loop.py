@@ -694,7 +694,7 @@ class ClosedLoop:
         """(35) alone, without the friction compensation."""
         r = self.robot
         ad_d = self.desired.inverse().adjoint()
-        feedforward = r.mass_matrix @ self.qdd_d + r.coriolis @ self.qd_d + r.gravity
+        feedforward = r.mass_matrix @ self.qdd_d + r.coriolis_times(self.qd_d) + r.gravity
         return feedforward + r.body_jacobian.T @ ad_d.T @ self.weights.control @ self.e_c + self.u[0 : r.n]
 
     @cached_property
@@ -706,7 +706,7 @@ class ClosedLoop:
     def plant_dynamics(self) -> tuple[Matrix, Matrix]:
         """``(M, C qd + g)`` of (33) for the arm as it is (:attr:`plant`, else :attr:`robot`)."""
         p = self.plant or self.robot
-        m, bias = p.mass_matrix, p.coriolis @ p.qd + p.gravity
+        m, bias = p.mass_matrix, p.bias
         if p is self.robot:
             return m, bias
         return tuple(cs.substitute([m, bias], [p.q, p.qd], [self.q, self.qd]))
@@ -730,8 +730,8 @@ class ClosedLoop:
             return cs.DM.zeros(self.robot.n)
         r = self.robot
         if self.friction is None and self.compensation is None:
-            return r.mass_matrix @ self.qdd + r.coriolis @ self.qd + r.gravity - self.tau - self.tau_d
-        model = r.mass_matrix @ self.qdd + r.coriolis @ self.qd + r.gravity
+            return r.mass_matrix @ self.qdd + r.bias - self.tau - self.tau_d
+        model = r.mass_matrix @ self.qdd + r.bias
         return model - self.paper_torque - self.matched_disturbance
 
     @cached_property

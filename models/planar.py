@@ -242,7 +242,7 @@ class PlanarLoop(ClosedLoop):
     def tau(self) -> Matrix:
         """Torque law (P6)."""
         r = self.robot
-        feedforward = r.mass_matrix @ self.qdd_d + r.coriolis @ self.qd_d + r.gravity
+        feedforward = r.mass_matrix @ self.qdd_d + r.coriolis_times(self.qd_d) + r.gravity
         return feedforward + self.task_jacobian.T @ (self.weights.w_pc * self.e_c) + self.u[0 : r.n]
 
     @cached_property

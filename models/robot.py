@@ -481,7 +481,8 @@ class Robot:
 
     @cached_property
     def coriolis(self) -> Matrix:
-        """``C(q, qd)`` of (33) from the Christoffel symbols of ``M``.
+        """``C(q, qd)`` of (33) from the Christoffel symbols of ``M`` (the reference of :meth:`coriolis_times`,
+        which the loop uses, and of the passivity property ``Mdot - 2C`` skew).
 
         With ``B = d(M qd)/dq`` (``qd`` held fixed), ``C = (Mdot + B - B^T) / 2``; then
         ``C qd`` is the Coriolis and centrifugal torque and ``Mdot - 2C = B^T - B``.
@@ -490,6 +491,28 @@ class Robot:
         mdot = cs.reshape(cs.jtimes(cs.vec(m), self.q, self.qd), self.n, self.n)
         b = cs.jacobian(m @ self.qd, self.q)
         return (mdot + b - b.T) / 2
+
+    @cached_property
+    def bias(self) -> Matrix:
+        """``C(q, qd) qd + g(q)`` of (33) by a recursive Newton-Euler pass (adam's ``bias_force``, the base fixed
+        at the identity and at rest): about an eighth of the operations of :attr:`coriolis` times ``qd`` on a
+        7-joint arm (docs/math.md, fact 27)."""
+        t = cs.DM(self.coupling)
+        base = (cs.SX.eye(4), self._q_moving, cs.SX.zeros(6), t @ self.qd)
+        return t.T @ self._joint_block(self._kindyn.bias_force(*base))
+
+    @cached_property
+    def _velocity_product(self) -> tuple[cs.SX, Matrix]:
+        """``(v, C(q, qd) v)`` for a symbol ``v``: the product's operations do not depend on what ``v`` is."""
+        v = cs.SX.sym("v", self.n)
+        return v, cs.jtimes(self.bias, self.qd, v) / 2
+
+    def coriolis_times(self, v: Matrix) -> Matrix:
+        """``C(q, qd) v`` for the Christoffel ``C`` of :attr:`coriolis`, as half the derivative of :attr:`bias`
+        along ``v`` in ``qd`` (docs/math.md, fact 27: ``C(q, qd) qd`` is a quadratic form in ``qd`` whose
+        symbols are symmetric in its two velocity indices)."""
+        symbol, product = self._velocity_product
+        return cs.substitute(product, symbol, v)
 
     @cached_property
     def mass_matrix_dot(self) -> Matrix:

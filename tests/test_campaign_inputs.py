@@ -89,17 +89,17 @@ def test_the_written_in_radius_and_masses_run_on_the_campaigns_compiled_function
 
 
 def test_the_inertial_plant_has_the_perturbed_urdfs_dynamics(rng):
-    """``s`` times the links' ``M``, ``C qd``, ``g`` plus the payload's equal adam's dynamics of the
-    URDF with the links scaled and the payload added (to 1e-12 relative: the same sums in another
-    order, measured about 1e-15)."""
+    """``s`` times the links' ``M`` and ``C qd + g`` plus the payload's equal the dynamics of the URDF with the
+    links scaled and the payload added (``C`` from the Christoffel symbols of its ``M``, to 1e-12 relative:
+    the same sums in another order, measured about 1e-15)."""
     case = case_of(scenario_data())
     r = case.loop.robot
     payload = Payload(1.3, (0.02, -0.01, 0.05), (0.01, 0.001, -0.002, 0.02, 0.003, 0.015))
     true = Robot(r.urdf, r.frame, r.mount, r.armature, payload, 1.2)
     masses = cs.SX.sym("masses", PLANT_ENTRIES)
     plant = InertialPlant(r, masses)
-    expected = cs.Function("urdf", [true.q, true.qd], [true.mass_matrix, true.coriolis @ true.qd, true.gravity])
-    given = cs.Function("inputs", [r.q, r.qd, masses], [plant.mass_matrix, plant.coriolis @ plant.qd, plant.gravity])
+    expected = cs.Function("urdf", [true.q, true.qd], [true.mass_matrix, true.coriolis @ true.qd + true.gravity])
+    given = cs.Function("inputs", [r.q, r.qd, masses], [plant.mass_matrix, plant.bias])
     vector = np.r_[1.2, payload.mass, payload.com, payload.inertia]
     for _ in range(5):
         q, qd = rng.uniform(-2, 2, r.n), rng.uniform(-1, 1, r.n)

@@ -232,16 +232,18 @@ def test_sampled_integral_law_equals_a_sample_by_sample_loop(as_built):
 @pytest.mark.slow
 def test_without_integral_action_the_default_run_is_unchanged(as_built):
     """``K_I`` absent (every existing scenario): the state, the parameter vector and the run are those of
-    the law (35), (42): 19 states, 35 parameters, and the default example's sampled run over 0.2 s has
-    the recorded SHA-256 of its states (the loop running the program's observer step; ``8fc862f9f743932d``
-    with the observer integrated on ``qd(t)``, docs/math.md fact 22). With ``K_I = 0`` the sampled loop
+    the law (35), (42): 19 states, 35 parameters (and the planned start's 20), and the default example's
+    sampled run over 0.2 s has the recorded SHA-256 of its states (the loop running the program's observer
+    step and the Coriolis product by docs/math.md fact 27; ``24b7b90bc2963aa6`` with the Christoffel product,
+    the states at most 6.2e-14 apart; ``8fc862f9f743932d`` with the observer integrated on ``qd(t)``, fact 22).
+    With ``K_I = 0`` the sampled loop
     carries ``z_I`` but moves the arm bit for bit as without it (the default example without its
     ``k_i_factor``)."""
     loop, s0, settings = build(*default_without_integral())
-    assert loop.n_state == 19 and len(parameter_vector(loop)) == 35
+    assert loop.n_state == 19 and loop.plan is not None and len(parameter_vector(loop)) == 35 + 20
     traj = as_implemented(loop, replace(settings, duration=0.2, jit=False)).run(s0)
     digest = hashlib.sha256(np.ascontiguousarray(traj["state"]).tobytes()).hexdigest()
-    assert digest[:16] == "24b7b90bc2963aa6"
+    assert digest[:16] == "705fb79044574a94"
     loop, s0, settings = as_built
     plain = as_implemented(loop, settings).run(s0)
     zero = as_implemented(with_integral(loop, 0.0), settings).run(np.concatenate([s0, np.zeros(6)]))

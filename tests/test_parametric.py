@@ -93,8 +93,9 @@ def test_a_design_change_reuses_the_symbolic_loop():
 
 def test_sampled_run_equals_the_per_design_build(monkeypatch):
     """The sampled loop (RK4 periods, image mode, pixel noise) of two designs run with the design
-    as an input equals, bit for bit (but what is built from the target's velocity, :data:`ROUNDED`),
-    the run built with the design's numbers."""
+    as an input equals the run built with the design's numbers to 1e-10 relative: round-off (the two builds
+    fold the numbers into different operations, one ulp apart at some states; over 0.3 s the runs part by at most
+    8e-13 rad/s in ``qd`` and 5e-11 N m in ``tau``, measured)."""
     scenario, base = load(DEFAULT_SCENARIO)
     loop, s0, settings = build(scenario, base)
     settings = replace(settings, jit=False, duration=0.3)
@@ -102,7 +103,7 @@ def test_sampled_run_equals_the_per_design_build(monkeypatch):
     runs = [as_implemented(d, settings).run(s0) for d in designs]
     per_design(monkeypatch)
     for run, d in zip(runs, designs, strict=True):
-        assert_same_run(run, as_implemented(d, settings).run(s0))
+        assert_same_run(run, as_implemented(d, settings).run(s0), 1e-10)
 
 
 @pytest.mark.slow

@@ -65,6 +65,19 @@ def test_coriolis_matches_recursive_newton_euler(arm, rng):
         assert np.abs(np.asarray(f(q, qd))).max() < 1e-10
 
 
+def test_the_laws_coriolis_product_is_the_christoffel_one(arm, rng):
+    """``C(q, qd) v`` as the law computes it (half the derivative of the recursive Newton-Euler bias along ``v``,
+    docs/math.md, fact 27) equals the Christoffel ``C`` times ``v`` for ``v`` other than ``qd``, and
+    ``v^T (Mdot - 2C) v = 0`` (the skew property of (33) for the product), to 1e-12 relative (round-off)."""
+    v = cs.SX.sym("v", arm.n)
+    f = cs.Function("f", [arm.q, arm.qd, v], [arm.coriolis_times(v), arm.coriolis @ v,
+                                              v.T @ (arm.mass_matrix_dot @ v - 2 * arm.coriolis_times(v))])  # fmt: skip
+    for q, qd in states(rng, arm.n):
+        product, christoffel, quadratic = (np.asarray(x) for x in f(q, qd, rng.normal(size=arm.n)))
+        assert np.abs(product - christoffel).max() <= 1e-12 * max(1.0, np.abs(christoffel).max())
+        assert abs(quadratic.item()) <= 1e-12 * max(1.0, np.abs(christoffel).max())
+
+
 def test_gravity_is_gradient_of_potential(arm, rng):
     """``g(q) = dU/dq`` checked by central differences (h = 1e-6; error ~1e-9 N m)."""
     g_fun = arm.function("g", arm.gravity)

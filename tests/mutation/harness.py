@@ -970,6 +970,13 @@ MUTATIONS = (
         ('tests/test_target.py::test_a_target_at_rest_stays_at_its_start',),
     ),
     Mutation(
+        'coriolis-product-not-halved',
+        "the law's C(q, qd) v taken as the whole derivative of the bias along v (twice the Christoffel product)",
+        'models/robot.py',
+        (('return v, cs.jtimes(self.bias, self.qd, v) / 2', 'return v, cs.jtimes(self.bias, self.qd, v)'),),
+        ('tests/test_robot.py::test_the_laws_coriolis_product_is_the_christoffel_one',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
