@@ -10,7 +10,7 @@ tracking error over the last half of the run stays within the operating envelope
 certified ultimate bound (docs/math.md, fact 7; twice the continuous loop's error where the design
 has no certified envelope) (:data:`CRITERION`). A run judged to hold must also have reached a
 steady state (:func:`envelope_growth`: over at least :data:`PERIODS` whole periods of the target's
-motion, the last period's peak within ``exp(GROWTH_RATE period)`` of the largest before it, the horizon
+motion, the last period's root-mean-square within ``exp(GROWTH_RATE period)`` of the one before it, the horizon
 doubled, up to :data:`HORIZONS`, until it is), and where fact 14 applies a value at which the sampled
 loop linearised at rest is unstable does not hold (the schedule's for the latency and camera rate, the
 plant as declared with the value for :data:`PLANT`); a measured margin is never reported beyond fact
@@ -73,15 +73,14 @@ factor ``(hi/lo)^(1/64)`` for the parameters searched geometrically)."""
 
 PERIODS = 3
 """Whole periods of the target's motion a run's growth is judged on (docs/math.md, fact 26), at least, after its
-first period (the
-start's transient): the last one's peak against the largest before it (:func:`envelope_growth`)."""
+first period (the start's transient): the last one's level against the one before it (:func:`envelope_growth`)."""
 
 GROWTH_RATE = 0.01
-"""1/s: a run is growing when its last period's peak tracking ratio exceeds the largest of the earlier
-periods' by more than ``exp(GROWTH_RATE T)`` (``T`` the period). A mode growing by ``rho = 1 + 1e-3`` per
-common period ``P`` of fact 14 grows at ``ln(1 + 1e-3) / P``, at least 0.01 1/s for ``P <= 0.1`` s (0.020
-1/s at the default's 50 ms): once it dominates, each period's peak is ``rho^(T/P)`` times the last (1.083 on
-the default's 4 s circle) against the 1.041 allowed."""
+"""1/s: a run is growing when its last period's root-mean-square tracking ratio exceeds the one before it by
+more than ``exp(GROWTH_RATE T)`` (``T`` the period). A mode growing by ``rho = 1 + 1e-3`` per common period
+``P`` of fact 14 grows at ``ln(1 + 1e-3) / P``, at least 0.01 1/s for ``P <= 0.1`` s (0.020 1/s at the
+default's 50 ms): once it dominates, each period's level is ``rho^(T/P)`` times the last (1.083 on the
+default's 4 s circle) against the 1.041 allowed."""
 
 HORIZONS = (1, 2, 4)
 """The horizons a run is judged on, as multiples of the scenario's duration: the first whose
@@ -115,10 +114,10 @@ payload is known for an arm): 10.5 kg on the UR5 (20.99 kg of links; rated 5 kg)
 
 STEADY = (
     "; a run that holds has reached a steady state: over whole periods of {period:.4g} s ({what}) after the first, "
-    "at least {periods}, the peak tracking ratio (the larger of position and angle over their bounds) of the last "
-    "at most exp({rate:g}/s x period) = {limit:.4g}x the largest before it (a mode growing by rho = 1 + 1e-3 per "
-    "50 ms fails it once it dominates), the horizon doubled up to {most:g}x the scenario's until it is (else: does "
-    "not hold, error still growing or not judged); {linear}"
+    "at least {periods}, the root-mean-square tracking ratio (the larger of position and angle over their bounds) "
+    "of the last at most exp({rate:g}/s x period) = {limit:.4g}x the one before it (a mode growing by rho = 1 + "
+    "1e-3 per 50 ms fails it once it dominates), the horizon doubled up to {most:g}x the scenario's until it is "
+    "(else: does not hold, error still growing or not judged); {linear}"
 )
 LINEAR_CLAUSE = (
     "where fact 14 applies, a latency or camera rate at which the sampled loop linearised at rest is unstable "
@@ -284,21 +283,25 @@ def tracking_error(traj: Trajectory) -> tuple[float, float]:
 @dataclass(frozen=True)
 class Growth:
     """The envelope of a run's tracking error over whole periods ``period`` of the target's motion, counted
-    back from the run's end and after its first period: the peak tracking ratio (the larger of position and
-    angle over the bound's, sample by sample) of each, oldest first (``peaks``, at least :data:`PERIODS`);
-    ``growing`` when the last exceeds the largest before it by more than ``limit = exp(GROWTH_RATE period)``."""
+    back from the run's end and after its first period, oldest first (at least :data:`PERIODS`): each
+    period's root-mean-square tracking ratio (``levels``; the ratio the larger of position and angle over the
+    bound's, sample by sample) and its peak (``peaks``). ``growing`` when the last period's level exceeds the
+    one before it by more than ``limit = exp(GROWTH_RATE period)``: consecutive periods, so that no transient
+    of an earlier period hides a growing mode, and levels (means over a period) so that what does not repeat
+    with the period (pixel noise, a slower component) moves the comparison far less than it moves peaks."""
 
     period: float
+    levels: tuple[float, ...]
     peaks: tuple[float, ...]
 
     @property
     def previous(self) -> float:
-        """The largest peak before the last period's."""
-        return max(self.peaks[:-1])
+        """The level of the period before the last."""
+        return self.levels[-2]
 
     @property
     def last(self) -> float:
-        return self.peaks[-1]
+        return self.levels[-1]
 
     @property
     def limit(self) -> float:
@@ -314,8 +317,9 @@ class Growth:
         return self.ratio > self.limit
 
     def as_dict(self) -> dict:
-        return {"period": self.period, "peaks": list(self.peaks), "previous_peak": self.previous,
-                "last_peak": self.last, "ratio": self.ratio, "limit": self.limit, "growing": self.growing}  # fmt: skip
+        return {"period": self.period, "levels": list(self.levels), "peaks": list(self.peaks),
+                "previous_level": self.previous, "last_level": self.last, "ratio": self.ratio, "limit": self.limit,
+                "growing": self.growing}  # fmt: skip
 
 
 def judged_period(loop: ClosedLoop, duration: float) -> float:
@@ -331,7 +335,7 @@ def judged_period(loop: ClosedLoop, duration: float) -> float:
 def envelope_growth(traj: Trajectory, bound: TrackingBound, period: float) -> Growth | None:
     """:class:`Growth` of a completed run over whole periods ``period`` ending at its end and starting at or
     after ``period`` (the first period, the start's transient, left out); None when fewer than
-    :data:`PERIODS` fit (a longer run is needed). A periodic steady error repeats its peak every period
+    :data:`PERIODS` fit (a longer run is needed). A periodic steady error repeats its level every period
     (ratio 1); an error growing like ``exp(a t)`` gives ``exp(a period)`` once it dominates."""
     position, angle = tracking_samples(traj)
     ratio = np.maximum(position / bound.position, angle / bound.angle_deg)
@@ -340,8 +344,9 @@ def envelope_growth(traj: Trajectory, bound: TrackingBound, period: float) -> Gr
     if count < PERIODS:
         return None
     edges = end - period * np.arange(count, -1, -1)
-    peaks = tuple(float(ratio[(t >= a - 1e-9) & (t <= b + 1e-9)].max()) for a, b in itertools.pairwise(edges))
-    return Growth(period, peaks)
+    periods = [ratio[(t > a + 1e-9) & (t <= b + 1e-9)] for a, b in itertools.pairwise(edges)]  # (a, b]: equal counts
+    levels = tuple(float(np.sqrt(np.mean(r * r))) for r in periods)
+    return Growth(period, levels, tuple(float(r.max()) for r in periods))
 
 
 def judge(traj: Trajectory, loop: ClosedLoop, settings: Settings, bound: TrackingBound) -> tuple[bool, str]:
@@ -565,8 +570,8 @@ def trial(
         holds, detail = False, (f"fewer than {PERIODS} whole periods of {period:.4g} s after the first in "
                                 f"{horizons[-1]:g} s: growth not judged; {detail}")  # fmt: skip
     elif growth is not None and growth.growing:
-        holds, detail = False, (f"error still growing at {horizons[-1]:g} s (the last {period:.4g} s period's peak "
-                                f"{growth.ratio:.4g}x the largest before it, > {growth.limit:.4g}); "
+        holds, detail = False, (f"error still growing at {horizons[-1]:g} s (the last {period:.4g} s period's "
+                                f"root-mean-square {growth.ratio:.4g}x the one before it, > {growth.limit:.4g}); "
                                 f"{detail}")  # fmt: skip
     linear_rho = {"rho": rho, "stable": None if rho is None else not unstable}
     return {"value": value, "holds": holds, "detail": detail, "seconds": time.perf_counter() - clock,

@@ -195,15 +195,17 @@ def synthetic(t: np.ndarray, position: np.ndarray) -> Trajectory:
 
 def test_the_error_envelope_grows_only_when_the_error_grows():
     """The steady-state check on runs built by hand (20 s at 100 Hz, bound 1 m, whole 4 s periods after the
-    first: [4, 8] ... [16, 20]): a mode growing by rho = 1 + 1e-3 every 50 ms grows by ``1.001^80`` a period
-    (closed form: its peaks at the periods' ends), above ``exp(0.04)``: growing; a decaying transient onto the
-    error of a target circling every 4 s, and a constant error, repeat their peak: steady; growth of exactly
+    first: (4, 8] ... (16, 20]): a mode growing by rho = 1 + 1e-3 every 50 ms grows by ``1.001^80`` a period
+    (closed form: each period's samples are the one before's times it), above ``exp(0.04)``: growing; a decaying
+    transient onto the error of a target circling every 4 s, and a constant error, repeat their level: steady;
+    growth of exactly
     ``exp(GROWTH_RATE T)`` a period is at the limit (steady), 1% more a period is not; a 10 s run holds one
     whole period after the first, fewer than ``PERIODS``: not judged."""
     t = np.linspace(0.0, 20.0, 2001)
     bound = TrackingBound(1.0, 180.0, "envelope", "")
     growing = envelope_growth(synthetic(t, 1e-3 * 1.001 ** (t / 0.05)), bound, 4.0)
-    assert growing.growing and len(growing.peaks) == 4 and growing.ratio == pytest.approx(1.001**80, rel=1e-12)
+    assert growing.growing and len(growing.levels) == len(growing.peaks) == 4
+    assert growing.ratio == pytest.approx(1.001**80, rel=1e-12)
     settling = 0.3 * np.exp(-2 * t) + 0.02 * (1.5 + np.sin(2 * np.pi * (t + 0.5) / 4))
     assert 0.999 < envelope_growth(synthetic(t, settling), bound, 4.0).ratio <= 1.0
     assert envelope_growth(synthetic(t, np.full_like(t, 0.01)), bound, 4.0).ratio == 1.0
@@ -211,6 +213,22 @@ def test_the_error_envelope_grows_only_when_the_error_grows():
     assert at_limit.ratio == pytest.approx(at_limit.limit, rel=1e-12) and not at_limit.growing
     assert envelope_growth(synthetic(t, np.exp(GROWTH_RATE * t) * 1.01 ** (t / 4)), bound, 4.0).growing
     assert envelope_growth(synthetic(t[t <= 10.0], np.full(1001, 0.01)), bound, 4.0) is None
+
+
+def test_a_transient_does_not_hide_a_growing_mode_nor_noise_make_one():
+    """Consecutive periods' levels: a 20 s trace of a decaying start ``0.6 exp(-0.5 t)``, a steady error repeating
+    every 4 s with a component at 1.3 s that does not, and a mode ``0.01 exp(0.1 t)`` (ten times the rule's rate)
+    is growing, although its last period's peak is below the largest before it (the start's transient in the
+    first judged period; the rule that compared with it judged the trace steady); the same trace without the mode,
+    and with white noise of a tenth of the error added, is steady."""
+    t = np.linspace(0.0, 20.0, 10001)
+    bound = TrackingBound(1.0, 180.0, "envelope", "")
+    steady = 0.6 * np.exp(-0.5 * t) + 0.23 * np.abs(np.cos(np.pi * t / 4)) + 0.02 * np.sin(2 * np.pi * t / 1.3)
+    growing = envelope_growth(synthetic(t, steady + 0.01 * np.exp(0.1 * t)), bound, 4.0)
+    assert growing.growing and growing.peaks[-1] < max(growing.peaks[:-1])
+    noise = 0.025 * np.random.default_rng(0).standard_normal(t.size)
+    for trace in (steady, steady + noise):
+        assert not envelope_growth(synthetic(t, np.abs(trace)), bound, 4.0).growing
 
 
 def test_growth_is_judged_over_the_targets_period_or_quarters_of_a_run_at_rest(default_case):

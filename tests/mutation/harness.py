@@ -977,6 +977,13 @@ MUTATIONS = (
         ('tests/test_robot.py::test_the_laws_coriolis_product_is_the_christoffel_one',),
     ),
     Mutation(
+        'growth-against-largest-before',
+        "margins' growth rule compares the last period's level with the largest before it (a transient hides a mode)",
+        'analysis/margins.py',
+        (('        return self.levels[-2]', '        return max(self.levels[:-1])'),),
+        ('tests/test_margins.py::test_a_transient_does_not_hide_a_growing_mode_nor_noise_make_one',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
