@@ -31,7 +31,7 @@ from dvfc.analysis.hardware import what_would_pass
 from dvfc.analysis.margins import PARAMETERS, MarginError, MarginsResult, TrackingBound, log_path, tracking_bound
 from dvfc.analysis.margins import margins as measure_margins
 from dvfc.analysis.output import atomic_write
-from dvfc.analysis.pose import initial_view, solution_record
+from dvfc.analysis.pose import initial_view, integration_cost, solution_record
 from dvfc.analysis.record import ABSENT, Absent, Record
 from dvfc.analysis.results import (
     CertificateResult,
@@ -105,6 +105,7 @@ def pose(case: Case, *, solve: bool = False) -> PoseResult:
     windows = case_windows(case)
     return PoseResult(scenario=case.name, solution=solution, **initial_view(case.loop, case.s0),
                       gain_windows=None if windows is None else windows.as_dict(),
+                      integration=integration_cost(case.loop, case.s0, case.settings),
                       windows_warning=None if windows is None else windows.warning())  # fmt: skip
 
 

@@ -1,15 +1,23 @@
 """Where everything is at the start: the camera's pose ``g_wc(q0)``, the target's ``g_wo(0)``,
 the relative pose ``g(0) = g_wc^-1 g_wo`` (10) and the feature points in the image (11),
-(14), for placing a target in view before any simulation."""
+(14), for placing a target in view before any simulation; and what a run of the scenario costs to integrate,
+before a long job makes many of them."""
 
 from __future__ import annotations
+
+import time
+from dataclasses import replace
 
 import casadi as cs
 import numpy as np
 
 from dvfc.analysis.ik import Configuration
+from dvfc.analysis.simulate import Settings
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.robot import JointLimits
+
+TIMED_HORIZON = 0.5
+"""Seconds of the scenario's run :func:`integration_cost` makes and times (at most its duration)."""
 
 
 def xyz_rpy(matrix: np.ndarray) -> dict[str, list[float]]:
@@ -64,3 +72,29 @@ def solution_record(config: Configuration, limits: JointLimits) -> dict:
         "within_position_limits": bool(within.all()),
         "joints_within_limits": within.tolist(),
     }
+
+
+def integration_cost(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> dict:
+    """How the scenario's run as implemented is integrated and what one costs, measured: the loop as implemented
+    (:func:`dvfc.analysis.sampled.as_implemented`) built, its RK4 substeps chosen from ``s0`` where they are
+    ``"auto"`` (the choice a campaign's runs share), then its first :data:`TIMED_HORIZON` seconds run and timed;
+    ``wall_time_per_run`` is that time scaled to the scenario's duration (building and compiling left out: a
+    first run on an empty compile cache costs that too). ``integrator``: the sampled loop's choice
+    (:class:`~dvfc.analysis.implementation.SubstepChoice`, with its text), or CVODES at the run's tolerances."""
+    from dvfc.analysis.sampled import SampledSimulator, as_implemented
+
+    horizon = min(TIMED_HORIZON, settings.duration)
+    simulator = as_implemented(loop, replace(settings, duration=horizon))
+    if isinstance(simulator, SampledSimulator):
+        choice = simulator.settle(s0).substeps
+        assert choice is not None, "settled"
+        integrator = {**choice.as_dict(), "text": choice.text}
+    else:
+        integrator = {"text": f"CVODES (BDF) at rtol {settings.rtol:g}, atol {settings.atol:g}"}
+    start = time.perf_counter()
+    run = simulator.run(s0)
+    elapsed = time.perf_counter() - start
+    return {"integrator": integrator, "timed_horizon": horizon, "timed_status": str(run.status),
+            "duration": settings.duration, "wall_time_per_run": elapsed * settings.duration / max(run.t[-1], 1e-12),
+            "basis": f"measured on this machine: the first {horizon:g} s of the run as implemented, scaled to its "
+                     f"{settings.duration:g} s (building and compiling left out)"}  # fmt: skip

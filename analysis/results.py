@@ -88,7 +88,8 @@ class SimulationResult(Record):
 @dataclass(frozen=True, kw_only=True)
 class PoseResult(Record):
     """``dvfc pose``: where everything is at the start (:func:`dvfc.analysis.pose.initial_view`), the
-    configuration solved for (``pose --solve``; None: none) and the gain windows (None: none)."""
+    configuration solved for (``pose --solve``; None: none), the gain windows (None: none) and what a run costs
+    to integrate."""
 
     scenario: str
     solution: dict[str, Any] | None
@@ -99,6 +100,8 @@ class PoseResult(Record):
     image_size: list[float] | None
     features: list[dict[str, Any]]
     gain_windows: dict[str, Any] | None
+    integration: dict[str, Any]
+    """How a run of the scenario is integrated and its measured cost (:func:`dvfc.analysis.pose.integration_cost`)."""
     windows_warning: str | None = field(default=None, metadata=INTERNAL)
     """The gain windows' warning (a ``k_xi,i`` outside its window), or None."""
 

@@ -95,6 +95,9 @@ def show_pose(result: PoseResult) -> None:
     out.print(table)
     if (windows := result.gain_windows) is not None:
         show_windows(windows)
+    cost = result.integration
+    out.print(f"integration: {cost['integrator']['text']}; about {cost['wall_time_per_run']:.3g} s a "
+              f"{cost['duration']:g} s run ({cost['basis']})", markup=False, soft_wrap=True)  # fmt: skip
 
 
 def show_windows(windows: dict) -> None:

@@ -15,6 +15,7 @@ import pytest
 
 from dvfc.analysis import sampled
 from dvfc.analysis.implementation import MAX_AUTO_SUBSTEPS
+from dvfc.analysis.pose import integration_cost
 from dvfc.analysis.sampled import as_implemented, step_doubling
 from dvfc.models.errors import PlantErrors
 
@@ -166,3 +167,19 @@ def test_a_plant_too_stiff_for_the_most_substeps_says_the_target_is_not_met(pape
     choice = with_viscous_friction(papers_start, 10.0).settle(papers_start[1]).substeps
     assert choice.substeps == MAX_AUTO_SUBSTEPS and not choice.met and choice.estimate > choice.step_error
     assert "ABOVE step_error" in choice.text and choice.as_dict()["met"] is False
+
+
+def test_pose_states_the_substeps_a_run_will_use_and_what_it_costs(papers_start):
+    """``dvfc pose``'s integration cost: with ``substeps = "auto"`` the choice the runs will make (the settled
+    simulator's, from the same start: same steps, same estimate) with its text, and a measured time a run over
+    the part of the run it timed (positive, the run as implemented completed); without an implementation,
+    CVODES at the run's tolerances."""
+    loop, s0, settings = papers_start
+    cost = integration_cost(loop, s0, settings)
+    choice = as_implemented(loop, settings).settle(s0).substeps
+    assert cost["integrator"] == {**choice.as_dict(), "text": choice.text} and cost["integrator"]["chosen"] == "auto"
+    assert cost["timed_horizon"] == settings.duration == cost["duration"] and cost["timed_status"] == "ok"
+    assert cost["wall_time_per_run"] > 0
+    continuous = integration_cost(loop, s0, replace(settings, implementation=None))
+    assert continuous["integrator"]["text"].startswith("CVODES") and f"rtol {settings.rtol:g}" in continuous[
+        "integrator"]["text"]  # fmt: skip
