@@ -160,9 +160,19 @@ def local_verdict_of(case: Case, settings: Settings) -> LocalVerdict | None:
     return DeclaredPlant.of(settings).verdict(case.loop, case.s0[: case.loop.robot.n], settings.sampled)
 
 
-def local_summary(data: dict) -> dict:
+def dry_friction_smoothing(spec: CampaignSpec) -> float | None:
+    """The smoothing width ``eps`` (rad/s) of the plant's dry friction ``c tanh(qd / eps)`` where the campaign's
+    plants have any (declared or drawn), else None: fact 14 linearises that smoothed model."""
+    errors = spec.case.settings.errors
+    drawn = "plant.friction.coulomb" in spec.case.scenario.dispersion
+    return None if errors is None or not (drawn or np.any(errors.coulomb)) else float(errors.smoothing)
+
+
+def local_summary(data: dict, smoothing: float | None = None) -> dict:
     """How many runs' plants fact 14 certifies locally (``local_certified``), the largest ``rho`` and the
-    runs it does not certify (failures whatever their runs show)."""
+    runs it does not certify (failures whatever their runs show); ``smoothing``: the width ``eps`` of the
+    smoothed dry friction the plants were linearised with (:func:`dry_friction_smoothing`; None: none), named
+    in the statement, which depends on it."""
     checked = [(int(run), rho, certified) for run, rho, certified in zip(data["run"], data["local_rho"],
                                                                          data["local_certified"], strict=True)
                if certified is not None]  # fmt: skip
@@ -173,7 +183,11 @@ def local_summary(data: dict) -> dict:
             "statement": (f"{len(checked) - len(unstable)} of {len(data['run'])} draws locally certified (fact 14 "
                           f"for each draw's plant, linearised at rest, at the scenario's latency and rates: rho < 1 "
                           f"with every check of the monodromy), largest rho "
-                          f"{'-' if largest is None else f'{largest:.6g}'}")}  # fmt: skip
+                          f"{'-' if largest is None else f'{largest:.6g}'}"
+                          + ("" if smoothing is None else
+                             f"; the joints' dry friction is the smoothed model c tanh(qd / eps) at eps = "
+                             f"{smoothing:g} rad/s, linearised at qd = 0 (a real joint sticks: these verdicts "
+                             "depend on eps)"))}  # fmt: skip
 
 
 def simulate_run(spec: CampaignSpec, run: int, simulator: SampledSimulator | None = None) -> tuple[dict, Trajectory]:
@@ -325,7 +339,7 @@ def summarize(spec: CampaignSpec, table: pa.Table, confidence: float, p: float, 
                          "statement": f"{zero_failure_runs(p, confidence)} runs without a failure bound P(fail) by "
                                       f"{p:g} at {confidence:.0%} confidence"},
         "tolerance": tolerance, "sensitivity": drivers, "sensitivity_floor": floor, "worst": worst,
-        "local": local_summary(data),
+        "local": local_summary(data, dry_friction_smoothing(spec)),
         "seed": spec.seed,
         "wall_time_per_run": float(np.mean(data["wall_time"])) if n else None,
     }  # fmt: skip

@@ -272,7 +272,9 @@ class DeclaredPlant:
         if self.camera_errors(camera) is not None:
             parts.append("its camera (mount, intrinsics, distortion, feature points as declared)")
         if self.friction_slope is not None:
-            parts.append("joint friction linearised at qd = 0 (slope b + c/eps)")
+            assert self.errors is not None, "friction_slope"
+            parts.append(f"joint friction, the smoothed model b qd + c tanh(qd / eps) at eps = "
+                         f"{self.errors.smoothing:g} rad/s, linearised at qd = 0 (slope b + c/eps)")
         return "the plant as declared: " + ", ".join(parts)
 
 

@@ -13,11 +13,17 @@ import pytest
 from scipy import stats
 
 from dvfc.analysis import campaign
-from dvfc.analysis.campaign import CampaignSpec, local_summary, tolerance_rank, zero_failure_runs
+from dvfc.analysis.campaign import (
+    CampaignSpec,
+    dry_friction_smoothing,
+    local_summary,
+    tolerance_rank,
+    zero_failure_runs,
+)
 from dvfc.analysis.case import Case
 from dvfc.analysis.dispersion import Dispersion
 from dvfc.analysis.margins import TrackingBound
-from dvfc.analysis.multirate import LocalVerdict
+from dvfc.analysis.multirate import DeclaredPlant, LocalVerdict
 from dvfc.analysis.scenario import Scenario
 from dvfc.analysis.schema import DistributionSection
 
@@ -133,6 +139,27 @@ def test_the_local_summary_counts_the_draws_fact_14_certifies_and_names_the_unst
     local = local_summary(data)
     assert local["computed"] == 4 and local["certified"] == 2 and local["unstable_runs"] == [2, 4]
     assert local["largest_rho"] == 1.0002 and "2 of 5 draws locally certified" in local["statement"]
+    assert "eps" not in local["statement"]
+
+
+def test_a_local_verdict_on_smoothed_friction_names_the_smoothing_width():
+    """The plants' dry friction enters fact 14 as the smoothed model ``c tanh(qd / eps)``, whose slope at rest
+    sets the verdicts: the campaign's local statement for the ``ur5_cell`` draws (Coulomb friction declared and
+    drawn) names it and its ``eps``, as does the words of a declared plant with friction; a campaign without
+    dry friction names none."""
+    bound = TrackingBound(1.0, 180.0, "envelope", "")
+    data = tomllib.loads(CELL.read_text())
+    case = Case.load(CELL)
+    eps = case.settings.errors.smoothing
+    runs = {"run": [0], "local_rho": [0.9], "local_certified": [True]}
+    statement = local_summary(runs, dry_friction_smoothing(CampaignSpec.of(case, bound)))["statement"]
+    assert f"smoothed model c tanh(qd / eps) at eps = {eps:g} rad/s" in statement
+    words = DeclaredPlant(None, case.settings.errors).words(case.loop.camera)
+    assert f"the smoothed model b qd + c tanh(qd / eps) at eps = {eps:g} rad/s" in words
+    data["plant"]["friction"]["coulomb"] = [0.0] * 6
+    del data["dispersion"]["plant.friction.coulomb"]
+    without = case.with_scenario(Scenario.model_validate(data))
+    assert dry_friction_smoothing(CampaignSpec.of(without, bound)) is None
 
 
 @pytest.mark.slow

@@ -984,6 +984,14 @@ MUTATIONS = (
         ('tests/test_margins.py::test_a_transient_does_not_hide_a_growing_mode_nor_noise_make_one',),
     ),
     Mutation(
+        'campaign-local-statement-silent-on-smoothing',
+        "the campaign's local verdicts stated as the plant's with no word of the smoothed friction they rest on",
+        'analysis/campaign.py',
+        (('    return None if errors is None or not (drawn or np.any(errors.coulomb)) else float(errors.smoothing)',
+          '    return None'),),
+        ('tests/test_campaign_statistics.py::test_a_local_verdict_on_smoothed_friction_names_the_smoothing_width',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
