@@ -30,7 +30,6 @@ from dvfc.models.driven import DrivenPlanarLoop, DrivenTargetLoop, Sinusoid
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import TASK, PlanarLoop
-from dvfc.models.target import TargetMotion
 
 if TYPE_CHECKING:
     import control
@@ -44,7 +43,7 @@ def driven(loop: ClosedLoop, disturbance_input: Callable[[cs.SX], cs.SX] | Sinus
     :class:`~dvfc.models.driven.Sinusoid` is the loop's data (its numbers enter the compiled functions as inputs);
     any other signal is an expression of ``t``."""
     fields = {f: getattr(loop, f) for f in ClosedLoop.__dataclass_fields__}
-    fields.update(target=TargetMotion(loop.target.start), disturbances=[], mode="ideal", inputs=None, plan=None)
+    fields.update(target=loop.target.at_rest(), disturbances=[], mode="ideal", inputs=None, plan=None)
     kind = DrivenPlanarLoop if isinstance(loop, PlanarLoop) else DrivenTargetLoop
     if isinstance(disturbance_input, Sinusoid):
         return kind(**fields, drive=disturbance_input)

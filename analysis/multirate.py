@@ -61,7 +61,6 @@ from dvfc.models.errors import PlantErrors, controller_features, true_features
 from dvfc.models.loop import ClosedLoop
 from dvfc.models.planar import PlanarLoop
 from dvfc.models.robot import JointLimits, Robot, spans_the_task
-from dvfc.models.target import TargetMotion
 
 LYAPUNOV_MARGIN = 0.5
 """Smallest ``lambda_min(P_L - Pi^T P_L Pi)`` accepted (1 in exact arithmetic)."""
@@ -282,7 +281,7 @@ def rest_model(loop: ClosedLoop, plant: Robot | None = None) -> ClosedLoop:
     """The sampled loop with its exogenous inputs at zero: target at rest at its start
     pose, no torque disturbance, the constant reference ``g_d`` (where a planned one ends); the
     joints moved by ``plant`` (None: the law's model)."""
-    return replace(loop, target=TargetMotion(loop.target.start), disturbances=[], sampled=True, plant=plant,
+    return replace(loop, target=loop.target.at_rest(), disturbances=[], sampled=True, plant=plant,
                    plan=None)  # fmt: skip
 
 

@@ -120,6 +120,10 @@ def limit_record(traj: Trajectory, limits: JointLimits) -> dict:
     }
 
 
+PERIOD_LEVEL = "-O2"
+"""The optimisation level of a compiled RK4 period (the control period, the plant's period): it runs thousands of
+times a run (:data:`dvfc.analysis.compile.JACOBIAN_PRAGMA`)."""
+
 PILOT_HORIZON = 0.3
 """Seconds of the pilot run whose states probe the substeps (:meth:`SampledSimulator.choose_substeps`):
 on the default example the local error reaches its level of the whole run by 0.2 s."""
@@ -226,12 +230,13 @@ class SampledSimulator(Simulator):
             if period is not None:
                 own["period"] = period
         if settings.jit:  # built together, the RK4 period whole at -O2
-            requests = [(f, False, "-O2" if name == "period" else "-O1") for name, f in own.items()]
+            requests = [(f, False, PERIOD_LEVEL if name == "period" else "-O1") for name, f in own.items()]
             own = dict(zip(own, compiled_together(requests), strict=True))
         self.signal_function, self._image_function = own["signals"], Buffered(own["camera"])
         self._last = Buffered(own.get("last", last))
         if period is not None:
-            self._periods.set(SubstepChoice.fixed(implementation), lambda _: own.get("period", period))
+            built = own.get("period", period)
+            self._periods.set(SubstepChoice.fixed(implementation), lambda _: built)
         self._read_image = Buffered(image_update(loop))  # the program's (21) and its check, by the VM
         self._window = None  # the image as bounds on f, point by point (when the run checks it)
         if settings.view and loop.camera.has_image:
@@ -287,7 +292,8 @@ class SampledSimulator(Simulator):
         """:meth:`_period_function`, compiled whole under ``jit`` when RK4 (CVODES calls the
         compiled DAE)."""
         period = self._period_function(substeps)
-        return compiled(period, jacobian=False, level="-O2") if self.settings.jit and substeps is not None else period
+        whole = self.settings.jit and substeps is not None
+        return compiled(period, jacobian=False, level=PERIOD_LEVEL) if whole else period
 
     def _held_flow(
         self, t: cs.MX, s: cs.MX, hold: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int | None
@@ -435,7 +441,8 @@ class SampledSimulator(Simulator):
         substeps = self._periods.choice.substeps
         after, _ = self._held_flow(t, s, hold, friction, design, substeps)
         period = cs.Function("dvfc_plant_period", [t, s, tau, friction, *design], [after])
-        period = Buffered(compiled(period, jacobian=False, level="-O2") if self.settings.jit and substeps else period)
+        period = Buffered(compiled(period, jacobian=False, level=PERIOD_LEVEL) if self.settings.jit and substeps
+                          else period)  # fmt: skip
         return lambda time, state, torque: period(time, state, torque, self._friction, *self.design)[0].ravel()
 
     @property

@@ -58,9 +58,9 @@ def test_mdot_minus_2c_is_skew_symmetric(arm, rng):
 
 
 def test_coriolis_matches_recursive_newton_euler(arm, rng):
-    """``C(q, qd) qd + g(q)`` equals adam's bias force (RNEA), an independent algorithm."""
-    bias = arm._kindyn.bias_force(cs.SX.eye(4), arm.q, cs.SX.zeros(6), arm.qd)[6:]
-    f = cs.Function("f", [arm.q, arm.qd], [arm.coriolis @ arm.qd + arm.gravity - bias])
+    """``C(q, qd) qd + g(q)`` with the Christoffel ``C`` equals :attr:`Robot.bias`, the loop's, by adam's bias force
+    (RNEA), an independent algorithm (docs/math.md, fact 27, (27.1))."""
+    f = cs.Function("f", [arm.q, arm.qd], [arm.coriolis @ arm.qd + arm.gravity - arm.bias])
     for q, qd in states(rng, arm.n):
         assert np.abs(np.asarray(f(q, qd))).max() < 1e-10
 
