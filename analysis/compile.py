@@ -3,7 +3,14 @@ the system C compiler and cached on disk by the hash of the function's structure
 generates no C), one lock per cache entry (two processes never build the same library); loaded
 once per process for each function (the same function built again, by another design of the same
 arm, is not generated again). The libraries one simulator needs are built together
-(:func:`compiled_together`): one compiler process each, as many at once as there are cores."""
+(:func:`compiled_together`): one compiler process each, as many at once as there are cores.
+
+A library holds the function alone. A function that an implicit integrator differentiates (the
+continuous loop's DAE, whose Jacobian CVODES's Newton iteration needs) is loaded with CasADi's finite
+differences: central, with the step chosen from estimates of truncation and round-off
+(:data:`DIFFERENCES`). The Newton iteration needs only an approximate Jacobian (its error test, not
+the Jacobian, sets the accuracy of a run), and the symbolic Jacobian's C is 15 times the function's:
+on the xArm 7 it took 8.5 s of the 11 s a structure's build took."""
 
 from __future__ import annotations
 
@@ -23,16 +30,13 @@ import casadi as cs
 import numpy as np
 
 CC_FLAGS = ("-shared", "-fPIC")
-JACOBIAN_PRAGMA = '#pragma GCC optimize ("O0")\n'
-"""The generated Jacobian is large (about 1e5 operations): gcc needs minutes to optimise
-it but ten seconds to build it at -O0, where it still runs several times faster than
-CasADi's virtual machine. The function itself is optimised (-O1); the pragma switches
-the optimiser off from the Jacobian's body on. A function without Jacobian that runs
-thousands of times per run (the sampled loop's control period) is worth ``-O2``: about
-10 s more to build once, about 10% faster."""
+DIFFERENCES = {"enable_fd": True, "fd_method": "central"}
+"""How a differentiable compiled function is differentiated: CasADi's central differences, with the step
+chosen from estimates of the truncation and round-off errors (CasADi's default step selection)."""
 
-_loaded: dict[str, cs.Function] = {}
-"""The compiled functions loaded in this process, by their library's path (:func:`_library`)."""
+_loaded: dict[tuple[str, bool], cs.Function] = {}
+"""The compiled functions loaded in this process, by their library's path (:func:`_library`) and whether
+differentiated."""
 
 
 def cache_dir() -> Path:
@@ -43,32 +47,22 @@ def cache_dir() -> Path:
     return base / "dvfc"
 
 
-def _source(function: cs.Function, jacobian: bool, directory: str) -> str:
+def _source(function: cs.Function, directory: str) -> str:
     generator = cs.CodeGenerator(f"{function.name()}.c")
     generator.add(function)
-    if jacobian:
-        generator.add(function.jacobian())
-    text = Path(generator.generate(directory + os.sep)).read_text()
-    marker = "static int casadi_f1("  # the body of the second function added: the Jacobian
-    if jacobian and marker in text:
-        i = text.index(marker)
-        text = text[:i] + JACOBIAN_PRAGMA + text[i:]
-    return text
+    return Path(generator.generate(directory + os.sep)).read_text()
 
 
 Request = tuple[cs.Function, bool, str]
-"""What :func:`compiled_together` builds: a function, whether with its Jacobian, the optimisation level."""
+"""What :func:`compiled_together` builds: a function, whether it is differentiated (by :data:`DIFFERENCES`),
+the optimisation level."""
 
 
-def compiled(function: cs.Function, *, jacobian: bool = True, level: str = "-O1") -> cs.Function:
-    """``function`` (and its Jacobian) as compiled C, loaded as a CasADi external.
-
-    The Jacobian is generated under CasADi's name ``jac_<name>`` so that the
-    external function differentiates through it, built at the optimisation ``level``
-    (see :data:`JACOBIAN_PRAGMA`). Falls back to ``function`` itself (CasADi's virtual
-    machine) when no C compiler is on the PATH.
-    """
-    return compiled_together([(function, jacobian, level)])[0]
+def compiled(function: cs.Function, *, differentiable: bool = False, level: str = "-O1") -> cs.Function:
+    """``function`` as compiled C at the optimisation ``level``, loaded as a CasADi external; ``differentiable``:
+    its derivatives by :data:`DIFFERENCES` (none otherwise). Falls back to ``function`` itself (CasADi's virtual
+    machine, with its symbolic derivatives) when no C compiler is on the PATH."""
+    return compiled_together([(function, differentiable, level)])[0]
 
 
 def compiled_together(requests: Sequence[Request]) -> list[cs.Function]:
@@ -78,14 +72,16 @@ def compiled_together(requests: Sequence[Request]) -> list[cs.Function]:
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
         return [function for function, _, _ in requests]
-    libraries = [_library(function, jacobian, level, compiler) for function, jacobian, level in requests]
+    libraries = [_library(function, level, compiler) for function, _, level in requests]
+    loaded = {path for path, _ in _loaded}
     missing = {str(library): (request, library) for request, library in zip(requests, libraries, strict=True)
-               if str(library) not in _loaded}  # fmt: skip
+               if str(library) not in loaded}  # fmt: skip
     _build_all([missing[key] for key in sorted(missing)], compiler)  # sorted: one order of locks for every process
-    for (function, _, _), library in zip(requests, libraries, strict=True):
-        if str(library) not in _loaded:
-            _loaded[str(library)] = cs.external(function.name(), str(library))
-    return [_loaded[str(library)] for library in libraries]
+    keys = [(str(library), differentiable) for (_, differentiable, _), library in zip(requests, libraries, strict=True)]
+    for (function, differentiable, _), key in zip(requests, keys, strict=True):
+        if key not in _loaded:
+            _loaded[key] = cs.external(function.name(), key[0], DIFFERENCES if differentiable else {})
+    return [_loaded[key] for key in keys]
 
 
 @functools.cache
@@ -96,11 +92,11 @@ def _compiler_identity(compiler: str) -> str:
     return f"{compiler} {run.stdout.splitlines()[0] if run.stdout else ''}"
 
 
-def _library(function: cs.Function, jacobian: bool, level: str, compiler: str) -> Path:
+def _library(function: cs.Function, level: str, compiler: str) -> Path:
     """The cache entry of ``function``'s library: named after the function and keyed by the hash of
     its serialisation (its structure, from which the C source is generated), the build's options,
     CasADi's version and the compiler, so that a cache hit generates no C."""
-    text = " ".join((function.serialize(), str(jacobian), level, *CC_FLAGS, cs.__version__,
+    text = " ".join((function.serialize(), level, *CC_FLAGS, cs.__version__,
                      _compiler_identity(compiler)))  # fmt: skip
     digest = hashlib.sha256(text.encode()).hexdigest()[:24]
     return cache_dir() / f"{function.name()}-{digest}.so"
@@ -124,7 +120,7 @@ def _build_all(builds: list[tuple[Request, Path]], compiler: str) -> None:
     after the other, the compilers run at once (at most one a core)."""
     with contextlib.ExitStack() as stack:
         commands = []
-        for (function, jacobian, level), library in builds:
+        for (function, _, level), library in builds:
             if library.exists():
                 continue
             library.parent.mkdir(parents=True, exist_ok=True)
@@ -133,7 +129,7 @@ def _build_all(builds: list[tuple[Request, Path]], compiler: str) -> None:
                 continue
             tmp = stack.enter_context(tempfile.TemporaryDirectory())
             source = Path(tmp) / f"{function.name()}-final.c"
-            source.write_text(_source(function, jacobian, tmp))
+            source.write_text(_source(function, tmp))
             partial = library.with_suffix(f".{os.getpid()}.tmp")
             commands.append(([compiler, level, *CC_FLAGS, str(source), "-o", str(partial)], partial, library))
         with ThreadPoolExecutor(max_workers=max(1, min(len(commands), os.cpu_count() or 1))) as pool:

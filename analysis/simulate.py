@@ -1,7 +1,8 @@
 """Closed-loop simulation of (36) with CVODES, and the energy identities it must satisfy.
 
-The state ``s = [q; qd; pbar; quat]`` is integrated by CVODES (BDF, Newton with the
-exact Jacobian from CasADi) together with the quadratures of
+The state ``s = [q; qd; pbar; quat]`` is integrated by CVODES (BDF, Newton with CasADi's
+Jacobian: symbolic when the loop runs in CasADi's virtual machine, central differences of the
+compiled right-hand side under ``jit``, :data:`dvfc.analysis.compile.DIFFERENCES`) together with the quadratures of
 :data:`dvfc.models.loop.QUADRATURES` (error-controlled as well). The run proceeds in
 chunks of the output grid so that progress can be shown and a run that diverges, loses
 its features or exceeds its time budget stops with a clear status.
@@ -38,7 +39,8 @@ class Settings:
     rtol, atol
         CVODES tolerances (states and quadratures).
     jit
-        Compile the right-hand side and its Jacobian to C (cached on disk).
+        Compile the right-hand side and the signals to C (cached on disk); CVODES then differentiates the
+        compiled right-hand side by central differences.
     time_budget
         Wall-clock seconds after which the run stops with status ``"time_budget"``.
     sigma_min
@@ -176,7 +178,7 @@ def dynamics_function(loop: ClosedLoop) -> cs.Function:
     (:attr:`dvfc.models.loop.ClosedLoop.hold`), the design of a symbolic loop
     (:attr:`dvfc.models.loop.ClosedLoop.parameters`).
 
-    The Jacobian of a symbolic loop is taken in forward mode, the mode CasADi chooses for the
+    Interpreted, the Jacobian of a symbolic loop is taken in forward mode, the mode CasADi chooses for the
     loop with numbers: the design's inputs would tip its choice to reverse mode, whose round-off
     differs (by about 1e-9 in the Jacobian, 1e-11 in the states CVODES's Newton steps reach)."""
     t_local, offset = cs.SX.sym("t"), cs.SX.sym("p")
@@ -238,7 +240,7 @@ class Simulator:
         signals = model.signals_function()
         self.signal_function = signals
         if settings.jit and not loop.sampled:  # the sampled simulator compiles its signals with its own functions
-            requests = [(signals, False, "-O1"), (dynamics_function(model), True, "-O1")]
+            requests = [(signals, False, "-O1"), (dynamics_function(model), True, "-O1")]  # the DAE differentiated
             self.signal_function, self.dae = compiled_together(requests)
         (arm, arm_jac), (image, image_jac) = model.conditioning.items()
         self._monitored = (arm, image)
@@ -246,8 +248,9 @@ class Simulator:
 
     @cached_property
     def dae(self) -> cs.Function:
-        """The DAE of :func:`dynamics_function` (under ``jit`` compiled with its Jacobian at construction,
-        beside the signals; otherwise built at first use: the fixed-step sampled loop never needs it)."""
+        """The DAE of :func:`dynamics_function` (under ``jit`` compiled at construction beside the signals, and
+        differentiated by central differences; otherwise built at first use: the fixed-step sampled loop never
+        needs it)."""
         return dynamics_function(self.model)
 
     def cvodes_options(self) -> dict:

@@ -992,6 +992,13 @@ MUTATIONS = (
         ('tests/test_campaign_statistics.py::test_a_local_verdict_on_smoothed_friction_names_the_smoothing_width',),
     ),
     Mutation(
+        'compiled-dae-one-sided-differences',
+        "a compiled function that CVODES differentiates is differenced one-sidedly (its Jacobian 100 times less exact)",
+        'analysis/compile.py',
+        (('"fd_method": "central"}', '"fd_method": "forward"}'),),
+        ('tests/test_compile_cache.py::test_a_differentiable_library_has_the_symbolic_jacobian_to_central_differences_accuracy',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
