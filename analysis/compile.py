@@ -117,9 +117,10 @@ def _locked(library: Path) -> Iterator[None]:
 def _build_all(builds: list[tuple[Request, Path]], compiler: str) -> None:
     """Each request built by ``compiler`` into its library, unless it is there already (built by this or another
     process, which holds the entry's lock meanwhile): the locks taken in the order given, the sources generated one
-    after the other, the compilers run at once (at most one a core)."""
+    after the other, each compiled as soon as it is generated, at most one compiler a core."""
     with contextlib.ExitStack() as stack:
-        commands = []
+        pool = stack.enter_context(ThreadPoolExecutor(max_workers=os.cpu_count() or 1))
+        running = []
         for (function, _, level), library in builds:
             if library.exists():
                 continue
@@ -131,11 +132,10 @@ def _build_all(builds: list[tuple[Request, Path]], compiler: str) -> None:
             source = Path(tmp) / f"{function.name()}-final.c"
             source.write_text(_source(function, tmp))
             partial = library.with_suffix(f".{os.getpid()}.tmp")
-            commands.append(([compiler, level, *CC_FLAGS, str(source), "-o", str(partial)], partial, library))
-        with ThreadPoolExecutor(max_workers=max(1, min(len(commands), os.cpu_count() or 1))) as pool:
-            done = list(pool.map(lambda c: subprocess.run(c[0], check=False, capture_output=True), commands))
-        for run, (_, partial, library) in zip(done, commands, strict=True):
-            run.check_returncode()
+            command = [compiler, level, *CC_FLAGS, str(source), "-o", str(partial)]
+            running.append((pool.submit(subprocess.run, command, check=False, capture_output=True), partial, library))
+        for build, partial, library in running:
+            build.result().check_returncode()
             partial.replace(library)
 
 

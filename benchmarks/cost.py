@@ -4,8 +4,7 @@
    new to it): the nominal scenario built and run end to end once to fill the cache, then again (the baseline),
    then with a payload, the joints' friction, the camera mount or the latency changed: each its wall time, its
    ratio to the baseline (target: at most 1.2x) and the libraries it added to the cache (target: none; every such
-   change is an input of the compiled functions). The first payload builds the structure of a plant with masses of
-   its own (the nominal cell has none), the second shows what a payload costs then.
+   change is an input of the compiled functions: the nominal plant too is a plant whose masses are inputs).
 2. ``dvfc certify`` and ``dvfc verify`` of ``examples/xarm7_cell.toml`` in fresh processes, each with an empty
    compile cache (cold; target: within 30 s) and again with the libraries it wrote (warm).
 3. With ``--synthesis``: ``dvfc synthesize --for-campaign examples/xarm7_cell.toml --workers 2`` (target: within
@@ -45,8 +44,8 @@ CHANGES: dict[str, Callable[[dict], None]] = {
     "latency 30 ms": lambda d: d["implementation"].update(latency=0.03),
     "latency 40 ms": lambda d: d["implementation"].update(latency=0.04),
 }
-"""The changes timed against the nominal cell, each an edit of its TOML (a second payload and latency: the first
-of each may build a structure the nominal cell has no need of, a plant with masses of its own)."""
+"""The changes timed against the nominal cell, each an edit of its TOML (a second payload and latency: what a
+change costs once the first has been made)."""
 
 
 def end_to_end(data: dict, folder: Path) -> Callable[[], object]:
