@@ -1,7 +1,7 @@
 """Closed-loop simulation of (36) with CVODES, and the energy identities it must satisfy.
 
 The state ``s = [q; qd; pbar; quat]`` is integrated by CVODES (BDF, Newton with CasADi's
-Jacobian: symbolic when the loop runs in CasADi's virtual machine, central differences of the
+Jacobian: symbolic when the loop runs in CasADi's virtual machine, forward differences of the
 compiled right-hand side under ``jit``, :data:`dvfc.analysis.compile.DIFFERENCES`) together with the quadratures of
 :data:`dvfc.models.loop.QUADRATURES` (error-controlled as well). The run proceeds in
 chunks of the output grid so that progress can be shown and a run that diverges, loses
@@ -40,7 +40,7 @@ class Settings:
         CVODES tolerances (states and quadratures).
     jit
         Compile the right-hand side and the signals to C (cached on disk); CVODES then differentiates the
-        compiled right-hand side by central differences.
+        compiled right-hand side by forward differences.
     time_budget
         Wall-clock seconds after which the run stops with status ``"time_budget"``.
     sigma_min
@@ -249,7 +249,7 @@ class Simulator:
     @cached_property
     def dae(self) -> cs.Function:
         """The DAE of :func:`dynamics_function` (under ``jit`` compiled at construction beside the signals, and
-        differentiated by central differences; otherwise built at first use: the fixed-step sampled loop never
+        differentiated by forward differences; otherwise built at first use: the fixed-step sampled loop never
         needs it)."""
         return dynamics_function(self.model)
 

@@ -49,10 +49,10 @@ def test_another_structure_or_build_is_another_entry(cold):
     assert np.allclose(np.asarray(cube([1.0, 2.0, 3.0])).ravel(), [1.0, 8.0, 27.0])
 
 
-def test_a_differentiable_library_has_the_symbolic_jacobian_to_central_differences_accuracy(cold):
-    """Loaded differentiable, a compiled function's Jacobian (central differences, the step chosen by
-    CasADi) equals the symbolic one to 1e-8 of its largest entry: measured 3e-10 (truncation ``h^2`` and
-    round-off ``eps / h``), where CasADi's one-sided difference leaves 2e-8. Loaded without, it has no
+def test_a_differentiable_library_has_the_symbolic_jacobian_to_differences_accuracy(cold):
+    """Loaded differentiable, a compiled function's Jacobian (forward differences at CasADi's step) equals the
+    symbolic one to 1e-6 of its largest entry: measured 2.2e-8, about ``sqrt(eps)`` (truncation ``h f''`` and
+    round-off ``eps / h`` at ``h`` near ``sqrt(eps)``); a step of 0.01 leaves 1.5e-2. Loaded without, it has no
     derivative."""
     x = cs.SX.sym("x", 3)
     expression = cs.vertcat(cs.exp(3.0 * x[0]) * cs.sin(x[1]), x[1] ** 3 / (1.0 + x[2] ** 2), cs.tanh(x[0] / 0.05))
@@ -60,7 +60,7 @@ def test_a_differentiable_library_has_the_symbolic_jacobian_to_central_differenc
     at = np.array([0.3, -0.7, 1.2])
     exact = np.asarray(cs.Function("j", [x], [cs.jacobian(expression, x)])(at))
     differenced = compiled(function, differentiable=True).jacobian()(at, 0)
-    assert np.allclose(np.asarray(differenced), exact, rtol=0.0, atol=1e-8 * np.abs(exact).max())
+    assert np.allclose(np.asarray(differenced), exact, rtol=0.0, atol=1e-6 * np.abs(exact).max())
     with pytest.raises(RuntimeError):
         compiled(function).jacobian()(at, 0)
 

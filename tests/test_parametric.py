@@ -112,8 +112,9 @@ def test_compiled_once_for_two_designs(monkeypatch):
     scenario loads nothing new and its runs use the first's libraries (one for the right-hand side, one
     for the signals, one for the control period); the sampled runs equal the per-design build's to 1e-9
     relative (it folds the design, ``K_I`` included, into constants: round-off, 1.0e-10 at most
-    measured); the continuous runs to 1e-8 (their right-hand sides are equal bit for bit, the Jacobians
-    CVODES's Newton steps use differ by round-off, so each run is within its own 1e-10 tolerance)."""
+    measured); the continuous runs to 1e-8 (their right-hand sides agree to round-off, and the Jacobians
+    CVODES's Newton steps use, forward differences of each, by that round-off over the step: each run is within its
+    own 1e-10 tolerance)."""
     monkeypatch.setattr(compile_module, "_loaded", {})
     scenario, base = load(DEFAULT_SCENARIO)
     loop, s0, settings = build(scenario, base)
