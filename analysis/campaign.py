@@ -76,9 +76,9 @@ class CampaignSpec:
         if image and case.loop.mode != "image":
             raise ScenarioError(f'dispersion."{image[0]}": acts through the image; needs e_e = "image"')
         if any(k.startswith("plant.friction") for k in case.scenario.dispersion) and (
-            settings.implementation.integrator != "rk4"
+            settings.implementation.integrator == "cvodes"
         ):
-            raise ScenarioError('dispersion: friction needs integrator = "rk4"')
+            raise ScenarioError('dispersion: friction needs a fixed-step integrator ("auto", "rosenbrock" or "rk4")')
         inputs = [k for k in case.scenario.dispersion if k in INPUTS]
         if inputs and not parametrised(case.loop):
             raise ScenarioError(f'dispersion."{inputs[0]}": an input of the paper\'s loop only, not the planar one')

@@ -13,6 +13,10 @@ from dvfc.models.robot import JointLimits
 STEP_ERROR = 1e-8
 """Default target on the relative local error of one control period (``substeps = "auto"``)."""
 
+Method = Literal["rk4", "rosenbrock"]
+"""A fixed-step integrator of the control period: classical RK4, or ROS34PW2 linearly implicit in the joint
+friction (:mod:`dvfc.analysis.rosenbrock`)."""
+
 MAX_AUTO_SUBSTEPS = 16
 """The most RK4 steps a period ``substeps = "auto"`` chooses: the error falls 16-fold a doubling, so
 16 steps are 65536 times more accurate than one; the period is compiled whole, and its code (and
@@ -23,45 +27,51 @@ compile time) grows with the steps."""
 class SubstepChoice:
     """How the held-torque dynamics are integrated over a control period, and why.
 
-    ``substeps``: RK4 steps a period (None: CVODES); ``auto``: chosen from the target
-    ``step_error``; ``estimate``: the estimated relative local error of one period at
-    ``substeps`` (step doubling, :func:`dvfc.analysis.sampled.step_doubling`; None when not
-    estimated); ``met``: whether the estimate meets the target (False: even
-    :data:`MAX_AUTO_SUBSTEPS` does not)."""
+    ``substeps``: fixed steps a period (None: CVODES) of ``method``, ``"rk4"`` (classical Runge-Kutta) or
+    ``"rosenbrock"`` (ROS34PW2, linearly implicit in the joint friction: :mod:`dvfc.analysis.rosenbrock`);
+    ``auto``: chosen from the target ``step_error``; ``estimate``: the estimated relative local error of one
+    period at ``substeps`` (step doubling, :func:`dvfc.analysis.sampled.step_doubling`; None when not
+    estimated); ``met``: whether the estimate meets the target (False: even :data:`MAX_AUTO_SUBSTEPS` does
+    not)."""
 
     substeps: int | None
     auto: bool = False
     step_error: float | None = None
     estimate: float | None = None
     met: bool = True
+    method: Method = "rk4"
 
     @classmethod
-    def fixed(cls, imp: Implementation) -> SubstepChoice:
-        """The scenario's own choice: ``substeps`` RK4 steps, or CVODES."""
-        return cls(int(imp.substeps) if imp.integrator == "rk4" else None)
+    def fixed(cls, imp: Implementation, method: Method | None) -> SubstepChoice:
+        """The scenario's own choice: its ``substeps`` steps of ``method`` (:meth:`Implementation.method`), or
+        CVODES (None)."""
+        return cls(None) if method is None else cls(int(imp.substeps), method=method)
 
     @classmethod
     def of_run(cls, stats: dict[str, float]) -> SubstepChoice:
         """The choice a sampled run recorded in its ``stats`` (:attr:`stats`)."""
         if "substeps" not in stats:
             return cls(None)
+        method: Method = "rosenbrock" if stats.get("rosenbrock") else "rk4"
         if "step_error" not in stats:
-            return cls(int(stats["substeps"]))
+            return cls(int(stats["substeps"]), method=method)
         target, estimate = stats["step_error"], stats["step_error_estimate"]
-        return cls(int(stats["substeps"]), True, target, estimate, estimate <= target)
+        return cls(int(stats["substeps"]), True, target, estimate, estimate <= target, method)
 
     @classmethod
     def from_dict(cls, record: dict) -> SubstepChoice:
         """The choice of its :meth:`as_dict`."""
+        method: Method = "rosenbrock" if record["integrator"] == "rosenbrock" else "rk4"
         return cls(record["substeps"], record["chosen"] == "auto", record["step_error"],
-                   record["estimated_step_error"], record["met"])  # fmt: skip
+                   record["estimated_step_error"], record["met"], method)  # fmt: skip
 
     @property
     def text(self) -> str:
         """How the periods are integrated, in words (the printed summary)."""
         if self.substeps is None:
             return "CVODES restarted at every sample"
-        how = f"RK4, {self.substeps} step{'s' if self.substeps > 1 else ''} a control period"
+        name = "RK4" if self.method == "rk4" else "ROS34PW2 (linearly implicit in the joint friction)"
+        how = f"{name}, {self.substeps} step{'s' if self.substeps > 1 else ''} a control period"
         if not self.auto:
             return how
         verdict = "<=" if self.met else "ABOVE"
@@ -69,19 +79,21 @@ class SubstepChoice:
 
     @property
     def stats(self) -> dict[str, float]:
-        """What a run records of it (:attr:`dvfc.analysis.simulate.Trajectory.stats`): the RK4
-        steps a period and, when chosen, the target and the estimate."""
+        """What a run records of it (:attr:`dvfc.analysis.simulate.Trajectory.stats`): the steps a period
+        (``rosenbrock`` 1 when they are ROS34PW2's) and, when chosen, the target and the estimate."""
         if self.substeps is None:
             return {}
+        method = {"rosenbrock": 1.0} if self.method == "rosenbrock" else {}
         if not self.auto:
-            return {"substeps": self.substeps}
+            return {"substeps": self.substeps, **method}
         assert self.step_error is not None and self.estimate is not None, "an automatic choice has both"
-        return {"substeps": self.substeps, "step_error": self.step_error, "step_error_estimate": self.estimate}
+        return {"substeps": self.substeps, **method, "step_error": self.step_error,
+                "step_error_estimate": self.estimate}  # fmt: skip
 
     def as_dict(self) -> dict:
         """JSON-ready (summary.json's ``integration``)."""
         return {
-            "integrator": "cvodes" if self.substeps is None else "rk4",
+            "integrator": "cvodes" if self.substeps is None else self.method,
             "substeps": self.substeps,
             "chosen": "auto" if self.auto else "scenario",
             "step_error": self.step_error,
@@ -113,8 +125,11 @@ class Implementation:
     integrator, substeps, step_error
         How the held-torque dynamics are integrated from one sample to the next: ``"rk4"``,
         the classical fourth-order Runge-Kutta method in ``substeps`` equal steps per control
-        period (error ``O((h/substeps)^4)``), or ``"cvodes"``, CVODES restarted at every
-        sample with the run's error tolerances (about 5x slower). ``substeps = "auto"``: the
+        period (error ``O((h/substeps)^4)``); ``"rosenbrock"``, ROS34PW2, linearly implicit in the
+        joint friction (order 3, stable at any friction slope: :mod:`dvfc.analysis.rosenbrock`);
+        ``"auto"`` (the default), ROS34PW2 for a plant with dry (Coulomb) friction and RK4 for one without
+        (:meth:`method`); or ``"cvodes"``, CVODES restarted at every sample with the run's error
+        tolerances (about 5x slower). ``substeps = "auto"``: the
         fewest of 1, 2, 4, ... :data:`MAX_AUTO_SUBSTEPS` whose relative local error over one
         period, estimated by step doubling at the start of the run, is at most ``step_error``
         (:class:`SubstepChoice`; docs/implementation.md).
@@ -134,13 +149,21 @@ class Implementation:
     torque_scale: float = 1.0
     velocity_limits: Literal["report", "stop"] = "report"
     seed: int = 0
-    integrator: Literal["rk4", "cvodes"] = "rk4"
+    integrator: Literal["auto", "rk4", "rosenbrock", "cvodes"] = "auto"
     substeps: int | Literal["auto"] = "auto"
     step_error: float = STEP_ERROR
     latency_jitter: int = 0
     frame_drop: float = 0.0
     outlier_probability: float = 0.0
     outlier_size: float = 0.0
+
+    def method(self, dry_friction: bool) -> Method | None:
+        """The fixed-step integrator of a period for a plant with or without ``dry_friction`` (None: CVODES):
+        ``"auto"`` takes ROS34PW2 with it, whose smoothed slope at rest makes the held flow stiff (docs/math.md,
+        fact 28), and RK4 without (viscous friction is a damping of the joint's own time scale)."""
+        if self.integrator == "auto":
+            return "rosenbrock" if dry_friction else "rk4"
+        return None if self.integrator == "cvodes" else self.integrator
 
     @property
     def period(self) -> float:

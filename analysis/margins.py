@@ -683,8 +683,8 @@ def applicable(name: str, settings: Settings, loop: ClosedLoop) -> str | None:
     """Why a parameter cannot be searched on this scenario, or None."""
     if name in ("pixel_noise", "mount_rotation", "focal_length_error") and loop.mode != "image":
         return f'{name.replace("_", " ")} acts through the image: needs e_e = "image"'
-    if name == "friction_scale" and settings.sampled.integrator != "rk4":
-        return 'friction needs integrator = "rk4"'
+    if name == "friction_scale" and settings.sampled.integrator == "cvodes":
+        return 'friction needs a fixed-step integrator ("auto", "rosenbrock" or "rk4")'
     if name == "mount_rotation" and settings.errors is not None and np.any(settings.errors.mount_rpy):
         return "the scenario's [plant] mount is already rotated: the search turns it about one axis from none"
     return None

@@ -56,8 +56,16 @@ from dvfc.analysis.controller import image_update, sample_update
 from dvfc.analysis.implementation import MAX_AUTO_SUBSTEPS, SubstepChoice
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.parametric import parameter_vector
+from dvfc.analysis.rosenbrock import ORDER, w_step
 from dvfc.analysis.simulate import RunStatus, Settings, Simulator, Stop, Trajectory, joint_peaks
-from dvfc.models.errors import PlantErrors, camera_size, controller_features, friction_torque, true_features
+from dvfc.models.errors import (
+    PlantErrors,
+    camera_size,
+    controller_features,
+    friction_slope,
+    friction_torque,
+    true_features,
+)
 from dvfc.models.lie import SE3
 from dvfc.models.loop import QUADRATURES, ClosedLoop
 from dvfc.models.robot import JointLimits
@@ -135,12 +143,19 @@ PROBES = 8
 
 
 def step_doubling(
-    coarse: cs.Function, fine: cs.Function, t: float, s: np.ndarray, e: np.ndarray, held: tuple[np.ndarray, ...]
+    coarse: cs.Function,
+    fine: cs.Function,
+    t: float,
+    s: np.ndarray,
+    e: np.ndarray,
+    held: tuple[np.ndarray, ...],
+    order: int = 4,
 ) -> float:
     """The relative local error of one control period from ``(t, s)`` with ``e`` and ``held`` (the
     effort limits, friction and design) by the ``coarse`` period map, estimated by the ``fine``
-    one in twice the steps: RK4's error falls 16-fold when its step halves, so the coarse error is
-    ``16/15 (x_k - x_2k)`` (Richardson). Relative to the state's change over the period (infinity
+    one in twice the steps: over the fixed period the error of a method of ``order`` p (RK4's 4, ROS34PW2's 3)
+    falls ``2^p``-fold when its step halves, so the coarse error is ``2^p / (2^p - 1) (x_k - x_2k)``
+    (Richardson; RK4's ``16/15``). Relative to the state's change over the period (infinity
     norms; 0 when both are zero): how many digits of the period's increment are right, whatever
     the state's offset. The quadratures are read off the same stages, so they are as accurate as
     the step; their increments change sign (``u^T nu``), so they are not a scale."""
@@ -148,7 +163,7 @@ def step_doubling(
     gap, change = np.abs(a - b).max(), np.abs(b - s).max()
     if not math.isfinite(gap):
         return math.inf
-    return 0.0 if gap == 0 else 16 / 15 * gap / change if change > 0 else math.inf
+    return 0.0 if gap == 0 else 2**order / (2**order - 1) * gap / change if change > 0 else math.inf
 
 
 @dataclass
@@ -202,6 +217,7 @@ class SampledSimulator(Simulator):
         self.errors = settings.errors
         self._friction = (self.errors or PlantErrors.none(loop.camera, n)).friction_vector()
         self._effort = limits.effort if implementation.saturate else np.full(n, np.inf)
+        self._method = implementation.method(self.errors is not None and self.errors.has_dry_friction)
         update = sample_update(model, implementation.period)  # the program's (analysis/controller.py)
         if settings.jit and implementation.integrator == "cvodes":  # the RK4 period is compiled whole
             update = compiled(update)
@@ -220,22 +236,21 @@ class SampledSimulator(Simulator):
             image = self._true_image(noise, errors)
             camera = cs.Function("dvfc_true_camera", [model.t, model.state, noise, errors, *p], image)
             self._errors = self.errors.camera_vector(loop.camera)
-        rk4 = implementation.integrator == "rk4"
-        fixed = not rk4 or implementation.substeps != "auto"  # otherwise chosen at the first run (settle)
-        period = self._period_function(SubstepChoice.fixed(implementation).substeps) if fixed else None
+        choice = self._fixed_choice()  # None: chosen at the first run (settle)
+        period = None if choice is None else self._period_function(choice.substeps)
         own = {"signals": self.signal_function, "camera": camera}
-        if rk4:  # under CVODES the law is compiled (update) and the period is CVODES's
+        if self._method is not None:  # fixed steps; under CVODES the law is compiled (update), the period CVODES's
             own["last"] = last
             if period is not None:
                 own["period"] = period
-        if settings.jit:  # built together, at -O1 (the RK4 period as fast a call as at -O2, built in 60% of the time)
+        if settings.jit:  # built together, at -O1 (the period as fast a call as at -O2, built in 60% of the time)
             requests = [(f, False, "-O1") for f in own.values()]
             own = dict(zip(own, compiled_together(requests), strict=True))
         self.signal_function, self._image_function = own["signals"], Buffered(own["camera"])
         self._last = Buffered(own.get("last", last))
-        if period is not None:
+        if choice is not None:
             built = own.get("period", period)
-            self._periods.set(SubstepChoice.fixed(implementation), lambda _: built)
+            self._periods.set(choice, lambda _: built)
         self._read_image = Buffered(image_update(loop))  # the program's (21) and its check, by the VM
         self._window = None  # the image as bounds on f, point by point (when the run checks it)
         if settings.view and loop.camera.has_image:
@@ -258,6 +273,8 @@ class SampledSimulator(Simulator):
         other.design = [] if design is None else [design]
         other.limits = imp.limits(self.loop.robot.limits)
         other._effort = other.limits.effort if imp.saturate else np.full(self.loop.robot.n, np.inf)
+        if (method := imp.method(settings.errors is not None and settings.errors.has_dry_friction)) != self._method:
+            other._method, other._periods = method, _Periods()  # another integrator: its own period (settle)
         if settings.errors is not None:
             other.errors = settings.errors
             other._friction = settings.errors.friction_vector()
@@ -265,6 +282,13 @@ class SampledSimulator(Simulator):
             if self._window is not None:
                 other._window = settings.errors.window(self.loop.camera)
         return other
+
+    def _fixed_choice(self) -> SubstepChoice | None:
+        """The implementation's own substeps of the simulator's method, or CVODES; None for ``substeps = "auto"``
+        (:meth:`choose_substeps`)."""
+        if self._method is not None and self.implementation.substeps == "auto":
+            return None
+        return SubstepChoice.fixed(self.implementation, self._method)
 
     def _camera(self, t: float, s: np.ndarray, noise: np.ndarray, *errors: np.ndarray) -> list[np.ndarray]:
         """What the image at ``(t, s)`` gives (:meth:`_image`, :meth:`_true_image` with the plant's
@@ -298,32 +322,43 @@ class SampledSimulator(Simulator):
         self, t: cs.MX, s: cs.MX, hold: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int | None
     ) -> tuple[cs.MX, cs.MX]:
         """The state after one control period from ``(t, s)`` with ``hold`` held and the quadratures'
-        increments: :meth:`_rk4`, or CVODES (``substeps`` None)."""
+        increments: :meth:`_fixed_steps`, or CVODES (``substeps`` None)."""
         if substeps is not None:
-            return self._rk4(t, s, hold, friction, design, substeps)
+            return self._fixed_steps(t, s, hold, friction, design, substeps)
         result = self._cvodes()(x0=s, p=cs.vertcat(t, hold, *design))
         return result["xf"], result["qf"]
 
-    def _rk4(
+    def _fixed_steps(
         self, t: cs.MX, s: cs.MX, hold: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int
     ) -> tuple[cs.MX, cs.MX]:
         """The state after one control period from ``(t, s)`` with ``hold`` (the torque applied, ``e``,
         the observer's inputs) held, the torque less the plant's friction at each stage's joint speeds,
-        and the quadratures' increments: ``substeps`` classical RK4 steps (the model's functions
-        called with ``design``, :attr:`Simulator.design`)."""
+        and the quadratures' increments: ``substeps`` equal steps of the simulator's method, classical RK4
+        or ROS34PW2 linearly implicit in the friction (:func:`dvfc.analysis.rosenbrock.w_step`, with the
+        plant's ``M(q)`` and the friction's slope at each step's start); the model's functions called with
+        ``design`` (:attr:`Simulator.design`)."""
         model, n = self.model, self.loop.robot.n
-        held = cs.Function("dvfc_held", model.arguments[0], [model.state_rate, model.quadratures])
+        mass = model.plant_dynamics[0]
+        held = cs.Function("dvfc_held", model.arguments[0], [model.state_rate, model.quadratures, mass])
         values = (("t", t), ("x", s), ("hold", hold), ("friction", friction), *(("p", d) for d in design))
         syms = [cs.MX.sym(name, v.numel()) for name, v in values]
         t_, x, inputs, b, *p = syms
         torque = inputs[:n] - friction_torque(x[n : 2 * n], b, n)  # no friction: tau - 0, exactly tau
-        stage = cs.Function("dvfc_rate", syms, held(t_, x, cs.vertcat(torque, inputs[n:]), *p))
+        rates = held(t_, x, cs.vertcat(torque, inputs[n:]), *p)
+        stage = cs.Function("dvfc_rate", syms, rates[:2])
 
         def rate(time: cs.MX, state: cs.MX) -> list[cs.MX]:
             return stage(time, state, hold, friction, *design)
 
         step = self.implementation.period / substeps
         quad = cs.MX.zeros(len(QUADRATURES))
+        if self._method == "rosenbrock":
+            start = cs.Function("dvfc_w", syms, [rates[2], friction_slope(x[n : 2 * n], b, n)])
+            for i in range(substeps):
+                t0 = t + i * step
+                s, increment = w_step(rate, t0, s, step, n, *start(t0, s, hold, friction, *design))
+                quad = quad + increment
+            return s, quad
         for i in range(substeps):
             t0 = t + i * step
             k1, q1 = rate(t0, s)
@@ -449,30 +484,33 @@ class SampledSimulator(Simulator):
         return self._periods.choice
 
     def choose_substeps(self, s0: np.ndarray) -> SubstepChoice:
-        """The fewest RK4 steps a period, of 1, 2, 4, ... :data:`MAX_AUTO_SUBSTEPS`, whose relative
-        local error (:func:`step_doubling`) is at most the implementation's ``step_error`` at every
-        probe: the states of a pilot run from ``s0`` over its first :data:`PILOT_HORIZON` (one RK4
-        step a period, by the virtual machine; its first sample, the samples of its largest
-        torque and joint speed, and others evenly spread)."""
-        imp = self.implementation
+        """The fewest steps a period of the simulator's method (RK4 or ROS34PW2), of 1, 2, 4, ...
+        :data:`MAX_AUTO_SUBSTEPS`, whose relative local error (:func:`step_doubling`) is at most the
+        implementation's ``step_error`` at every probe: the states of a pilot run from ``s0`` over its first
+        :data:`PILOT_HORIZON` (one step a period, by the virtual machine; its first sample, the samples of its
+        largest torque and joint speed, and others evenly spread)."""
+        imp, method = self.implementation, self._method
+        assert method is not None, "fixed steps (CVODES has no substeps)"
         pilot = copy.copy(self)
         duration, h = min(self.settings.duration, PILOT_HORIZON), imp.period
         rows_every = max(1, math.floor(duration / h / PILOT_ROWS)) * h  # whatever the run's output step
         pilot.settings = replace(self.settings, duration=duration, dt=rows_every)
         pilot._periods = _Periods()
-        pilot._periods.set(SubstepChoice(1), self._period_function)
+        pilot._periods.set(SubstepChoice(1, method=method), self._period_function)
         traj = pilot.run(s0)
         peaks = [int(np.argmax(np.abs(traj[name]).max(axis=1))) for name in ("tau", "qd")]
         rows = sorted({*np.linspace(0, len(traj.t) - 1, PROBES - 2).astype(int).tolist(), *peaks})
         probes = [(traj.t[r], traj["state"][r], traj["e_e"][r]) for r in rows]
         held = (self._effort, self._friction, *self.design)
         functions = {1: self._period_function(1)}
+        order = ORDER if method == "rosenbrock" else 4
         k = 1
         while True:
             functions[2 * k] = self._period_function(2 * k)
-            estimate = max(step_doubling(functions[k], functions[2 * k], t, s, e, held) for t, s, e in probes)
+            estimate = max(step_doubling(functions[k], functions[2 * k], t, s, e, held, order) for t, s, e in probes)
             if estimate <= imp.step_error or k == MAX_AUTO_SUBSTEPS:
-                return SubstepChoice(k, True, imp.step_error, float(estimate), bool(estimate <= imp.step_error))
+                met = bool(estimate <= imp.step_error)
+                return SubstepChoice(k, True, imp.step_error, float(estimate), met, method)
             k *= 2
 
     def settle(self, s0: np.ndarray) -> SampledSimulator:
@@ -480,7 +518,7 @@ class SampledSimulator(Simulator):
         already chosen, unchanged): every run of it and of its copies (:meth:`for_run`) then
         integrates the same way, whatever their own start (a campaign's runs)."""
         if self._periods.period is None:
-            self._periods.set(self.choose_substeps(s0), self._compiled_period)
+            self._periods.set(self._fixed_choice() or self.choose_substeps(s0), self._compiled_period)
         return self
 
     def run(self, s0: np.ndarray, progress: Callable[[float], None] | None = None) -> Trajectory:

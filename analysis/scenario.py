@@ -294,8 +294,9 @@ def plant_errors(scenario: Scenario, loop: ClosedLoop) -> PlantErrors | None:
     image = next((k for k in ("mount", "camera", "target_points") if getattr(section, k) is not None), None)
     if image is not None and loop.mode != "image":
         raise ScenarioError(f'plant.{image}: acts through the image; needs e_e = "image"')
-    if section.friction is not None and imp.integrator != "rk4":
-        raise ScenarioError('plant.friction: needs integrator = "rk4" (friction acts within the control period)')
+    if section.friction is not None and imp.integrator == "cvodes":
+        raise ScenarioError('plant.friction: needs a fixed-step integrator ("auto", "rosenbrock" or "rk4"; friction '
+                            "acts within the control period)")
     errors = PlantErrors.none(loop.camera, n)
     changes: dict = {}
     if section.mount is not None:

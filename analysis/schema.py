@@ -358,7 +358,7 @@ class ImplementationSection(_Strict):
     torque_scale: Positive = 1.0
     velocity_limits: Literal["report", "stop"] = "report"
     seed: int = 0
-    integrator: Literal["rk4", "cvodes"] = "rk4"
+    integrator: Literal["auto", "rk4", "rosenbrock", "cvodes"] = "auto"
     substeps: Annotated[int, Field(ge=1, le=1000)] | Literal["auto"] = "auto"
     step_error: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = STEP_ERROR
     latency_jitter: Annotated[int, Field(ge=0, le=1000)] = 0

@@ -71,6 +71,12 @@ class PlantErrors:
         return np.concatenate([self.mount_xyz, self.mount_rpy, [self.fx, self.fy], offset, self.distortion,
                                np.ravel(self.point_errors)]).astype(float)  # fmt: skip
 
+    @property
+    def has_dry_friction(self) -> bool:
+        """Whether a joint has dry (Coulomb) friction: its smoothed slope at rest ``c / eps`` is as steep as the
+        smoothing is narrow, the held dynamics as stiff."""
+        return bool(np.any(self.coulomb))
+
     def friction_vector(self) -> np.ndarray:
         """The input of the compiled control period: ``[b; c; eps]``."""
         return np.concatenate([self.viscous, self.coulomb, [self.smoothing]]).astype(float)
@@ -92,6 +98,13 @@ def friction_torque(qd: Matrix, parameters: Matrix, n: int) -> Matrix:
     """``b qd + c tanh(qd / eps)`` from ``parameters = [b; c; eps]``."""
     b, c, eps = parameters[:n], parameters[n : 2 * n], parameters[2 * n]
     return b * qd + c * cs.tanh(qd / eps)
+
+
+def friction_slope(qd: Matrix, parameters: Matrix, n: int) -> Matrix:
+    """``d/dqd (b qd + c tanh(qd / eps)) = b + (c / eps) (1 - tanh(qd / eps)^2)`` per joint (the diagonal of the
+    friction's Jacobian) from ``parameters = [b; c; eps]``."""
+    b, c, eps = parameters[:n], parameters[n : 2 * n], parameters[2 * n]
+    return b + c / eps * (1 - cs.tanh(qd / eps) ** 2)
 
 
 def distort(x: Matrix, y: Matrix, k: Matrix) -> tuple[Matrix, Matrix, Matrix]:

@@ -100,8 +100,8 @@ def test_auto_asks_for_the_steps_the_states_change_requires_not_its_size(papers_
     calls = []
     original = sampled.step_doubling
 
-    def spy(coarse, fine, t, s, e, held):
-        value = original(coarse, fine, t, s, e, held)
+    def spy(coarse, fine, t, s, e, held, order=4):
+        value = original(coarse, fine, t, s, e, held, order)
         (a, *_), (b, *_) = ([np.asarray(v).ravel() for v in f(s, t, e, *held)] for f in (coarse, fine))
         calls.append((coarse, t, s, e, held, value, np.abs(a - b).max(), np.abs(b - s).max(), np.abs(s).max()))
         return value
