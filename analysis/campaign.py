@@ -141,6 +141,7 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
         "peak_torque_ratio": max(record["torque_commanded_ratio"]), "peak_speed_ratio": max(record["speed_ratio"]),
         "position_ratio": max(record["position_ratio"]), "closeness": max(ratio, *limits),
         "end_time": float(traj.t[-1]), "wall_time": traj.wall_time,
+        "local_error_q": traj.stats.get("local_error_q"),  # None (null) for a run by RK4
         "local_rho": None if verdict is None else verdict.rho,
         "local_certified": None if verdict is None else verdict.certified,
     }  # fmt: skip
@@ -243,6 +244,15 @@ def campaign_batch(spec: CampaignSpec, start: int, stop: int) -> dict[str, list]
     return {key: [r[key] for r in rows] for key in rows[0]}
 
 
+def batch_table(columns: dict[str, list]) -> pa.Table:
+    """A batch's rows as a table, a column with no value in the batch (every entry None: ``local_error_q`` of runs
+    that stopped at their start, say) typed ``float64`` as the other batches' are, so that the batches read as one
+    dataset."""
+    table = pa.table(columns)
+    fields = [pa.field(f.name, pa.float64()) if pa.types.is_null(f.type) else f for f in table.schema]
+    return table.cast(pa.schema(fields))
+
+
 def read_runs(directory: Path) -> pa.Table:
     """Every run of a campaign in ``directory``, in run order."""
     return pq.read_table(directory / RUNS).sort_by("run")
@@ -267,7 +277,7 @@ def run_campaign(
     identity = {"key": key, "seed": spec.seed, "runs": runs}
     run = BatchRun(directory, RUNS, "campaign.json", identity,
                    "the campaign in this directory has another scenario, seed or number of runs")  # fmt: skip
-    return int(run.run(runs, batch_size, campaign_batch, spec, pa.table, resume=resume, workers=workers,
+    return int(run.run(runs, batch_size, campaign_batch, spec, batch_table, resume=resume, workers=workers,
                        scheduler=scheduler, progress=progress)["done"])  # fmt: skip
 
 
@@ -342,7 +352,20 @@ def summarize(spec: CampaignSpec, table: pa.Table, confidence: float, p: float, 
         "local": local_summary(data, dry_friction_smoothing(spec)),
         "seed": spec.seed,
         "wall_time_per_run": float(np.mean(data["wall_time"])) if n else None,
+        "local_error_q": largest_local_error(data),
     }  # fmt: skip
+
+
+def largest_local_error(data: dict) -> dict[str, Any] | None:
+    """The largest of the runs' local error estimates of the joint angles a period (ROS34PW2's, docs/math.md fact
+    28.4) and its run; None where the runs have none (RK4, or a dataset written without the column)."""
+    errors = np.asarray(data.get("local_error_q", []), dtype=float)
+    if not np.isfinite(errors).any():
+        return None
+    i = int(np.nanargmax(errors))
+    return {"value": float(errors[i]), "run": int(data["run"][i]),
+            "statement": f"every run's local error of q a period at most {errors[i]:.2g} rad (ROS34PW2's embedded "
+                         f"estimate, largest on run {int(data['run'][i])})"}  # fmt: skip
 
 
 BINS = 4
@@ -460,6 +483,7 @@ class CampaignResult(Record):
     worst: list[dict[str, Any]]
     seed: int
     wall_time_per_run: float | None
+    local_error_q: dict[str, Any] | None
     local: dict[str, Any]
     dataset: str
     worst_case_search: dict[str, Any] | Absent = ABSENT

@@ -32,7 +32,8 @@ class SubstepChoice:
     ``auto``: chosen from the target ``step_error``; ``estimate``: the estimated relative local error of one
     period at ``substeps`` (step doubling, :func:`dvfc.analysis.sampled.step_doubling`; None when not
     estimated); ``met``: whether the estimate meets the target (False: even :data:`MAX_AUTO_SUBSTEPS` does
-    not)."""
+    not); ``run_error``: of a run by ROS34PW2, the largest estimate of a period's local error in the joint
+    angles (rad, from the embedded step: :data:`dvfc.analysis.rosenbrock.EMBEDDED`; None otherwise)."""
 
     substeps: int | None
     auto: bool = False
@@ -40,6 +41,7 @@ class SubstepChoice:
     estimate: float | None = None
     met: bool = True
     method: Method = "rk4"
+    run_error: float | None = None
 
     @classmethod
     def fixed(cls, imp: Implementation, method: Method | None) -> SubstepChoice:
@@ -53,17 +55,18 @@ class SubstepChoice:
         if "substeps" not in stats:
             return cls(None)
         method: Method = "rosenbrock" if stats.get("rosenbrock") else "rk4"
+        run_error = stats.get("local_error_q")
         if "step_error" not in stats:
-            return cls(int(stats["substeps"]), method=method)
+            return cls(int(stats["substeps"]), method=method, run_error=run_error)
         target, estimate = stats["step_error"], stats["step_error_estimate"]
-        return cls(int(stats["substeps"]), True, target, estimate, estimate <= target, method)
+        return cls(int(stats["substeps"]), True, target, estimate, estimate <= target, method, run_error)
 
     @classmethod
     def from_dict(cls, record: dict) -> SubstepChoice:
         """The choice of its :meth:`as_dict`."""
         method: Method = "rosenbrock" if record["integrator"] == "rosenbrock" else "rk4"
         return cls(record["substeps"], record["chosen"] == "auto", record["step_error"],
-                   record["estimated_step_error"], record["met"], method)  # fmt: skip
+                   record["estimated_step_error"], record["met"], method, record.get("local_error_q"))  # fmt: skip
 
     @property
     def text(self) -> str:
@@ -72,6 +75,8 @@ class SubstepChoice:
             return "CVODES restarted at every sample"
         name = "RK4" if self.method == "rk4" else "ROS34PW2 (linearly implicit in the joint friction)"
         how = f"{name}, {self.substeps} step{'s' if self.substeps > 1 else ''} a control period"
+        if self.run_error is not None:
+            how += f"; the run's largest local error of q a period {self.run_error:.2g} rad (embedded estimate)"
         if not self.auto:
             return how
         verdict = "<=" if self.met else "ABOVE"
@@ -99,6 +104,7 @@ class SubstepChoice:
             "step_error": self.step_error,
             "estimated_step_error": self.estimate,
             "met": self.met,
+            "local_error_q": self.run_error,
         }
 
 

@@ -42,19 +42,25 @@ COUPLING = (
 WEIGHTS = (2.4212380706095346e-01, -1.2232505839045147e00, 1.5452602553351020e00, 4.3586652150845900e-01)
 """``b_i``: the step is ``y + sum_i b_i k_i`` (order 3)."""
 
+EMBEDDED = (3.7810903145819369e-01, -9.6042292212423178e-02, 5.0000000000000000e-01, 2.1793326075422950e-01)
+"""``bhat_i``: the embedded step ``y + sum_i bhat_i k_i`` of order 2; its difference from the step, ``sum_i (b_i -
+bhat_i) k_i``, estimates the embedded step's local error, and so bounds the step's own (of a higher order) where
+the step is small enough for the orders to show."""
+
 ORDER = 3
 """The order of the step, for any ``W`` (the step-doubling estimate's ``2^p``)."""
 
 Rate = Callable[[cs.MX, cs.MX], list[cs.MX]]
 
 
-def w_step(rate: Rate, t: cs.MX, s: cs.MX, h: float, n: int, mass: cs.MX, slope: cs.MX) -> tuple[cs.MX, cs.MX]:
+def w_step(rate: Rate, t: cs.MX, s: cs.MX, h: float, n: int, mass: cs.MX, slope: cs.MX) -> tuple[cs.MX, cs.MX, cs.MX]:
     """One ROS34PW2 step of ``h`` from ``(t, s)`` for a state ``[q; qd; ...]`` of ``n`` joints: ``rate(t, s)`` is
     ``[ds/dt, quadratures' rates]``, ``mass`` the plant's ``M(q)`` and ``slope`` the friction's ``f'(qd)`` (``n``)
     at the start. Each stage solves ``(I - h gamma W) k_i = h f(Y_i) + h W sum_j gamma_ij k_j`` with
     ``W = [[0, I], [0, -M^-1 D]]`` on ``(q, qd)``: for the speeds ``(M + h gamma D) k_qd = h M f_qd - h D v_qd``
     (``v = sum_j gamma_ij k_j``), then ``k_q = h f_q + h v_qd + h gamma k_qd``, the other states explicit.
-    Returns the state after the step and the quadratures' increments (their stages' weights are the step's)."""
+    Returns the state after the step, the quadratures' increments (their stages' weights are the step's) and the
+    local error estimate ``sum_i (b_i - bhat_i) k_i`` of the state (:data:`EMBEDDED`)."""
     system = mass + h * GAMMA * cs.diag(slope)
     stages: list[cs.MX] = []
     quadrature = None
@@ -67,4 +73,5 @@ def w_step(rate: Rate, t: cs.MX, s: cs.MX, h: float, n: int, mass: cs.MX, slope:
         stages.append(cs.vertcat(k_q, k_qd, h * f[2 * n :]))
         quadrature = WEIGHTS[i] * h * q_rate if quadrature is None else quadrature + WEIGHTS[i] * h * q_rate
     after = s + sum(b * k for b, k in zip(WEIGHTS, stages, strict=True))
-    return after, quadrature
+    error = sum((b - bhat) * k for b, bhat, k in zip(WEIGHTS, EMBEDDED, stages, strict=True))
+    return after, quadrature, error

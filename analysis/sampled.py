@@ -166,6 +166,14 @@ def step_doubling(
     return 0.0 if gap == 0 else 2**order / (2**order - 1) * gap / change if change > 0 else math.inf
 
 
+def local_error_stats(errors: list[np.ndarray], periods: int) -> dict[str, float]:
+    """``local_error_q``, the largest estimate of a period's local error in the joint angles (rad) over the first
+    ``periods`` periods of a run (``errors``: the estimates of each chunk of periods); nothing where the method
+    has no estimate (NaN: RK4, CVODES)."""
+    values = np.concatenate([np.zeros(0), *errors])[:periods]
+    return {"local_error_q": float(np.nanmax(values))} if np.isfinite(values).any() else {}
+
+
 @dataclass
 class _Periods:
     """The control period's map a simulator and its copies (:meth:`SampledSimulator.for_run`) run
@@ -301,15 +309,16 @@ class SampledSimulator(Simulator):
         observer's held inputs ``[V_k; U_k]``; by CasADi's virtual machine. The controller's update at
         the sample is the program's (:func:`~dvfc.analysis.controller.sample_update`): the estimate and
         ``z_I`` after the period are its; the plant, with the torque held, and the quadratures, along
-        the observer's flow with its inputs held, are integrated by ``substeps`` RK4 steps (None:
-        CVODES)."""
+        the observer's flow with its inputs held, are integrated by ``substeps`` steps of the simulator's
+        method (None: CVODES). A last output, the estimate of the period's local error in the joint angles
+        (:meth:`_fixed_steps`; NaN where the method has none)."""
         t, s, e, effort, friction, design, commanded, applied, observer, estimate, integral = self._symbols
-        after, quad = self._held_flow(t, s, cs.vertcat(applied, e, observer), friction, design, substeps)
+        after, quad, error = self._held_flow(t, s, cs.vertcat(applied, e, observer), friction, design, substeps)
         after[self.loop.estimate_slice] = estimate  # (22.1), the program's step
         if self.loop.integral:
             after[self.loop.integral_slice] = integral
         return cs.Function("dvfc_period", [s, t, e, effort, friction, *design],
-                           [after, commanded, applied, quad, observer])  # fmt: skip
+                           [after, commanded, applied, quad, observer, error])  # fmt: skip
 
     def _compiled_period(self, substeps: int | None) -> cs.Function:
         """:meth:`_period_function`, compiled whole under ``jit`` when RK4 (CVODES calls the
@@ -320,23 +329,26 @@ class SampledSimulator(Simulator):
 
     def _held_flow(
         self, t: cs.MX, s: cs.MX, hold: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int | None
-    ) -> tuple[cs.MX, cs.MX]:
-        """The state after one control period from ``(t, s)`` with ``hold`` held and the quadratures'
-        increments: :meth:`_fixed_steps`, or CVODES (``substeps`` None)."""
+    ) -> tuple[cs.MX, cs.MX, cs.MX]:
+        """The state after one control period from ``(t, s)`` with ``hold`` held, the quadratures'
+        increments and the estimate of the joint angles' local error: :meth:`_fixed_steps`, or CVODES
+        (``substeps`` None; its error controlled at the run's tolerances, the estimate NaN)."""
         if substeps is not None:
             return self._fixed_steps(t, s, hold, friction, design, substeps)
         result = self._cvodes()(x0=s, p=cs.vertcat(t, hold, *design))
-        return result["xf"], result["qf"]
+        return result["xf"], result["qf"], cs.MX(np.nan)
 
     def _fixed_steps(
         self, t: cs.MX, s: cs.MX, hold: cs.MX, friction: cs.MX, design: list[cs.MX], substeps: int
-    ) -> tuple[cs.MX, cs.MX]:
+    ) -> tuple[cs.MX, cs.MX, cs.MX]:
         """The state after one control period from ``(t, s)`` with ``hold`` (the torque applied, ``e``,
         the observer's inputs) held, the torque less the plant's friction at each stage's joint speeds,
         and the quadratures' increments: ``substeps`` equal steps of the simulator's method, classical RK4
         or ROS34PW2 linearly implicit in the friction (:func:`dvfc.analysis.rosenbrock.w_step`, with the
         plant's ``M(q)`` and the friction's slope at each step's start); the model's functions called with
-        ``design`` (:attr:`Simulator.design`)."""
+        ``design`` (:attr:`Simulator.design`). Last, the estimate of the period's local error in the joint
+        angles: ROS34PW2's embedded estimates, the largest entry of each step's summed over the steps (NaN for
+        RK4, which has no embedded step)."""
         model, n = self.model, self.loop.robot.n
         mass = model.plant_dynamics[0]
         held = cs.Function("dvfc_held", model.arguments[0], [model.state_rate, model.quadratures, mass])
@@ -354,11 +366,12 @@ class SampledSimulator(Simulator):
         quad = cs.MX.zeros(len(QUADRATURES))
         if self._method == "rosenbrock":
             start = cs.Function("dvfc_w", syms, [rates[2], friction_slope(x[n : 2 * n], b, n)])
+            error = cs.MX(0)
             for i in range(substeps):
                 t0 = t + i * step
-                s, increment = w_step(rate, t0, s, step, n, *start(t0, s, hold, friction, *design))
-                quad = quad + increment
-            return s, quad
+                s, increment, local = w_step(rate, t0, s, step, n, *start(t0, s, hold, friction, *design))
+                quad, error = quad + increment, error + cs.mmax(cs.fabs(local[:n]))
+            return s, quad, error
         for i in range(substeps):
             t0 = t + i * step
             k1, q1 = rate(t0, s)
@@ -367,7 +380,7 @@ class SampledSimulator(Simulator):
             k4, q4 = rate(t0 + step, s + step * k3)
             s = s + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             quad = quad + step / 6 * (q1 + 2 * q2 + 2 * q3 + q4)
-        return s, quad
+        return s, quad, cs.MX(np.nan)
 
     def _cvodes(self) -> cs.Function:
         """CVODES over one control period (the reference integrator)."""
@@ -473,7 +486,7 @@ class SampledSimulator(Simulator):
         hold = cs.vertcat(tau, cs.MX.zeros(3 * e.numel()))
         assert self._periods.choice is not None, "settled (settle)"
         substeps = self._periods.choice.substeps
-        after, _ = self._held_flow(t, s, hold, friction, design, substeps)
+        after, *_ = self._held_flow(t, s, hold, friction, design, substeps)
         period = cs.Function("dvfc_plant_period", [t, s, tau, friction, *design], [after])
         period = Buffered(compiled(period) if self.settings.jit and substeps else period)
         return lambda time, state, torque: period(time, state, torque, self._friction, *self.design)[0].ravel()
@@ -539,6 +552,7 @@ class SampledSimulator(Simulator):
         rows: list[tuple[int, np.ndarray, np.ndarray]] = []  # (k, s_k, hold_k) on the output grid
         history: dict[str, list[np.ndarray]] = {"tau": [], "tau_applied": [], "quad": [], "q": [], "qd": []}  # per step
         stops: list[_Stop] = []
+        local_errors: list[np.ndarray] = []  # per period, the estimate of the joint angles' local error
         start = time.perf_counter()
         signal_chunks: list[dict[str, np.ndarray]] = []
         evaluated = 0
@@ -581,7 +595,7 @@ class SampledSimulator(Simulator):
             end = min(int(arrivals[measured]), steps) if measured < len(captures) else steps
             try:
                 held = (np.repeat(v[:, None], end - k, 1) for v in (e_held, self._effort, self._friction, *self.design))
-                after, commanded, applied, quad, observer = self._chunk(end - k)(s, np.arange(k, end) * h, *held)
+                after, commanded, applied, quad, observer, error = self._chunk(end - k)(s, np.arange(k, end) * h, *held)
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc
@@ -591,6 +605,7 @@ class SampledSimulator(Simulator):
             history["tau"].append(np.abs(commanded.T))
             history["tau_applied"].append(np.abs(applied.T))
             history["quad"].append(quad.T)
+            local_errors.append(error.ravel())
             for j in range(-k % self.stride, end - k, self.stride):
                 hold = np.concatenate([applied[:, j], e_held, observer[:, j]])
                 rows.append((k + j, s if j == 0 else after[:, j - 1], hold))
@@ -655,7 +670,12 @@ class SampledSimulator(Simulator):
             status=stop.stop.status,
             message=stop.stop.message,
             wall_time=time.perf_counter() - start,
-            stats={"steps": stop.tau_end, "samples": stop.qd_end - 1, **self._periods.choice.stats},
+            stats={
+                "steps": stop.tau_end,
+                "samples": stop.qd_end - 1,
+                **self._periods.choice.stats,
+                **local_error_stats(local_errors, stop.tau_end),
+            },
             peaks=peaks,
             stopped_at=None if stop.stop.status is RunStatus.OK else stop.step * h,
         )

@@ -428,6 +428,8 @@ def show_campaign(result: CampaignResult) -> None:
     out.print(f"local: {result.local['statement']}" + (f"; not certified for runs {unstable}" if unstable else ""),
               markup=False, soft_wrap=True)  # fmt: skip
     out.print(f"tolerance: {tolerance_text(result.tolerance)}", markup=False, soft_wrap=True)
+    if result.local_error_q is not None:
+        out.print(f"integration: {result.local_error_q['statement']}", markup=False, soft_wrap=True)
     table = Table(title="Drivers of the closeness to failing (PAWN, Spearman; measured)")
     for name in ("quantity", "entry", "PAWN", "above floor", "spearman", "failure rate per quartile"):
         table.add_column(name)

@@ -89,7 +89,7 @@ def main() -> None:
         faulty = with_every_error(loop, settings)
         t_faulty = best_of(lambda: faulty.run(s0))
         print(f"    every plant error and fault on   {t_faulty * 1e3:8.1f} ms   ratio to the nominal RK4 run "
-              f"{t_faulty / t_sampled['rk4']:5.2f}x (at most 1.5x)")
+              f"{t_faulty / t_sampled['rk4']:5.2f}x (at most 1.5x; the friction by {faulty.substeps.method})")
     first, change = gain_change(scenario, base)
     print(f"  gain change end to end (build + compiled run as implemented, {horizon:g} s), empty cache")
     print(f"    first run, compiling             {first:8.2f} s")
@@ -124,13 +124,14 @@ def gain_change(scenario: Scenario, base) -> tuple[float, float]:
 
 def with_every_error(loop, settings) -> SampledSimulator:
     """The sampled loop with a mount error, other intrinsics and distortion, point errors,
-    friction on every joint, latency jitter, frame drops and outliers (compiled, RK4)."""
+    friction on every joint, latency jitter, frame drops and outliers (compiled; the dry friction integrated by
+    ROS34PW2, ``integrator = "auto"``: docs/math.md, fact 28)."""
     n = loop.robot.n
     errors = replace(PlantErrors.none(loop.camera, n), mount_xyz=np.array([1e-3, -1e-3, 2e-3]),
                      mount_rpy=np.radians([0.6, -0.4, 0.3]), fx=815.0, fy=812.0, principal_point=np.array([650, 505.0]),
                      distortion=np.array([-0.1, 0.02, 1e-3, -1e-3, 0.0]), point_errors=np.full((loop.camera.m, 3), 5e-4),  # noqa: E501
                      viscous=np.full(n, 0.2), coulomb=np.full(n, 0.1))  # fmt: skip
-    imp = replace(settings.implementation, integrator="rk4", latency_jitter=2, frame_drop=0.05,
+    imp = replace(settings.implementation, integrator="auto", latency_jitter=2, frame_drop=0.05,
                   outlier_probability=0.01, outlier_size=20.0)  # fmt: skip
     return as_implemented(loop, replace(settings, jit=True, implementation=imp, errors=errors))
 

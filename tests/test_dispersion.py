@@ -293,3 +293,17 @@ def test_a_worker_builds_one_simulator_for_every_batch_of_a_case():
     assert campaign_module.shared_simulator(pickle.loads(pickle.dumps(other))) is not (
         campaign_module.shared_simulator(first)
     )
+
+
+def test_a_batch_whose_runs_have_no_local_error_reads_with_the_others(tmp_path):
+    """A batch in which no run has a value in a column (``local_error_q`` of runs that all stopped at their start)
+    is written with that column typed as in the others, so that the campaign's batches read as one dataset, the
+    missing values null."""
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    pq.write_table(campaign_module.batch_table({"run": [0, 1], "local_error_q": [None, None]}),
+                   folder / "part-000000000.parquet")  # fmt: skip
+    pq.write_table(campaign_module.batch_table({"run": [2, 3], "local_error_q": [1e-9, None]}),
+                   folder / "part-000000001.parquet")  # fmt: skip
+    assert campaign_module.read_runs(tmp_path).to_pydict() == {"run": [0, 1, 2, 3],
+                                                               "local_error_q": [None, None, 1e-9, None]}  # fmt: skip

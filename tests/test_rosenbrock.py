@@ -15,7 +15,7 @@ from dvfc.analysis.case import Case
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.linearize import equilibrium_configuration
 from dvfc.analysis.multirate import rest_model, rest_state
-from dvfc.analysis.rosenbrock import ALPHA, COUPLING, GAMMA, WEIGHTS, w_step
+from dvfc.analysis.rosenbrock import ALPHA, COUPLING, EMBEDDED, GAMMA, WEIGHTS, w_step
 from dvfc.analysis.sampled import SampledSimulator
 
 from helpers import CELL
@@ -34,7 +34,7 @@ def toy_steps(damping: float, slope: float, steps: int, horizon: float) -> np.nd
     slope ``slope`` (the exact Jacobian's is ``damping``), and the quadrature of ``q^2``."""
     s0, t = cs.MX.sym("s", 3), cs.MX.sym("t")
     h = horizon / steps
-    after, quad = w_step(lambda time, state: toy_rate(time, state, damping), t, s0, h, 1, cs.MX(MASS), cs.MX(slope))
+    after, quad, _ = w_step(lambda time, state: toy_rate(time, state, damping), t, s0, h, 1, cs.MX(MASS), cs.MX(slope))
     step = cs.Function("step", [t, s0], [after, quad])
     s, total = np.array([0.01, 0.0, 0.0]), 0.0
     for i in range(steps):
@@ -80,7 +80,7 @@ def test_fact_28_2_one_step_is_stable_and_accurate_at_any_friction_slope():
 def test_fact_28_3_the_tableau_is_l_stable_and_its_weights_consistent():
     """ROS34PW2's stability function ``R(z) = 1 + z b^T (I - z B)^-1 1`` (``B = alpha + Gamma``) is at most 1 in
     modulus on the closed left half-plane (sampled on rays and the imaginary axis) and vanishes at infinity
-    (L-stable: a stiff mode is damped in one step); the weights sum to 1."""
+    (L-stable: a stiff mode is damped in one step); the weights and the embedded ones sum to 1."""
     b = np.array(WEIGHTS)
     full = np.zeros((4, 4))
     for i in range(4):
@@ -91,7 +91,36 @@ def test_fact_28_3_the_tableau_is_l_stable_and_its_weights_consistent():
     for angle in np.linspace(np.pi / 2, np.pi, 13):
         assert max(abs(stability(r * np.exp(1j * angle))) for r in radii) <= 1 + 1e-12, angle
     assert abs(stability(-1e12)) < 1e-9
-    assert sum(WEIGHTS) == pytest.approx(1, abs=1e-15)
+    assert sum(WEIGHTS) == pytest.approx(1, abs=1e-15) and sum(EMBEDDED) == pytest.approx(1, abs=1e-15)
+
+
+@pytest.mark.parametrize("damping", [0.1, 400.0])
+def test_fact_28_4_the_embedded_estimate_measures_the_local_error(damping):
+    """From states along the toy's path, one step's estimate ``sum (b_i - bhat_i) k_i`` is the embedded step's
+    true local error (against Radau from the same state) to within a factor 3 (measured 0.94 to 0.97 on the
+    non-stiff toy, 0.92 to 2.07 with a slope 100 times the step's reach), and at least the step's own (measured
+    17 to 32 times it, and 1.9 to 17 times on the stiff one): a run's largest estimate bounds what one period
+    adds to its error."""
+    h = 0.005
+    s0, t = cs.MX.sym("s", 3), cs.MX.sym("t")
+    after, _, error = w_step(lambda time, state: toy_rate(time, state, damping), t, s0, h, 1, cs.MX(MASS),
+                             cs.MX(damping))  # fmt: skip
+    step = cs.Function("step", [t, s0], [after, error])
+
+    def exact(t0, y0):
+        def rate(time, y):
+            return [y[1], (np.sin(5 * time) - damping * y[1] - STIFFNESS * y[0]) / MASS, y[0] + np.sin(time)]
+
+        return solve_ivp(rate, (t0, t0 + h), y0, method="Radau", rtol=1e-13, atol=1e-16).y[:, -1]
+
+    y = np.array([0.01, 0.0, 0.0])
+    for k in range(6):
+        got, estimate = (np.asarray(v).ravel() for v in step(k * h, y))
+        truth = exact(k * h, y)
+        embedded = np.abs(got - estimate - truth).max()
+        assert embedded / 3 <= np.abs(estimate).max() <= 3 * embedded, (k, estimate, embedded)
+        assert np.abs(got - truth).max() <= np.abs(estimate).max(), k
+        y = got
 
 
 def test_auto_integrates_dry_friction_by_ros34pw2_and_no_friction_by_rk4():
@@ -108,7 +137,7 @@ def test_auto_integrates_dry_friction_by_ros34pw2_and_no_friction_by_rk4():
 def wrist_release():
     """The UR5 cell at rest with the target still, no pixel noise and no timing fault, wrist 3 released 1 mrad
     from ``q_eq`` with the cell's friction (Coulomb 0.56 N m on the wrists, eps 0.05 rad/s) and wrist 3's Coulomb
-    ``c``: the joint's angle over 3 s, run with the given integrator and substeps."""
+    ``c``: the joint's angle over 3 s and the run's ``stats``, run with the given integrator and substeps."""
     case = Case.load(CELL)
     loop, settings = case.loop, case.settings
     imp = replace(settings.implementation, pixel_noise=0.0, latency_jitter=0, frame_drop=0.0, outlier_probability=0.0)
@@ -117,13 +146,13 @@ def wrist_release():
     s0[5] += 1e-3
     rest = rest_model(loop, loop.robot)
 
-    def run(coulomb: float, integrator: str, substeps: int) -> np.ndarray:
+    def run(coulomb: float, integrator: str, substeps: int) -> tuple[np.ndarray, dict]:
         friction = np.array(settings.errors.coulomb, dtype=float)
         friction[5] = coulomb
         st = replace(settings, implementation=replace(imp, integrator=integrator, substeps=substeps), duration=3.0,
                      dt=0.002, errors=replace(settings.errors, coulomb=friction))  # fmt: skip
         traj = SampledSimulator(rest, st).run(s0)
-        return traj["q"][:, 5] - q_eq[5]
+        return traj["q"][:, 5] - q_eq[5], traj.stats
 
     return run
 
@@ -134,8 +163,11 @@ def test_wrist_3_released_from_rest_with_one_step_a_period_matches_sixteen(wrist
     1 mrad from rest: its smoothed slope over its inertia, 1500 and 1920 1/s, puts one RK4 step of 2 ms past
     RK4's stability limit (2.785), and RK4 with one step a period invents a limit cycle of several mrad (measured
     5.7 and 13.3 mrad from the reference); ROS34PW2 with one step (the default for a plant with dry friction)
-    stays within 1e-6 rad of RK4 in sixteen steps (measured 2.9e-8 and 3.6e-8 rad) over 3 s."""
-    reference = wrist_release(coulomb, "rk4", 16)
+    stays within 1e-6 rad of RK4 in sixteen steps (measured 2.9e-8 and 3.6e-8 rad) over 3 s, and states its
+    largest local error of a period (measured 9e-10 rad), which is below that difference."""
+    reference, _ = wrist_release(coulomb, "rk4", 16)
     assert np.abs(reference[-500:]).max() < 3e-4  # the joint settles (the integral action learns the friction)
-    assert np.abs(wrist_release(coulomb, "auto", 1) - reference).max() < 1e-6
-    assert np.abs(wrist_release(coulomb, "rk4", 1) - reference).max() > 1e-3
+    implicit, stats = wrist_release(coulomb, "auto", 1)
+    assert np.abs(implicit - reference).max() < 1e-6 and stats["rosenbrock"] == 1
+    assert 0 < stats["local_error_q"] < np.abs(implicit - reference).max()
+    assert np.abs(wrist_release(coulomb, "rk4", 1)[0] - reference).max() > 1e-3
