@@ -245,19 +245,22 @@ class SampledSimulator(Simulator):
             camera = cs.Function("dvfc_true_camera", [model.t, model.state, noise, errors, *p], image)
             self._errors = self.errors.camera_vector(loop.camera)
         choice = self._fixed_choice()  # None: chosen at the first run (settle)
-        period = None if choice is None else self._period_function(choice.substeps)
         own = {"signals": self.signal_function, "camera": camera}
-        if self._method is not None:  # fixed steps; under CVODES the law is compiled (update), the period CVODES's
+        if self._method is None:  # CVODES: the law compiled (update), the period CVODES's on the DAE compiled here
+            own["dae"] = self.dae
+        else:
             own["last"] = last
-            if period is not None:
-                own["period"] = period
+            if choice is not None:
+                own["period"] = self._period_function(choice.substeps)
         if settings.jit:  # built together, at -O1 (the period as fast a call as at -O2, built in 60% of the time)
-            requests = [(f, False, "-O1") for f in own.values()]
+            requests = [(f, name == "dae", "-O1") for name, f in own.items()]  # CVODES differences the DAE
             own = dict(zip(own, compiled_together(requests), strict=True))
         self.signal_function, self._image_function = own["signals"], Buffered(own["camera"])
         self._last = Buffered(own.get("last", last))
+        if "dae" in own:
+            self.dae = own["dae"]
         if choice is not None:
-            built = own.get("period", period)
+            built = own["period"] if "period" in own else self._period_function(choice.substeps)
             self._periods.set(choice, lambda _: built)
         self._read_image = Buffered(image_update(loop))  # the program's (21) and its check, by the VM
         self._window = None  # the image as bounds on f, point by point (when the run checks it)

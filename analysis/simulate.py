@@ -248,9 +248,9 @@ class Simulator:
 
     @cached_property
     def dae(self) -> cs.Function:
-        """The DAE of :func:`dynamics_function` (under ``jit`` compiled at construction beside the signals, and
-        differentiated by forward differences; otherwise built at first use: the fixed-step sampled loop never
-        needs it)."""
+        """The DAE of :func:`dynamics_function` (under ``jit`` compiled at construction, beside the signals or, for
+        the sampled loop integrated by CVODES, beside the sampled simulator's functions, and differentiated by
+        forward differences; otherwise built at first use: the fixed-step sampled loop never needs it)."""
         return dynamics_function(self.model)
 
     def cvodes_options(self) -> dict:

@@ -1045,6 +1045,14 @@ MUTATIONS = (
         ('tests/test_dispersion.py::test_a_batch_whose_runs_have_no_local_error_reads_with_the_others',),
     ),
     Mutation(
+        'sampled-cvodes-dae-interpreted',
+        "the sampled loop's CVODES period runs the DAE by CasADi's virtual machine under jit",
+        'analysis/sampled.py',
+        (('        if "dae" in own:\n            self.dae = own["dae"]',
+          '        if False:\n            self.dae = own["dae"]'),),
+        ('tests/test_sampled.py::test_cvodes_between_samples_runs_the_compiled_dae_under_jit',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
