@@ -166,7 +166,7 @@ def dry_friction_smoothing(spec: CampaignSpec) -> float | None:
     plants have any (declared or drawn), else None: fact 14 linearises that smoothed model."""
     errors = spec.case.settings.errors
     drawn = "plant.friction.coulomb" in spec.case.scenario.dispersion
-    return None if errors is None or not (drawn or np.any(errors.coulomb)) else float(errors.smoothing)
+    return None if errors is None or not (drawn or errors.has_dry_friction) else float(errors.smoothing)
 
 
 def local_summary(data: dict, smoothing: float | None = None) -> dict:

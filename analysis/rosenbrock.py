@@ -63,7 +63,7 @@ def w_step(rate: Rate, t: cs.MX, s: cs.MX, h: float, n: int, mass: cs.MX, slope:
     local error estimate ``sum_i (b_i - bhat_i) k_i`` of the state (:data:`EMBEDDED`)."""
     system = mass + h * GAMMA * cs.diag(slope)
     stages: list[cs.MX] = []
-    quadrature = None
+    quadrature_rates: list[cs.MX] = []
     for i in range(len(WEIGHTS)):
         point = s + sum((a * k for a, k in zip(ALPHA[i], stages, strict=True)), cs.MX.zeros(s.shape))
         f, q_rate = rate(t + sum(ALPHA[i]) * h, point)
@@ -71,7 +71,8 @@ def w_step(rate: Rate, t: cs.MX, s: cs.MX, h: float, n: int, mass: cs.MX, slope:
         k_qd = cs.solve(system, h * (mass @ f[n : 2 * n]) - h * slope * v)
         k_q = h * f[:n] + h * v + h * GAMMA * k_qd
         stages.append(cs.vertcat(k_q, k_qd, h * f[2 * n :]))
-        quadrature = WEIGHTS[i] * h * q_rate if quadrature is None else quadrature + WEIGHTS[i] * h * q_rate
+        quadrature_rates.append(q_rate)
     after = s + sum(b * k for b, k in zip(WEIGHTS, stages, strict=True))
+    quadrature = h * sum(b * r for b, r in zip(WEIGHTS, quadrature_rates, strict=True))
     error = sum((b - bhat) * k for b, bhat, k in zip(WEIGHTS, EMBEDDED, stages, strict=True))
     return after, quadrature, error

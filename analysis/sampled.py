@@ -53,7 +53,7 @@ import numpy as np
 
 from dvfc.analysis.compile import Buffered, compiled, compiled_together
 from dvfc.analysis.controller import image_update, sample_update
-from dvfc.analysis.implementation import MAX_AUTO_SUBSTEPS, SubstepChoice
+from dvfc.analysis.implementation import MAX_AUTO_SUBSTEPS, Method, SubstepChoice
 from dvfc.analysis.output import interrupted
 from dvfc.analysis.parametric import parameter_vector
 from dvfc.analysis.rosenbrock import ORDER, w_step
@@ -166,6 +166,14 @@ def step_doubling(
     return 0.0 if gap == 0 else 2**order / (2**order - 1) * gap / change if change > 0 else math.inf
 
 
+def period_method(settings: Settings) -> Method | None:
+    """The fixed-step integrator of the control periods of ``settings``' run (None: CVODES): its
+    implementation's :meth:`~dvfc.analysis.implementation.Implementation.method` for its plant, with or without
+    dry friction."""
+    assert settings.implementation is not None, "a sampled run is of the loop as implemented"
+    return settings.implementation.method(settings.errors is not None and settings.errors.has_dry_friction)
+
+
 def local_error_stats(errors: list[np.ndarray], periods: int) -> dict[str, float]:
     """``local_error_q``, the largest estimate of a period's local error in the joint angles (rad) over the first
     ``periods`` periods of a run (``errors``: the estimates of each chunk of periods); nothing where the method
@@ -225,7 +233,7 @@ class SampledSimulator(Simulator):
         self.errors = settings.errors
         self._friction = (self.errors or PlantErrors.none(loop.camera, n)).friction_vector()
         self._effort = limits.effort if implementation.saturate else np.full(n, np.inf)
-        self._method = implementation.method(self.errors is not None and self.errors.has_dry_friction)
+        self._method = period_method(settings)
         update = sample_update(model, implementation.period)  # the program's (analysis/controller.py)
         if settings.jit and implementation.integrator == "cvodes":  # the RK4 period is compiled whole
             update = compiled(update)
@@ -284,7 +292,7 @@ class SampledSimulator(Simulator):
         other.design = [] if design is None else [design]
         other.limits = imp.limits(self.loop.robot.limits)
         other._effort = other.limits.effort if imp.saturate else np.full(self.loop.robot.n, np.inf)
-        if (method := imp.method(settings.errors is not None and settings.errors.has_dry_friction)) != self._method:
+        if (method := period_method(settings)) != self._method:
             other._method, other._periods = method, _Periods()  # another integrator: its own period (settle)
         if settings.errors is not None:
             other.errors = settings.errors
@@ -353,14 +361,12 @@ class SampledSimulator(Simulator):
         angles: ROS34PW2's embedded estimates, the largest entry of each step's summed over the steps (NaN for
         RK4, which has no embedded step)."""
         model, n = self.model, self.loop.robot.n
-        mass = model.plant_dynamics[0]
-        held = cs.Function("dvfc_held", model.arguments[0], [model.state_rate, model.quadratures, mass])
+        held = cs.Function("dvfc_held", model.arguments[0], [model.state_rate, model.quadratures])
         values = (("t", t), ("x", s), ("hold", hold), ("friction", friction), *(("p", d) for d in design))
         syms = [cs.MX.sym(name, v.numel()) for name, v in values]
         t_, x, inputs, b, *p = syms
         torque = inputs[:n] - friction_torque(x[n : 2 * n], b, n)  # no friction: tau - 0, exactly tau
-        rates = held(t_, x, cs.vertcat(torque, inputs[n:]), *p)
-        stage = cs.Function("dvfc_rate", syms, rates[:2])
+        stage = cs.Function("dvfc_rate", syms, held(t_, x, cs.vertcat(torque, inputs[n:]), *p))
 
         def rate(time: cs.MX, state: cs.MX) -> list[cs.MX]:
             return stage(time, state, hold, friction, *design)
@@ -368,7 +374,8 @@ class SampledSimulator(Simulator):
         step = self.implementation.period / substeps
         quad = cs.MX.zeros(len(QUADRATURES))
         if self._method == "rosenbrock":
-            start = cs.Function("dvfc_w", syms, [rates[2], friction_slope(x[n : 2 * n], b, n)])
+            mass = cs.Function("dvfc_mass", model.arguments[0], [model.plant_dynamics[0]])
+            start = cs.Function("dvfc_w", syms, [mass(t_, x, inputs, *p), friction_slope(x[n : 2 * n], b, n)])
             error = cs.MX(0)
             for i in range(substeps):
                 t0 = t + i * step

@@ -987,7 +987,7 @@ MUTATIONS = (
         'campaign-local-statement-silent-on-smoothing',
         "the campaign's local verdicts stated as the plant's with no word of the smoothed friction they rest on",
         'analysis/campaign.py',
-        (('    return None if errors is None or not (drawn or np.any(errors.coulomb)) else float(errors.smoothing)',
+        (('    return None if errors is None or not (drawn or errors.has_dry_friction) else float(errors.smoothing)',
           '    return None'),),
         ('tests/test_campaign_statistics.py::test_a_local_verdict_on_smoothed_friction_names_the_smoothing_width',),
     ),
