@@ -240,7 +240,9 @@ class Simulator:
         signals = model.signals_function()
         self.signal_function = signals
         if settings.jit and not loop.sampled:  # the sampled simulator compiles its signals with its own functions
-            requests = [(signals, False, "-O1"), (dynamics_function(model), True, "-O1")]  # the DAE differentiated
+            # the signals at -O0 (called once an output sample: 41 us against 7 at -O1 on the xArm 7 cell, built in
+            # 2.2 s against 6.2), the DAE at -O1 (called at every step of CVODES) and differentiated
+            requests = [(signals, False, "-O0"), (dynamics_function(model), True, "-O1")]
             self.signal_function, self.dae = compiled_together(requests)
         (arm, arm_jac), (image, image_jac) = model.conditioning.items()
         self._monitored = (arm, image)

@@ -21,6 +21,7 @@ import casadi as cs
 import numpy as np
 
 from dvfc.analysis.adversary import worst_disturbance
+from dvfc.analysis.compile import ahead
 from dvfc.analysis.envelope import DisturbanceBounds, level_bounds
 from dvfc.analysis.implementation import SubstepChoice
 from dvfc.analysis.linearize import FromRest, from_rest, weight_diagonals
@@ -769,11 +770,15 @@ def verify(
     implemented against the robot's limits. Every run follows the scenario's ``jit``: the design is an input of
     the compiled functions, and the loop with ``w = 0`` is the scenario's with the target's radius at zero, but
     each variant with disturbances or inputs of its own (Lemma 2's input, a torque noise, a step) is a structure
-    of its own, compiled once per arm (on the xArm 7 cell 5 continuous ones, the run from rest's among them); the
-    run as implemented (``implemented_run``: that run, when
-    already made; ``rest``: the run from rest of Theorem 2's checks, ``paper_run``: the paper's loop
-    run from ``s0`` in the loop's own mode, each when already made)."""
+    of its own, compiled once per arm (on the xArm 7 cell 5 continuous ones, the run from rest's among them).
+    ``implemented_run``: the run as implemented, when already made (else its simulator's libraries, the largest,
+    are started first, :func:`dvfc.analysis.compile.ahead`, and built on the cores the paper's runs leave idle);
+    ``rest``: the run from rest of Theorem 2's checks, ``paper_run``: the paper's loop run from ``s0`` in the
+    loop's own mode, each when already made."""
     paper = replace(settings, implementation=None, plant=None, view=False)
+    if implemented_run is None and settings.jit:  # its libraries, the largest, built while the paper's runs go on
+        with ahead():
+            as_implemented(loop, settings)
     return [
         *verify_paper(loop, s0, paper, gamma, envelope, rest, paper_run),
         *implemented(loop, s0, settings, implemented_run),

@@ -5,6 +5,8 @@ library build it once; another structure, another entry."""
 from __future__ import annotations
 
 import multiprocessing
+import os
+from pathlib import Path
 
 import casadi as cs
 import numpy as np
@@ -128,3 +130,76 @@ def test_the_libraries_of_one_batch_are_built_at_once(cold, monkeypatch, tmp_pat
     if (os.cpu_count() or 1) >= 2:
         (a_start, a_end), (b_start, b_end) = runs
         assert a_start < b_end and b_start < a_end
+
+
+def _recording_compiler(log):
+    """A compiler that records its niceness when it starts (``nice.<pid>``), sleeps 1 s, runs the real one and
+    records when it ends (``end.<pid>``)."""
+    import shutil
+
+    wrapper = log / "cc"
+    real = shutil.which("gcc") or shutil.which("cc")
+    wrapper.write_text(f'#!/bin/sh\n[ "$1" = --version ] && exec {real} --version\nnice > "{log}/nice.$$"\n'
+                       f'sleep 1\n{real} "$@"\nstatus=$?\ndate +%s.%N > "{log}/end.$$"\nexit $status\n')  # fmt: skip
+    wrapper.chmod(0o755)
+    return wrapper
+
+
+def test_a_build_started_ahead_runs_at_the_lowest_priority_and_is_waited_for_not_repeated(
+    cold, monkeypatch, tmp_path_factory
+):
+    """Within :func:`ahead`, ``compiled_together`` returns at once (before the 1 s compiler ends) with the
+    function as it is, its build started at nice 19; the later ``compiled_together`` of the same function waits
+    for that build (no C generated again, one compiler run) and loads the library; a build it starts itself
+    runs at the process's own priority."""
+    import os
+    import time
+
+    from dvfc.analysis.compile import ahead, compiled_together
+
+    log = tmp_path_factory.mktemp("log")
+    wrapper = _recording_compiler(log)
+    monkeypatch.setattr(compile_module.shutil, "which", lambda name: str(wrapper))
+    started = time.perf_counter()
+    with ahead():
+        (early,) = compiled_together([(square(), False, "-O1")])
+    assert time.perf_counter() - started < 0.9 and early.class_name() == "SXFunction"
+    generate = compile_module._source
+    monkeypatch.setattr(compile_module, "_source", lambda *a: pytest.fail("C generated again"))
+    (late,) = compiled_together([(square(), False, "-O1")])
+    assert late.class_name() == "External" and np.allclose(np.asarray(late([1.0, 2.0, 3.0])).ravel(), [1.0, 4.0, 9.0])
+    assert [int(p.read_text()) for p in log.glob("nice.*")] == [19] and len(list(log.glob("end.*"))) == 1
+    monkeypatch.setattr(compile_module, "_source", generate)
+    for mark in log.glob("nice.*"):
+        mark.unlink()
+    compiled_together([(square(power=3.0), False, "-O1")])
+    assert [int(p.read_text()) for p in log.glob("nice.*")] == [os.nice(0)]
+
+
+def _compile_in_child(cache: str, done: str) -> None:
+    os.environ["DVFC_CACHE"] = cache
+    compiled(square())
+    Path(done).touch()
+
+
+def test_a_child_forked_while_a_build_runs_ahead_waits_for_its_library_and_loads_it(
+    cold, monkeypatch, tmp_path_factory
+):
+    """A process forked while its parent builds a library ahead (the parent's compiler threads are not the
+    child's) asks for that library: it waits on the entry's lock, then loads it, within 20 s, built once."""
+    from dvfc.analysis.compile import ahead, compiled_together
+
+    log = tmp_path_factory.mktemp("log")
+    wrapper = _recording_compiler(log)
+    monkeypatch.setattr(compile_module.shutil, "which", lambda name: str(wrapper))
+    with ahead():
+        compiled_together([(square(), False, "-O1")])
+    done = log / "child-done"
+    child = multiprocessing.get_context("fork").Process(target=_compile_in_child, args=(str(cold), str(done)))
+    child.start()
+    child.join(20)
+    if child.is_alive():
+        child.kill()
+    assert child.exitcode == 0 and done.exists()
+    compiled(square())
+    assert len(list(log.glob("end.*"))) == 1
