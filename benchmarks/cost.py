@@ -2,9 +2,11 @@
 
 1. On ``examples/ur5_cell.toml`` (as implemented, compiled into an empty cache of its own, so that every value is
    new to it): the nominal scenario built and run end to end once to fill the cache, then again (the baseline),
-   then with a payload, the joints' friction, the camera mount or the latency changed: each its wall time, its
-   ratio to the baseline (target: at most 1.2x) and the libraries it added to the cache (target: none; every such
-   change is an input of the compiled functions: the nominal plant too is a plant whose masses are inputs).
+   then with a payload, the joints' friction, the camera mount or the latency changed: each the best of 3 (as the
+   baseline: a run on shared cores varies by more than the ratios measured) and the first run's wall time, the
+   ratio of the best to the baseline (target: at most 1.2x) and the libraries its first run added to the cache
+   (target: none; every such change is an input of the compiled functions: the nominal plant too is a plant whose
+   masses are inputs).
 2. ``dvfc certify`` and ``dvfc verify`` of ``examples/xarm7_cell.toml`` in fresh processes, each with an empty
    compile cache (cold; target: within 30 s) and again with the libraries it wrote (warm).
 3. With ``--synthesis``: ``dvfc synthesize --for-campaign examples/xarm7_cell.toml --workers 2`` (target: within
@@ -77,8 +79,10 @@ def changes() -> None:
             edit(data)
             before = libraries()
             first = seconds(end_to_end(data, folder))[0]
-            print(f"  {name:26s}  {first:7.2f} s  {first / base:5.2f}x the nominal  "
-                  f"{len(libraries() - before)} libraries compiled")  # fmt: skip
+            compiled = len(libraries() - before)
+            best = min(first, best_of(end_to_end(data, folder), 2))
+            print(f"  {name:26s}  {best:7.2f} s  {best / base:5.2f}x the nominal  (first {first:5.2f} s)  "
+                  f"{compiled} libraries compiled")  # fmt: skip
     os.environ.pop("DVFC_CACHE") if previous is None else os.environ.update(DVFC_CACHE=previous)
 
 
