@@ -587,7 +587,7 @@ def linear_statement(name: str, value: float | None, linear: LinearCheck | None,
     or stable over its whole range). ``margin``: the linear margin of a :data:`PLANT` parameter
     (:meth:`LinearCheck.margin`); a :data:`LINEAR` one's is the check's own. ``basis`` says which bounds the
     margin: ``"linear margin"`` (the schedule's), ``"linear margin of the plant as declared"`` or
-    ``"measured only"``. ``value`` None: the loop holds over the whole searched range."""
+    ``"measured only"``. ``value`` None: the run at the searched range's end holds (:data:`ENDS_HOLDING`)."""
     p = PARAMETERS[name]
     if name in LINEAR and linear is not None and linear.margins is not None:
         margin = linear.margins[name]
@@ -605,11 +605,16 @@ def linear_statement(name: str, value: float | None, linear: LinearCheck | None,
                                     f"searched range's end ({m['range'][1]:g} {p.unit}), not checked between: no "
                                     "linear margin found to clip to"}  # fmt: skip
     if beyond(value):
-        measured = "holds over the whole searched range" if value is None else f"the measured {value:.4g} {p.unit}"
+        measured = ("a run at the searched range's end that holds" if value is None
+                    else f"the measured {value:.4g} {p.unit}")  # fmt: skip
         return {**out, "value": m["value"], "clipped": True,
                 "statement": f"{measured} lies beyond fact 14's linear margin {m['value']:.4g} {p.unit} (unstable at "
                              f"{m['unstable_at']:.4g} {p.unit}): clipped to it"}  # fmt: skip
     return {**out, "statement": f"within fact 14's linear margin {m['value']:.4g} {p.unit}"}
+
+
+ENDS_HOLDING = "its run at the searched range's end holds (no value between is run: the loop may break between)"
+"""A search's reason when its run at the searched range's end holds: the bisection makes no other run."""
 
 
 def search(case: Case, name: str, bound: TrackingBound, log: str | None = None,
@@ -640,7 +645,7 @@ def search(case: Case, name: str, bound: TrackingBound, log: str | None = None,
     plant_margin = None if linear is None or name not in PLANT else linear.margin(name, start, end)
     if run(end):
         checked = linear_statement(name, None, linear, plant_margin)
-        return {**margin, "value": checked["value"], "holds_at": end, "reason": "holds over the whole searched range",
+        return {**margin, "value": checked["value"], "holds_at": end, "reason": ENDS_HOLDING,
                 "runs": len(done), "linear": checked, "holds_run": run_summary(done[end])}  # fmt: skip
     good, bad = start, end
     for _ in range(STEPS):

@@ -20,6 +20,7 @@ from dvfc.analysis.case import Case
 from dvfc.analysis.cli import app
 from dvfc.analysis.margins import (
     DEFAULT_FRICTION,
+    ENDS_HOLDING,
     GROWTH_RATE,
     LINEAR,
     PARAMETERS,
@@ -422,3 +423,21 @@ def test_a_plant_parameters_margin_is_never_beyond_its_linear_margin(default_cas
     assert rho(lin["stable_at"]) < 1 <= rho(lin["unstable_at"])
     assert margin["value"] == lin["stable_at"] and margin["linear"]["clipped"], margin["linear"]
     assert margin["linear"]["basis"] == "linear margin of the plant as declared"
+
+
+def test_a_search_whose_ranges_end_holds_says_it_ran_that_value_only(monkeypatch):
+    """When the run at the searched range's end holds, the bisection runs nothing else: the margin's reason
+    says that one value was run and none between (not that the loop holds over the whole range), and so does
+    the linear line of a value clipped from there."""
+    case = Case.load(DEFAULT_SCENARIO)
+    ran = []
+    held = lambda case, name, value, bound, linear, first=None: ran.append(value) or {  # noqa: E731
+        "value": value, "holds": True, "detail": "", "horizon": 1.0, "horizons": [1.0], "growth": None,
+        "linear": {"rho": None, "stable": None}}  # fmt: skip
+    monkeypatch.setattr(margins_module, "trial", held)
+    margin = search(case, "latency", None, linear=None)
+    assert ran == [margin["range"][1]] and margin["runs"] == 1 and margin["holds_at"] == margin["range"][1]
+    assert margin["reason"] == ENDS_HOLDING and "end" in ENDS_HOLDING and "whole" not in ENDS_HOLDING
+    linear = LinearCheck(None, {"latency": {"value": 0.13, "stable_at": 0.13, "unstable_at": 0.132,
+                                            "range": [0.02, 0.25]}}, None)  # fmt: skip
+    assert linear_statement("latency", None, linear)["statement"].startswith("a run at the searched range's end")

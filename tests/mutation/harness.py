@@ -1074,6 +1074,14 @@ MUTATIONS = (
         ('tests/test_compile_cache.py::test_a_child_forked_while_a_build_runs_ahead_waits_for_its_library_and_loads_it',),
     ),
     Mutation(
+        'margins-range-end-said-whole-range',
+        "a search whose one run, at the searched range's end, holds says the loop holds over the whole range",
+        'analysis/margins.py',
+        (('ENDS_HOLDING = "its run at the searched range\'s end holds (no value between is run: the loop may break '
+          'between)"', 'ENDS_HOLDING = "holds over the whole searched range"'),),
+        ('tests/test_margins.py::test_a_search_whose_ranges_end_holds_says_it_ran_that_value_only',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
