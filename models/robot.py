@@ -351,14 +351,23 @@ def perturbed_urdf(text: str, frame: str, payload: Payload | None, mass_scale: f
 
 def frozen_urdf(urdf: Path, joints: list[str]) -> str:
     """The URDF with every movable joint outside ``joints`` (a gripper's fingers, say) fixed at
-    zero and without ``mimic`` and ``dynamics`` tags and top-level elements other than links,
-    joints and materials (``transmission``, ``ros2_control``, ``gazebo``: not rigid-body data):
-    the arm's dynamics then carry those links as rigid loads (the joints that mimic others are
-    in ``joints`` and :class:`Robot` couples them, :func:`coupling`)."""
+    zero, as rigid-body data only: no ``mimic`` and ``dynamics`` tags, no top-level elements other
+    than links and joints (``material``, ``transmission``, ``ros2_control``, ``gazebo``), no link's
+    ``visual`` or ``collision`` (their geometry and materials, which the parser would warn about);
+    an ``<inertial>`` or a joint without ``<origin>`` given the identity, which the URDF format
+    means by it (the parser requires the element). The arm's dynamics then carry the frozen links
+    as rigid loads (the joints that mimic others are in ``joints`` and :class:`Robot` couples them,
+    :func:`coupling`)."""
     root = _parse(urdf)
-    for child in list(root):  # transmission, ros2_control, gazebo: not rigid-body data, unknown to the parser
-        if child.tag not in ("link", "joint", "material"):
+    for child in list(root):
+        if child.tag not in ("link", "joint"):
             root.remove(child)
+    for link in root.iter("link"):
+        for child in [*link.findall("visual"), *link.findall("collision")]:
+            link.remove(child)
+    for element in [*root.iter("joint"), *root.iter("inertial")]:
+        if element.find("origin") is None:
+            element.insert(0, ET.Element("origin", xyz="0 0 0", rpy="0 0 0"))
     for joint in root.iter("joint"):
         for tag in ("mimic", "dynamics"):
             for child in joint.findall(tag):

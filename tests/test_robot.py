@@ -179,3 +179,43 @@ def test_unparsable_urdf_is_an_error(tmp_path):
     bad.write_text("<robot name='x'><link name='a'></robot>")
     with pytest.raises(RobotModelError, match="cannot read URDF"):
         Robot(bad, "a")
+
+
+ORIGINLESS = """<?xml version="1.0"?>
+<robot name="two">
+  <material name="grey"><color rgba="0.5 0.5 0.5 1"/></material>
+  <link name="base"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>{identity}<axis xyz="0 0 1"/>
+    <limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+  <link name="l1">
+    <visual><geometry><box size="0.1 0.1 0.1"/></geometry>
+      <material name="red"><color rgba="1 0 0 1"/><specular rgb="1 1 1"/></material></visual>
+    <collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision>
+    <inertial>{identity}<mass value="1.0"/><inertia ixx="0.02" ixy="0.001" ixz="0" iyy="0.03" iyz="0" izz="0.01"/>
+    </inertial></link>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0.3 0 0.1" rpy="0.2 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+  <link name="l2"><inertial>{identity}<mass value="0.5"/>
+    <inertia ixx="0.01" ixy="0" ixz="0.002" iyy="0.01" iyz="0" izz="0.005"/></inertial></link>
+</robot>
+"""
+
+
+def test_an_inertial_or_joint_without_origin_is_the_identity_and_geometry_is_not_read(tmp_path, capfd):
+    """The URDF format reads an ``<inertial>`` or a joint without ``<origin>`` as the identity: such an arm has
+    the mass matrix, bias and camera pose of the same arm with the identity written out (to round-off), and a
+    link's visual and collision elements and the materials are not read (nothing printed about them: the
+    parser would say ``Unknown tag "specular"`` of the visual's material, an extension of Gazebo's)."""
+    arms = []
+    for name, identity in (("written", '<origin xyz="0 0 0" rpy="0 0 0"/>'), ("implied", "")):
+        path = tmp_path / f"{name}.urdf"
+        path.write_text(ORIGINLESS.format(identity=identity))
+        arms.append(Robot(path, "l2"))
+    q, qd = np.array([0.3, -0.4]), np.array([0.2, -0.1])
+    written, implied = (cs.Function("f", [a.q, a.qd], [a.mass_matrix, a.bias, a.camera_pose.as_matrix()])(q, qd)
+                        for a in arms)  # fmt: skip
+    for a, b in zip(written, implied, strict=True):
+        assert np.allclose(np.asarray(a), np.asarray(b), rtol=0.0, atol=1e-14)
+    assert np.asarray(written[0])[0, 1] != 0.0  # the test's arm couples its joints
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""

@@ -1082,6 +1082,20 @@ MUTATIONS = (
         ('tests/test_margins.py::test_a_search_whose_ranges_end_holds_says_it_ran_that_value_only',),
     ),
     Mutation(
+        'urdf-origin-less-inertial-refused',
+        "an <inertial> or a joint without <origin> passed to the parser as it is (which refuses it)",
+        'models/robot.py',
+        (('        if element.find("origin") is None:\n', '        if False:\n'),),
+        ('tests/test_robot.py::test_an_inertial_or_joint_without_origin_is_the_identity_and_geometry_is_not_read',),
+    ),
+    Mutation(
+        'urdf-geometry-read',
+        "a link's visual and collision elements passed to the parser (it prints a line for each tag it does not know)",
+        'models/robot.py',
+        (('[*link.findall("visual"), *link.findall("collision")]', '[]'),),
+        ('tests/test_robot.py::test_an_inertial_or_joint_without_origin_is_the_identity_and_geometry_is_not_read',),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
