@@ -771,12 +771,12 @@ def verify(
     the compiled functions, and the loop with ``w = 0`` is the scenario's with the target's radius at zero, but
     each variant with disturbances or inputs of its own (Lemma 2's input, a torque noise, a step) is a structure
     of its own, compiled once per arm (on the xArm 7 cell 5 continuous ones, the run from rest's among them).
-    ``implemented_run``: the run as implemented, when already made (else its simulator's libraries, the largest,
-    are started first, :func:`dvfc.analysis.compile.ahead`, and built on the cores the paper's runs leave idle);
-    ``rest``: the run from rest of Theorem 2's checks, ``paper_run``: the paper's loop run from ``s0`` in the
-    loop's own mode, each when already made."""
+    ``implemented_run``: the run as implemented, when already made (else its simulator's libraries, a sampled
+    loop's the largest, are started first, :func:`dvfc.analysis.compile.ahead`, and built on the cores the paper's
+    runs leave idle); ``rest``: the run from rest of Theorem 2's checks, ``paper_run``: the paper's loop run from
+    ``s0`` in the loop's own mode, each when already made."""
     paper = replace(settings, implementation=None, plant=None, view=False)
-    if implemented_run is None and settings.jit:  # its libraries, the largest, built while the paper's runs go on
+    if implemented_run is None and settings.jit:  # its libraries (a sampled loop's the largest) built meanwhile
         with ahead():
             as_implemented(loop, settings)
     return [

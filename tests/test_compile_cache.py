@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from pathlib import Path
 
 import casadi as cs
 import numpy as np
@@ -102,22 +101,30 @@ def test_processes_needing_one_library_at_once_build_it_once(cold, tmp_path_fact
     assert len(list(cold.glob("dvfc_square-*.so"))) == 1 and not list(cold.glob("*.tmp"))
 
 
+def _recording_compiler(log):
+    """A compiler that records when it starts (``start.<pid>``) and its niceness (``nice.<pid>``), sleeps 1 s,
+    runs the real one and records when it ends (``end.<pid>``)."""
+    import shutil
+
+    wrapper = log / "cc"
+    real = shutil.which("gcc") or shutil.which("cc")
+    wrapper.write_text(f'#!/bin/sh\n[ "$1" = --version ] && exec {real} --version\ndate +%s.%N > "{log}/start.$$"\n'
+                       f'nice > "{log}/nice.$$"\nsleep 1\n{real} "$@"\nstatus=$?\ndate +%s.%N > "{log}/end.$$"\n'
+                       'exit $status\n')  # fmt: skip
+    wrapper.chmod(0o755)
+    return wrapper
+
+
 def test_the_libraries_of_one_batch_are_built_at_once(cold, monkeypatch, tmp_path_factory):
     """:func:`compiled_together` with two functions not in the cache: each built once, each computing its own
     function, their compilers running at the same time on a machine with two cores or more (a compiler that
     records when it starts, sleeps 1 s, runs the real one and records when it ends: the two intervals overlap)."""
-    import os
-    import shutil
     import time
 
     from dvfc.analysis.compile import compiled_together
 
     log = tmp_path_factory.mktemp("log")
-    wrapper = log / "cc"
-    real = shutil.which("gcc") or shutil.which("cc")
-    wrapper.write_text(f'#!/bin/sh\n[ "$1" = --version ] && exec {real} --version\ndate +%s.%N > "{log}/start.$$"\n'
-                       f'sleep 1\n{real} "$@"\nstatus=$?\ndate +%s.%N > "{log}/end.$$"\nexit $status\n')  # fmt: skip
-    wrapper.chmod(0o755)
+    wrapper = _recording_compiler(log)
     monkeypatch.setattr(compile_module.shutil, "which", lambda name: str(wrapper))
     started = time.perf_counter()
     square_, cube = compiled_together([(square(), False, "-O1"), (square(power=3.0), False, "-O1")])
@@ -132,19 +139,6 @@ def test_the_libraries_of_one_batch_are_built_at_once(cold, monkeypatch, tmp_pat
         assert a_start < b_end and b_start < a_end
 
 
-def _recording_compiler(log):
-    """A compiler that records its niceness when it starts (``nice.<pid>``), sleeps 1 s, runs the real one and
-    records when it ends (``end.<pid>``)."""
-    import shutil
-
-    wrapper = log / "cc"
-    real = shutil.which("gcc") or shutil.which("cc")
-    wrapper.write_text(f'#!/bin/sh\n[ "$1" = --version ] && exec {real} --version\nnice > "{log}/nice.$$"\n'
-                       f'sleep 1\n{real} "$@"\nstatus=$?\ndate +%s.%N > "{log}/end.$$"\nexit $status\n')  # fmt: skip
-    wrapper.chmod(0o755)
-    return wrapper
-
-
 def test_a_build_started_ahead_runs_at_the_lowest_priority_and_is_waited_for_not_repeated(
     cold, monkeypatch, tmp_path_factory
 ):
@@ -152,7 +146,6 @@ def test_a_build_started_ahead_runs_at_the_lowest_priority_and_is_waited_for_not
     function as it is, its build started at nice 19; the later ``compiled_together`` of the same function waits
     for that build (no C generated again, one compiler run) and loads the library; a build it starts itself
     runs at the process's own priority."""
-    import os
     import time
 
     from dvfc.analysis.compile import ahead, compiled_together
@@ -176,17 +169,12 @@ def test_a_build_started_ahead_runs_at_the_lowest_priority_and_is_waited_for_not
     assert [int(p.read_text()) for p in log.glob("nice.*")] == [os.nice(0)]
 
 
-def _compile_in_child(cache: str, done: str) -> None:
-    os.environ["DVFC_CACHE"] = cache
-    compiled(square())
-    Path(done).touch()
-
-
 def test_a_child_forked_while_a_build_runs_ahead_waits_for_its_library_and_loads_it(
     cold, monkeypatch, tmp_path_factory
 ):
     """A process forked while its parent builds a library ahead (the parent's compiler threads are not the
-    child's) asks for that library: it waits on the entry's lock, then loads it, within 20 s, built once."""
+    child's) asks for that library: it waits on the entry's lock, then loads it (generating no C), within 20 s,
+    built once."""
     from dvfc.analysis.compile import ahead, compiled_together
 
     log = tmp_path_factory.mktemp("log")
@@ -194,12 +182,13 @@ def test_a_child_forked_while_a_build_runs_ahead_waits_for_its_library_and_loads
     monkeypatch.setattr(compile_module.shutil, "which", lambda name: str(wrapper))
     with ahead():
         compiled_together([(square(), False, "-O1")])
-    done = log / "child-done"
-    child = multiprocessing.get_context("fork").Process(target=_compile_in_child, args=(str(cold), str(done)))
+    marks = tmp_path_factory.mktemp("marks")
+    context = multiprocessing.get_context("fork")
+    child = context.Process(target=_build_in_child, args=(str(cold), str(marks), context.Barrier(1)))
     child.start()
     child.join(20)
     if child.is_alive():
         child.kill()
-    assert child.exitcode == 0 and done.exists()
+    assert child.exitcode == 0 and not list(marks.iterdir())
     compiled(square())
     assert len(list(log.glob("end.*"))) == 1
