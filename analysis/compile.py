@@ -247,6 +247,9 @@ class Buffered:
     def __call__(self, *args: np.ndarray | float) -> list[np.ndarray]:
         """The outputs (new arrays, CasADi's shapes) at ``args`` (CasADi's shapes; vectors flat)."""
         for target, value in zip(self._targets, args, strict=True):
-            target[...] = np.reshape(value, target.shape)
+            if type(value) is np.ndarray and value.shape == target.shape:
+                target[...] = value  # the common case, without np.reshape's dispatch
+            else:
+                target[...] = np.reshape(value, target.shape)
         self.trigger()
         return [array.T.copy() for array in self.outputs]

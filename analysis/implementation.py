@@ -209,12 +209,15 @@ class Implementation:
             kept &= rng.random(len(captures)) >= self.frame_drop
         return captures[kept], arrive[kept]
 
-    def outliers(self, size: int, rng: np.random.Generator) -> np.ndarray:
-        """Wrong detections of one image: per point, with probability :attr:`outlier_probability`,
-        a displacement of :attr:`outlier_size` px in a uniform direction (``size`` = 2 m entries)."""
+    def outliers(self, images: int, size: int, rng: np.random.Generator) -> np.ndarray:
+        """Wrong detections of ``images`` images, one row each: per point, with probability
+        :attr:`outlier_probability`, a displacement of :attr:`outlier_size` px in a uniform direction
+        (``size`` = 2 m entries). Drawn image by image (for each, whether each point is hit, then each
+        point's direction), so that the rows are those of ``images`` draws of one image each."""
         if self.outlier_probability == 0:
-            return np.zeros(size)
-        hit = rng.random(size // 2) < self.outlier_probability
-        angle = rng.uniform(0, 2 * np.pi, size // 2)
-        shift = self.outlier_size * np.column_stack([np.cos(angle), np.sin(angle)]) * hit[:, None]
-        return shift.ravel()
+            return np.zeros((images, size))
+        draws = rng.random((images, size))  # per image: size / 2 hits, then size / 2 directions
+        hit = draws[:, : size // 2] < self.outlier_probability
+        angle = 2 * np.pi * draws[:, size // 2 :]  # as rng.uniform(0, 2 pi) draws them
+        shift = self.outlier_size * np.stack([np.cos(angle), np.sin(angle)], axis=2) * hit[:, :, None]
+        return shift.reshape(images, size)

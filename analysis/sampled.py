@@ -252,6 +252,7 @@ class SampledSimulator(Simulator):
             image = self._true_image(noise, errors)
             camera = cs.Function("dvfc_true_camera", [model.t, model.state, noise, errors, *p], image)
             self._errors = self.errors.camera_vector(loop.camera)
+            self._true_tracking = self._true_tracking_function()
         choice = self._fixed_choice()  # None: chosen at the first run (settle)
         own = {"signals": self.signal_function, "camera": camera}
         if self._method is None:  # CVODES: the law compiled (update), the period CVODES's on the DAE compiled here
@@ -448,21 +449,25 @@ class SampledSimulator(Simulator):
         """The tracking error ``g_d^-1 g`` of the true camera (``g`` seen through the mount
         error) at times ``t`` and ``states`` (rows), as the rows of ``g_tracking`` (the target's
         motion and ``g_d`` of the run's :attr:`design`)."""
+        return np.asarray(self._true_tracking(t[None, :], states.T, self._errors[:6], *self.design)).T
+
+    def _true_tracking_function(self) -> cs.Function:
+        """``(t, s, mount, [p]) -> g_d^-1 g`` of the camera seen through the ``mount`` error, as a
+        column (:meth:`true_tracking`; called with one column a time, it maps over them)."""
         model = self.model
         mount = cs.SX.sym("mount", 6)
         g = SE3.from_xyz_rpy(mount[:3], mount[3:]).inverse() @ model.relative_pose
         error = cs.vec((model.reference.inverse() @ g).as_matrix())
         p = [] if model.parameters is None else [model.parameters]
-        function = cs.Function("true_tracking", [model.t, model.state, mount, *p], [error]).map(len(t))
-        columns = (np.repeat(v[:, None], len(t), axis=1) for v in (self._errors[:6], *self.design))
-        return np.asarray(function(t, states.T, *columns)).T
+        return cs.Function("true_tracking", [model.t, model.state, mount, *p], [error])
 
-    def noise(self, rng: np.random.Generator, faults: np.random.Generator) -> np.ndarray:
-        """The pixel noise of one image (``e_e = "image"``; drawn from ``rng``) and its wrong detections
-        (drawn from ``faults``)."""
+    def noise(self, images: int, rng: np.random.Generator, faults: np.random.Generator) -> np.ndarray:
+        """The pixel noise of ``images`` images in the order they are captured, one row each
+        (``e_e = "image"``; drawn from ``rng``), and their wrong detections (drawn from ``faults``): the
+        rows are those of ``images`` draws of one image each."""
         size, imp = self.model.features.numel(), self.implementation
-        noise = imp.pixel_noise * rng.standard_normal(size) if self.loop.mode == "image" else np.zeros(size)
-        return noise + imp.outliers(size, faults) if imp.outlier_probability > 0 else noise
+        wrong = imp.outliers(images, size, faults)
+        return wrong + imp.pixel_noise * rng.standard_normal((images, size)) if self.loop.mode == "image" else wrong
 
     def observe(self, t: float, s: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, Stop | None]:
         """What an image captured at ``(t, s)`` with pixel ``noise`` gives: the exact ``e_e`` (15), the
@@ -470,18 +475,18 @@ class SampledSimulator(Simulator):
         or a feature outside the image), or None."""
         errors = () if self.errors is None else (self._errors,)
         f, e_ideal, measured, depth = (v.ravel() for v in self._camera(t, s, noise, *errors))
-        if np.any(depth <= 0):
+        if (depth <= 0).any():
             return e_ideal, measured, Stop.behind_camera(t)
-        if self._window is not None and (np.any(f < self._window[0]) or np.any(f > self._window[1])):
+        if self._window is not None and ((f < self._window[0]).any() or (f > self._window[1]).any()):
             outside = np.flatnonzero(np.any(((f < self._window[0]) | (f > self._window[1])).reshape(-1, 2), axis=1))
             return e_ideal, measured, Stop.out_of_view(int(outside[0]), t)
         return e_ideal, measured, None
 
-    def _measure(self, t: float, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray | None, Stop | None]:
-        """The ``e_e`` of an image captured at ``(t, s)`` (None: the controller drops it, as the program
-        does an implausible one, :func:`~dvfc.analysis.controller.image_update`), and the stop when
-        there is no image (a feature lost), or None."""
-        e_ideal, measured, lost = self.observe(t, s, self.noise(rng, self._faults))
+    def _measure(self, t: float, s: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray | None, Stop | None]:
+        """The ``e_e`` of an image captured at ``(t, s)`` with pixel ``noise`` (None: the controller drops
+        it, as the program does an implausible one, :func:`~dvfc.analysis.controller.image_update`), and
+        the stop when there is no image (a feature lost), or None."""
+        e_ideal, measured, lost = self.observe(t, s, noise)
         if lost is not None or self.loop.mode != "image":
             return (None if lost else e_ideal), lost
         e_image, usable = self._read_image(s[self.loop.estimate_slice], measured)
@@ -554,9 +559,9 @@ class SampledSimulator(Simulator):
         st, imp, loop = self.settings, self.implementation, self.loop
         n, h = loop.robot.n, imp.period
         steps = round(st.duration * imp.control_rate)
-        rng = np.random.default_rng(imp.seed)
-        self._faults = np.random.default_rng((imp.seed % 2**64, 1))  # timing and detection faults
-        captures, arrivals = imp.arrivals(imp.capture_steps(steps), self._faults)
+        faults = np.random.default_rng((imp.seed % 2**64, 1))  # timing and detection faults
+        captures, arrivals = imp.arrivals(imp.capture_steps(steps), faults)
+        noise = self.noise(len(captures), np.random.default_rng(imp.seed), faults)  # of each capture
         s = np.array(s0, dtype=float)
         e_held = np.zeros(loop.task_dim)
         kept = {0: s}  # states at capture steps whose image is not measured yet
@@ -567,6 +572,7 @@ class SampledSimulator(Simulator):
         local_errors: list[np.ndarray] = []  # per period, the estimate of the joint angles' local error
         start = time.perf_counter()
         signal_chunks: list[dict[str, np.ndarray]] = []
+        held: dict[int, list[np.ndarray]] = {}  # periods in a chunk -> the constant inputs' columns
         evaluated = 0
 
         def measure_through(last: int, steps_of: np.ndarray) -> np.ndarray | None:
@@ -577,7 +583,7 @@ class SampledSimulator(Simulator):
             e_new = None
             while measured < len(captures) and steps_of[measured] <= last:
                 c = int(captures[measured])
-                e_read, lost = self._measure(c * h, kept.pop(c), rng)
+                e_read, lost = self._measure(c * h, kept.pop(c), noise[measured])
                 e_new = e_new if e_read is None else e_read
                 measured += 1
                 if lost is not None:
@@ -606,8 +612,13 @@ class SampledSimulator(Simulator):
                 break
             end = min(int(arrivals[measured]), steps) if measured < len(captures) else steps
             try:
-                held = (np.repeat(v[:, None], end - k, 1) for v in (e_held, self._effort, self._friction, *self.design))
-                after, commanded, applied, quad, observer, error = self._chunk(end - k)(s, np.arange(k, end) * h, *held)
+                count = end - k
+                if count not in held:  # the run's constant inputs, a column a period
+                    constant = (self._effort, self._friction, *self.design)
+                    held[count] = [np.repeat(v[:, None], count, 1) for v in constant]
+                e_columns = np.repeat(e_held[:, None], count, 1)
+                chunk = self._chunk(count)(s, np.arange(k, end) * h, e_columns, *held[count])
+                after, commanded, applied, quad, observer, error = chunk
             except RuntimeError as exc:
                 if interrupted(exc):
                     raise KeyboardInterrupt from exc

@@ -94,6 +94,7 @@ def software_in_the_loop(
     rng = np.random.default_rng(imp.seed)
     faults = np.random.default_rng((imp.seed % 2**64, 1))
     captures, arrivals = imp.arrivals(imp.capture_steps(steps), faults)
+    noise = simulator.noise(len(captures), rng, faults)  # of each capture, in capture order
     joints = np.array(case.s0[: 2 * n], dtype=float)
     state = controller.initial_state()
     record: dict[str, list] = {key: [] for key in ("q", "qd", "tau", "captures", "features", "states")}
@@ -104,7 +105,7 @@ def software_in_the_loop(
         record["q"].append(joints[:n])
         record["qd"].append(joints[n:])
         while j < len(captures) and captures[j] == k:  # the image captured now, drawn in capture order
-            taken[k], lost = plant.image(t, joints[:n], simulator.noise(rng, faults))
+            taken[k], lost = plant.image(t, joints[:n], noise[j])
             stop = stop if lost is None else lost
             j += 1
         if stop.status is not RunStatus.OK:

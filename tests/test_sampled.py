@@ -10,6 +10,7 @@ from fractions import Fraction
 import casadi as cs
 import numpy as np
 import pytest
+from scipy import stats
 from scipy.integrate import solve_ivp
 
 from dvfc.analysis.implementation import Implementation
@@ -274,6 +275,29 @@ def test_captures_are_the_first_samples_at_or_after_each_camera_tick():
                 ticks = range(math.floor(Fraction(steps * camera, control)) + 1)
                 exact = sorted({math.ceil(Fraction(j * control, camera)) for j in ticks})
                 assert imp.capture_steps(steps).tolist() == exact, (control, camera, steps)
+
+
+def test_wrong_detections_hit_each_point_independently_at_their_size_in_a_uniform_direction():
+    """20000 images of 4 points, 10% of the points hit, 30 px: each point is displaced by exactly 0 or
+    30 px; the points hit are a binomial count at 10%, and the same share for each of the four points
+    (two-sided binomial tests, level 1e-3 each), independently (the points hit in an image are
+    binomial, a chi-square test); their directions are uniform on the circle (Kolmogorov-Smirnov,
+    level 1e-3); no probability, no draw and no displacement."""
+    imp = Implementation(control_rate=500.0, camera_rate=60.0, outlier_probability=0.1, outlier_size=30.0)
+    shift = imp.outliers(20000, 8, np.random.default_rng(3)).reshape(20000, 4, 2)
+    size = np.hypot(shift[..., 0], shift[..., 1])
+    hit = size > 0
+    assert np.allclose(size[hit], 30.0, rtol=1e-14, atol=0)
+    assert stats.binomtest(int(hit.sum()), hit.size, 0.1).pvalue > 1e-3
+    for point in range(4):
+        assert stats.binomtest(int(hit[:, point].sum()), 20000, 0.1).pvalue > 1e-3, point
+    per_image = np.bincount(hit.sum(axis=1), minlength=5)  # points hit in an image: binomial(4, 0.1)
+    assert stats.chisquare(per_image, 20000 * stats.binom(4, 0.1).pmf(range(5))).pvalue > 1e-3
+    angle = np.arctan2(shift[..., 1], shift[..., 0])[hit] % (2 * np.pi)
+    assert stats.kstest(angle, stats.uniform(0, 2 * np.pi).cdf).pvalue > 1e-3
+    rng = np.random.default_rng(3)
+    none = replace(imp, outlier_probability=0.0).outliers(5, 8, rng)
+    assert none.shape == (5, 8) and not none.any() and rng.random() == np.random.default_rng(3).random()
 
 
 def test_a_run_stopped_at_its_first_sample_keeps_the_start(as_built):
