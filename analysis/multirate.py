@@ -672,14 +672,18 @@ class MultirateLoop:
         return monodromy(*self._maps[imp.period], self.output, sched), sched
 
     def transverse(self, pi: np.ndarray) -> Transverse:
-        """``pi`` across the self-motion (:func:`transverse`): along the equilibria's tangent in ``z`` the held
-        ``e`` and the images in flight move by ``c`` times it; ``pi`` itself on a 6-joint arm."""
+        """``pi`` across the self-motion (:func:`transverse`); ``pi`` itself on a 6-joint arm."""
+        return transverse(pi, self.tangent(pi), self.lin.self_motion_equilibria)
+
+    def tangent(self, pi: np.ndarray) -> np.ndarray:
+        """The equilibria's tangent in the state of the monodromy ``pi`` (no columns on a 6-joint arm): the
+        self-motion in ``dq``, zero elsewhere, or where the plant is not the model the tangent in ``z``, along
+        which the held ``e`` and the images in flight move by ``c`` times it."""
         lin = self.lin
         if lin.tangent is None:
-            return transverse(pi, lin.self_motion, lin.self_motion_equilibria)
+            return np.vstack([lin.self_motion, np.zeros((len(pi) - len(lin.self_motion), lin.self_motion.shape[1]))])
         copies = (len(pi) - len(lin.a)) // len(self.output)  # the held e and the images in flight
-        tangent = np.vstack([lin.tangent, *[self.output @ lin.tangent] * copies])
-        return transverse(pi, tangent, lin.self_motion_equilibria)
+        return np.vstack([lin.tangent, *[self.output @ lin.tangent] * copies])
 
     def saturated(self, urdf: JointLimits) -> bool:
         """Whether saturation is active at the equilibrium: ``saturate`` on and the torque held there not

@@ -27,6 +27,7 @@ import subprocess
 import sys
 import tempfile
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 from timing import seconds
@@ -72,7 +73,10 @@ def every_dispersion() -> Case:
 
 def campaign_seconds(spec: CampaignSpec, runs: int, workers: int) -> float:
     """The wall time of ``runs`` runs of ``spec`` on ``workers`` local processes, in batches of
-    :data:`SCALING_BATCH` runs (enough batches to keep both workers busy)."""
+    :data:`SCALING_BATCH` runs (enough batches to keep both workers busy). Its case is loaded anew, so
+    that each campaign builds its simulator as a campaign does (in this process with 1 worker, in each
+    worker with 2; from the compile cache) and neither reuses this process's."""
+    spec = replace(spec, case=every_dispersion())
     with tempfile.TemporaryDirectory() as directory:
         job = lambda: run_campaign(spec, Path(directory), runs, workers=workers, batch_size=SCALING_BATCH)  # noqa: E731
         return seconds(job)[0]

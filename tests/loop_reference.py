@@ -97,7 +97,9 @@ def _quaternion(r: np.ndarray) -> np.ndarray:
     return q
 
 
-def linearised_run(system, imp, start: np.ndarray, integral: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
+def linearised_run(
+    system, imp, start: np.ndarray, integral: int = 0, torque: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Two common periods of fact 14's linearised sampled loop from the monodromy's state ``start``
     (``z``, the held ``e``, the images in flight), simulated independently: the continuous
     linearised dynamics integrated by ``solve_ivp`` (DOP853, rtol 1e-12) between samples with the
@@ -106,7 +108,9 @@ def linearised_run(system, imp, start: np.ndarray, integral: int = 0) -> tuple[n
     rational arithmetic) applied ``latency`` later, the observer's inputs ``o_k = O z_k + O_e e_k``
     held over the period like the torque (the program's step, docs/math.md, fact 22); with
     ``integral`` joints, the last ``integral`` entries of ``z`` (``z_I``) advanced by ``h xi_k`` after
-    each period. Returns ``z``, ``e`` and the common period in samples."""
+    each period. With ``torque`` (``(samples, parts, n)``), as many control periods as its rows, each driven
+    by one more joint torque, constant on each of ``parts`` equal parts of the period (integrated part by part).
+    Returns ``z``, ``e`` and the common period in samples."""
     lin = system.lin
     nz, ne = lin.b_e.shape
     z, e = start[:nz], start[nz : nz + ne]
@@ -117,15 +121,17 @@ def linearised_run(system, imp, start: np.ndarray, integral: int = 0) -> tuple[n
     before = [k for k in range(-lag, 0) if capture(k)]  # the images in flight at the start
     line = {k: start[nz + ne * (i + 1) : nz + ne * (i + 2)] for i, k in enumerate(before)}
     h, c = 1 / imp.control_rate, system.output
-    for k in range(2 * period):
+    for k in range(2 * period if torque is None else len(torque)):
         line[k] = c @ z
         if capture(k - lag):
             e = line[k - lag]
         tau, o = lin.f @ z + lin.f_e @ e, lin.o @ z + lin.o_e @ e
         xi = lin.xi @ z + lin.xi_e @ e if integral else None
-        flow = solve_ivp(lambda t, y, u=tau, m=e, v=o: lin.a @ y + lin.b_tau @ u + lin.b_e @ m + lin.b_o @ v,
-                         (0.0, h), z, method="DOP853", rtol=1e-12, atol=1e-16)  # fmt: skip
-        z = flow.y[:, -1]
+        for d in np.zeros((1, len(tau))) if torque is None else torque[k]:
+            flow = solve_ivp(lambda t, y, u=tau + d, m=e, v=o: lin.a @ y + lin.b_tau @ u + lin.b_e @ m + lin.b_o @ v,
+                             (0.0, h / (1 if torque is None else torque.shape[1])), z, method="DOP853", rtol=1e-12,
+                             atol=1e-16)  # fmt: skip
+            z = flow.y[:, -1]
         if integral:
             z[-integral:] += h * xi
     return z, e, period

@@ -1,0 +1,203 @@
+"""The largest motion dry friction can drive in the linearised sampled loop: its peak-to-peak gain
+(docs/math.md, fact 29).
+
+Dry friction on joint ``j`` is, whatever its model (Coulomb, smoothed or not, Stribeck, a dynamic model), a
+torque ``d_j(t)`` with ``|d_j(t)| <= c_j``; viscous friction ``b qd`` is passive damping and stays in the
+linearisation (:meth:`~dvfc.analysis.multirate.HeldLinearization.with_friction` with ``b`` alone). Over the
+control period ``k`` the torque moves ``z`` by ``w_k = int_0^h exp(A (h - s)) B_tau d(kh + s) ds``, one more input
+of fact 14's multirate map. An output ``y_i`` at a sample is a sum of such inputs through rows ``r``, so the
+largest ``|y_i|`` any such torque drives from rest is ``sum_j c_j sum_r int_0^h |r exp(A (h - s)) b_j| ds``
+(``b_j`` the column of ``B_tau``), attained by ``d_j = c_j sign(r exp(A (h - s)) b_j)`` period by period.
+:func:`friction_bound` computes it over ``L`` equal parts of a period: with ``Gamma_l`` the integral of
+``exp(A (h - s)) B_tau`` over part ``l``, the sum of ``|r Gamma_l b_j| c_j`` is attained by a torque constant on
+each part (``lower``); a part's integral of ``|g|`` exceeds ``|int g|`` by at most ``delta^2 / 3 sup |g'|``, bounded
+from ``g'`` at the part's middle and ``A^2`` (``upper``); the periods after those summed are bounded by the norms of
+the monodromy's powers across the self-motion (fact 29.2). Both are statements about the outputs at the samples of
+the loop linearised at its equilibrium (the target at rest, no noise).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+import scipy.linalg
+
+from dvfc.analysis.multirate import MultirateLoop, Schedule, rest_model, rest_state
+from dvfc.analysis.parametric import parameter_vector, symbolic
+from dvfc.models.lie import SE3
+from dvfc.models.loop import ClosedLoop
+
+SUB_INTERVALS = 16
+"""``L``: the parts of a control period on each of which the torque attaining ``lower`` is constant."""
+
+TAIL = 1e-3
+"""Common periods are summed until the bound on all later ones is at most this share of the sum."""
+
+MAX_PERIODS = 5000
+"""Common periods summed at most (the bound is infinite where the rest is not small by then)."""
+
+TRACKING = ("x", "y", "z", "rx", "ry", "rz")
+"""The rows of :func:`tracking_rows`: the tracking error's position (m) and rotation vector (rad)."""
+
+
+@dataclass(frozen=True)
+class FrictionBound:
+    """The largest ``|y_i|`` at a sample that dry-friction torques ``|d_j| <= c_j`` drive in the linearised
+    sampled loop from rest, per output row (fact 29): ``lower`` is attained by a torque constant on each of
+    ``sub_intervals`` parts of a control period, ``upper`` bounds every torque (``inf`` where a row moves along
+    the self-motion, which nothing restores, or the sum did not converge); ``periods`` common periods were
+    summed and the rest bounded."""
+
+    rows: tuple[str, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+    periods: int
+    sub_intervals: int
+
+
+@dataclass(frozen=True)
+class PeriodResponse:
+    """One common period of fact 14's multirate map with the friction's inputs ``w_k`` (one a control period
+    ``k``, added to ``z`` at its end): ``X' = pi X + sum_k omega[k] w_k``, and the outputs at its samples,
+    ``y_p = g[p] X + sum_(k < p) within[p, k] w_k``."""
+
+    pi: np.ndarray
+    omega: np.ndarray  # (steps, X, nz)
+    g: np.ndarray  # (steps, rows, X)
+    within: np.ndarray  # (steps, steps, rows, nz), zero where k >= p
+
+
+def period_response(a_z: np.ndarray, a_e: np.ndarray, c: np.ndarray, sched: Schedule,
+                    output: np.ndarray) -> PeriodResponse:  # fmt: skip
+    """:class:`PeriodResponse` of the period maps ``(a_z, a_e)``, the images ``c z`` and the schedule ``sched``,
+    for the outputs ``output @ z``: the steps of :func:`dvfc.analysis.multirate.monodromy` with the inputs as
+    more columns."""
+    nz, ne = a_e.shape
+    size = nz + ne * (1 + len(sched.pending))
+    columns = np.eye(size, size + sched.steps * nz)
+    z, e = columns[:nz], columns[nz : nz + ne]
+    flight = {p: columns[nz + ne * (i + 1) : nz + ne * (i + 2)] for i, p in enumerate(sched.pending)}
+    captures = set(sched.captures)
+    outputs = []
+    for k in range(sched.steps):
+        outputs.append(output @ z)
+        if k in captures:
+            flight[k] = c @ z
+        if k - sched.lag in flight:
+            e = flight.pop(k - sched.lag)
+        z = a_z @ z + a_e @ e
+        z[:, size + k * nz : size + (k + 1) * nz] += np.eye(nz)
+    end = np.vstack([z, e, *(flight.pop(p + sched.steps) for p in sched.pending)])
+    y = np.array(outputs)
+    within = y[:, :, size:].reshape(sched.steps, -1, sched.steps, nz).transpose(0, 2, 1, 3)
+    omega = end[:, size:].reshape(size, sched.steps, nz).transpose(1, 0, 2)
+    return PeriodResponse(end[:, :size], omega, y[:, :, :size], within)
+
+
+def input_kernel(a: np.ndarray, b: np.ndarray, h: float, parts: int) -> tuple[np.ndarray, np.ndarray]:
+    """``Gamma_l`` and ``exp(A (h - s_l)) A B`` for ``l = 0 .. parts - 1`` (each ``(parts, nz, n)``): the integral
+    of ``exp(A (h - s)) B`` over the part ``l`` of ``[0, h]``, exactly ``exp(A (h - (l + 1) delta)) int_0^delta
+    exp(A s) B ds``, and the derivative of ``exp(A (h - s)) B`` in ``-s`` at the part's middle ``s_l``."""
+    nz, n = b.shape
+    delta = h / parts
+    generator = np.zeros((nz + n, nz + n))
+    generator[:nz] = np.hstack([a, b])
+    flow = scipy.linalg.expm(generator * delta)[:nz]
+    phi, gamma = flow[:, :nz], [flow[:, nz:]]
+    slope = [scipy.linalg.expm(a * delta / 2) @ a @ b]
+    for _ in range(parts - 1):
+        gamma.append(phi @ gamma[-1])
+        slope.append(phi @ slope[-1])
+    return np.array(gamma[::-1]), np.array(slope[::-1])
+
+
+def tracking_rows(loop: ClosedLoop, system: MultirateLoop, mount: np.ndarray | None = None) -> np.ndarray:
+    """The rows of ``z`` giving to first order the tracking error's motion from its value at the equilibrium:
+    the position of ``g_d^-1 g`` (3, m) and its rotation vector in its own frame (3, rad), ``g`` the relative
+    pose of the camera seen through the ``mount`` error (6: ``xyz``, ``rpy``; None: none), moved by ``dq``."""
+    rest = rest_model(loop)
+    model = symbolic(rest)
+    offset = np.zeros(6) if mount is None else np.asarray(mount, dtype=float)
+    error = model.reference.inverse() @ SE3.from_xyz_rpy(cs.DM(offset[:3]), cs.DM(offset[3:])).inverse()
+    error = error @ model.relative_pose
+    p = [] if model.parameters is None else [model.parameters]
+    matrix = error.as_matrix()
+    jacobian = cs.jacobian(cs.vec(matrix[:3, :]), model.state)
+    function = cs.Function("tracking", [model.t, model.state, *p], [matrix, jacobian])
+    lin = system.lin
+    state = lin.state if lin.state is not None else rest_state(loop, lin.q_eq)
+    values = [] if model.parameters is None else [parameter_vector(rest)]
+    at, d = (np.asarray(v) for v in function(0.0, state, *values))
+    n = loop.robot.n
+    d = d[:, :n].reshape(4, 3, n).transpose(1, 0, 2)  # d[row, column, joint] of [R p]
+    rotation = at[:3, :3]
+    spin = np.einsum("ij,ikn->jkn", rotation, d[:, :3])  # R^T dR: skew, its vee the rotation vector
+    rows = np.zeros((6, len(lin.a)))
+    rows[:3, :n] = d[:, 3]
+    rows[3:, :n] = np.stack([spin[2, 1], spin[0, 2], spin[1, 0]])
+    return rows
+
+
+def friction_bound(system: MultirateLoop, coulomb: np.ndarray, output: np.ndarray, rows: tuple[str, ...],
+                   parts: int = SUB_INTERVALS) -> FrictionBound:  # fmt: skip
+    """:class:`FrictionBound` of ``system`` (linearised with the viscous friction alone) under dry-friction
+    torques ``|d_j| <= coulomb[j]`` at the scenario's schedule, for the outputs ``output @ z`` named ``rows``."""
+    imp, lin = system.implementation, system.lin
+    h, delta = imp.period, imp.period / parts
+    pi, sched = system.monodromy(imp)
+    response = period_response(*lin.period_map(h), system.output, sched, output)
+    coulomb = np.asarray(coulomb, dtype=float)
+    gamma, slope = input_kernel(lin.a, lin.b_tau, h, parts)
+    # a part's int |g| <= |int g| + delta^2 / 3 sup |g'|, sup |g'| <= |g'(s_l)| + delta / 2 ||r|| e^(mu h) ||A^2 B c||
+    kernel = np.concatenate([gamma, delta**2 / 3 * slope], axis=2) * np.tile(coulomb, 2)  # (L, nz, 2n)
+    kernel = kernel.transpose(1, 0, 2).reshape(len(lin.a), -1)
+    growth = math.exp(max(0.0, float(np.linalg.eigvalsh((lin.a + lin.a.T) / 2)[-1])) * h)  # >= ||exp(A s)||
+    second = h * delta**2 / 6 * growth * float(np.linalg.norm(lin.a @ lin.a @ lin.b_tau, axis=0) @ coulomb)
+    spread = h * growth * float(np.linalg.norm(lin.b_tau, axis=0) @ coulomb)  # >= int ||exp(A s) B|c| ||
+
+    def summed(terms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For the rows ``terms`` (``(phases, rows, inputs, nz)``) through which inputs ``w`` reach the outputs:
+        per phase and output, the sum of ``|r Gamma_l b_j| c_j`` and the bound on its excess."""
+        values = np.abs(terms @ kernel).reshape(*terms.shape[:3], parts, 2, -1).sum(axis=(2, 3, 5))
+        return values[..., 0], values[..., 1] + np.linalg.norm(terms, axis=-1).sum(axis=2) * second
+
+    steps, nz = sched.steps, len(lin.a)
+    earlier = np.tril(np.ones((steps, steps)), -1)[:, None, :, None]  # within[p, k] counts for k < p
+    lower, excess = summed(response.within.transpose(0, 2, 1, 3) * earlier)
+    upper = lower + excess
+    tangent = system.tangent(pi)
+    moving = np.abs(response.g @ tangent).max(axis=(0, 2), initial=0.0) > 1e-9 * np.abs(response.g).max()
+    basis = scipy.linalg.null_space(tangent.T) if tangent.shape[1] else np.eye(len(pi))
+    gain = _power_gain(basis.T @ pi @ basis)
+    omega = response.omega.transpose(1, 0, 2).reshape(len(pi), steps * nz)  # (X, steps nz)
+    reach = float(sum(np.linalg.norm(basis.T @ w, 2) for w in response.omega))
+    g, periods = response.g, 0
+    while True:
+        terms = (g @ omega).reshape(steps, len(rows), steps, nz)
+        low, more = summed(terms)
+        lower, upper = lower + low, upper + low + more
+        periods += 1
+        g = g @ pi
+        tail = (np.linalg.norm(g @ basis, axis=-1) * gain * reach * spread).max(axis=0)
+        if np.all(tail <= TAIL * lower.max(axis=0)) or periods >= MAX_PERIODS or not math.isfinite(gain):
+            break
+    bounded = (tail <= TAIL * lower.max(axis=0)) & ~moving
+    return FrictionBound(rows, lower.max(axis=0), np.where(bounded, upper.max(axis=0) + tail, math.inf), periods,
+                         parts)  # fmt: skip
+
+
+def _power_gain(pi: np.ndarray) -> float:
+    """A bound on ``sum_m ||pi^m||_2``: with ``K`` the first power whose norm ``theta`` is at most 1/2,
+    ``sum_(m < K) ||pi^m|| / (1 - theta)`` (``||pi^(qK + m)|| <= theta^q ||pi^m||``); ``inf`` where no power up to
+    :data:`MAX_PERIODS` is that small."""
+    power, total = np.eye(len(pi)), 0.0
+    for _ in range(MAX_PERIODS):
+        norm = float(np.linalg.norm(power, 2))
+        if norm <= 0.5 and total > 0:
+            return total / (1 - norm)
+        total += norm
+        power = power @ pi
+    return math.inf
