@@ -123,7 +123,7 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
     """One run's dataset row: outcome, tracking error, peak ratios, drawn values, wall time."""
     loop = spec.case.loop
     holds, reason = judge(traj, loop, settings, spec.bound)
-    verdict = local_verdict_of(spec.case, settings)
+    verdict = local_verdict_of(spec.case, settings, spec.bound.limits)
     if verdict is not None and not verdict.certified:  # a failure whatever its run shows
         reason = (f"fact 14 for this draw's plant: not certified locally at rest ({verdict.reason}); "
                   + ("its run held: the horizon is too short to show it" if holds else reason))  # fmt: skip
@@ -144,6 +144,8 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
         "local_error_q": traj.stats.get("local_error_q"),  # None (null) for a run by RK4
         "local_rho": None if verdict is None else verdict.rho,
         "local_certified": None if verdict is None else verdict.certified,
+        "friction_position": None if verdict is None or verdict.friction is None else verdict.friction.position,
+        "friction_angle_deg": None if verdict is None or verdict.friction is None else verdict.friction.angle_deg,
     }  # fmt: skip
     for key in spec.dispersion.keys:
         columns = spec.dispersion.columns_of(key)
@@ -151,29 +153,30 @@ def row(spec: CampaignSpec, run: int, traj: Trajectory, settings: Settings, valu
     return out
 
 
-def local_verdict_of(case: Case, settings: Settings) -> LocalVerdict | None:
+def local_verdict_of(
+    case: Case, settings: Settings, criterion: tuple[float, float] | None = None
+) -> LocalVerdict | None:
     """Fact 14 for one run's plant as drawn (its masses, camera, friction; at the scenario's latency and
-    rates: docs/math.md, fact 25), by the one function ``certify`` and ``margins`` use too
+    rates: docs/math.md, fact 25), its dry friction's tracking error at rest judged against ``criterion``
+    (fact 29), by the one function ``certify`` and ``margins`` use too
     (:func:`dvfc.analysis.multirate.local_verdict`: every check, the self-motion's included); None where
     the statement does not apply to the loop."""
     if applicability(case.loop, settings) is not None:
         return None
-    return DeclaredPlant.of(settings).verdict(case.loop, case.s0[: case.loop.robot.n], settings.sampled)
+    return DeclaredPlant.of(settings).verdict(case.loop, case.s0[: case.loop.robot.n], settings.sampled, criterion)
 
 
-def dry_friction_smoothing(spec: CampaignSpec) -> float | None:
-    """The smoothing width ``eps`` (rad/s) of the plant's dry friction ``c tanh(qd / eps)`` where the campaign's
-    plants have any (declared or drawn), else None: fact 14 linearises that smoothed model."""
+def has_dry_friction(spec: CampaignSpec) -> bool:
+    """Whether the campaign's plants have dry friction (declared or drawn)."""
     errors = spec.case.settings.errors
     drawn = "plant.friction.coulomb" in spec.case.scenario.dispersion
-    return None if errors is None or not (drawn or errors.has_dry_friction) else float(errors.smoothing)
+    return errors is not None and (drawn or errors.has_dry_friction)
 
 
-def local_summary(data: dict, smoothing: float | None = None) -> dict:
+def local_summary(data: dict, dry_friction: bool = False) -> dict:
     """How many runs' plants fact 14 certifies locally (``local_certified``), the largest ``rho`` and the
-    runs it does not certify (failures whatever their runs show); ``smoothing``: the width ``eps`` of the
-    smoothed dry friction the plants were linearised with (:func:`dry_friction_smoothing`; None: none), named
-    in the statement, which depends on it."""
+    runs it does not certify (failures whatever their runs show); ``dry_friction``: whether the plants have
+    dry friction, whose tracking error at rest (fact 29) the verdict holds to the criterion."""
     checked = [(int(run), rho, certified) for run, rho, certified in zip(data["run"], data["local_rho"],
                                                                          data["local_certified"], strict=True)
                if certified is not None]  # fmt: skip
@@ -185,10 +188,10 @@ def local_summary(data: dict, smoothing: float | None = None) -> dict:
                           f"for each draw's plant, linearised at rest, at the scenario's latency and rates: rho < 1 "
                           f"with every check of the monodromy), largest rho "
                           f"{'-' if largest is None else f'{largest:.6g}'}"
-                          + ("" if smoothing is None else
-                             f"; the joints' dry friction is the smoothed model c tanh(qd / eps) at eps = "
-                             f"{smoothing:g} rad/s, linearised at qd = 0 (a real joint sticks: these verdicts "
-                             "depend on eps)"))}  # fmt: skip
+                          + ("" if not dry_friction else
+                             "; the joints' dry friction is a torque bounded by its Coulomb level (fact 29, no "
+                             "smoothing), and the tracking error it can hold at rest must be within the "
+                             "criterion"))}  # fmt: skip
 
 
 def simulate_run(spec: CampaignSpec, run: int, simulator: SampledSimulator | None = None) -> tuple[dict, Trajectory]:
@@ -349,7 +352,7 @@ def summarize(spec: CampaignSpec, table: pa.Table, confidence: float, p: float, 
                          "statement": f"{zero_failure_runs(p, confidence)} runs without a failure bound P(fail) by "
                                       f"{p:g} at {confidence:.0%} confidence"},
         "tolerance": tolerance, "sensitivity": drivers, "sensitivity_floor": floor, "worst": worst,
-        "local": local_summary(data, dry_friction_smoothing(spec)),
+        "local": local_summary(data, has_dry_friction(spec)),
         "seed": spec.seed,
         "wall_time_per_run": float(np.mean(data["wall_time"])) if n else None,
         "local_error_q": largest_local_error(data),

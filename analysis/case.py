@@ -112,6 +112,13 @@ class Case:
             return None
         return f"n = {n} < 6 joints: J_b pinv(J_b) != I, so Theorems 1-2 do not apply to the paper's loop on this arm"
 
+    @property
+    def criterion(self) -> tuple[float, float] | None:
+        """The scenario's pinned ``[criterion]`` as ``(position m, angle deg)``, or None: what fact 29's
+        tracking error at rest is judged against where no other bound is at hand."""
+        pinned = self.scenario.criterion
+        return None if pinned is None else (pinned.position, pinned.angle_deg)
+
     @cached_property
     def point(self) -> GainPoint:
         """The scenario's gains and weights as a certifier point."""

@@ -206,7 +206,8 @@ def checks(case: Case, design: Design) -> Checks:
         return Checks(outside, gamma, None, None, False)
     loop = replace(case.loop, gains=Gains(design.k_xi, design.k_c, design.k_e, design.k_i_factor * design.k_xi))
     try:
-        verdict = DeclaredPlant.of(case.settings).verdict(loop, case.s0[: loop.robot.n], case.settings.sampled)
+        verdict = DeclaredPlant.of(case.settings).verdict(loop, case.s0[: loop.robot.n], case.settings.sampled,
+                                                          case.criterion)  # fmt: skip
     except ValueError:  # no linearisation at rest
         verdict = None
     if verdict is None:  # the statement does not apply

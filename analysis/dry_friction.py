@@ -11,26 +11,31 @@ largest ``|y_i|`` any such torque drives from rest is ``sum_j c_j sum_r int_0^h 
 :func:`friction_bound` computes it over ``L`` equal parts of a period: with ``Gamma_l`` the integral of
 ``exp(A (h - s)) B_tau`` over part ``l``, the sum of ``|r Gamma_l b_j| c_j`` is attained by a torque constant on
 each part (``lower``); a part's integral of ``|g|`` exceeds ``|int g|`` by at most ``delta^2 / 3 sup |g'|``, bounded
-from ``g'`` at the part's middle and ``A^2`` (``upper``); the periods after those summed are bounded by the norms of
-the monodromy's powers across the self-motion (fact 29.2). Both are statements about the outputs at the samples of
+from ``g'`` at the part's middle and ``A^2`` (``upper``); the periods after those summed are bounded in a norm
+weighted by one period's contribution through each state, by the powers of the monodromy across the self-motion
+(fact 29.2). Both are statements about the outputs at the samples of
 the loop linearised at its equilibrium (the target at rest, no noise).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import casadi as cs
 import numpy as np
 import scipy.linalg
 
-from dvfc.analysis.multirate import MultirateLoop, Schedule, rest_model, rest_state
 from dvfc.analysis.parametric import parameter_vector, symbolic
 from dvfc.models.lie import SE3
 from dvfc.models.loop import ClosedLoop
 
-SUB_INTERVALS = 16
+if TYPE_CHECKING:  # the linearised loop's module builds on this one
+    from dvfc.analysis.multirate import MultirateLoop, Schedule
+
+SUB_INTERVALS = 4
 """``L``: the parts of a control period on each of which the torque attaining ``lower`` is constant."""
 
 TAIL = 1e-3
@@ -114,37 +119,39 @@ def input_kernel(a: np.ndarray, b: np.ndarray, h: float, parts: int) -> tuple[np
     return np.array(gamma[::-1]), np.array(slope[::-1])
 
 
-def tracking_rows(loop: ClosedLoop, system: MultirateLoop, mount: np.ndarray | None = None) -> np.ndarray:
-    """The rows of ``z`` giving to first order the tracking error's motion from its value at the equilibrium:
-    the position of ``g_d^-1 g`` (3, m) and its rotation vector in its own frame (3, rad), ``g`` the relative
-    pose of the camera seen through the ``mount`` error (6: ``xyz``, ``rpy``; None: none), moved by ``dq``."""
-    rest = rest_model(loop)
+def tracking_rows(
+    rest: ClosedLoop, state: np.ndarray, mount: np.ndarray | None = None
+) -> tuple[np.ndarray, float, float]:
+    """The rows of ``z`` (of the loop at rest ``rest``, linearised at ``state``) giving to first order the tracking
+    error's motion from its value there: the position of ``g_d^-1 g`` (3, m) and its rotation vector in its own
+    frame (3, rad), ``g`` the relative pose of the camera seen through the ``mount`` error (6: ``xyz``, ``rpy``;
+    None: none), moved by ``dq``; and that error's position (m) and angle (rad) at ``state``."""
     model = symbolic(rest)
     offset = np.zeros(6) if mount is None else np.asarray(mount, dtype=float)
-    error = model.reference.inverse() @ SE3.from_xyz_rpy(cs.DM(offset[:3]), cs.DM(offset[3:])).inverse()
-    error = error @ model.relative_pose
-    p = [] if model.parameters is None else [model.parameters]
-    matrix = error.as_matrix()
+    camera = SE3.from_xyz_rpy(cs.DM(offset[:3]), cs.DM(offset[3:])).inverse() @ model.relative_pose
+    matrix = (model.reference.inverse() @ camera).as_matrix()
     jacobian = cs.jacobian(cs.vec(matrix[:3, :]), model.state)
+    p = [] if model.parameters is None else [model.parameters]
     function = cs.Function("tracking", [model.t, model.state, *p], [matrix, jacobian])
-    lin = system.lin
-    state = lin.state if lin.state is not None else rest_state(loop, lin.q_eq)
     values = [] if model.parameters is None else [parameter_vector(rest)]
     at, d = (np.asarray(v) for v in function(0.0, state, *values))
-    n = loop.robot.n
+    n = rest.robot.n
     d = d[:, :n].reshape(4, 3, n).transpose(1, 0, 2)  # d[row, column, joint] of [R p]
-    rotation = at[:3, :3]
-    spin = np.einsum("ij,ikn->jkn", rotation, d[:, :3])  # R^T dR: skew, its vee the rotation vector
-    rows = np.zeros((6, len(lin.a)))
+    spin = np.einsum("ij,ikn->jkn", at[:3, :3], d[:, :3])  # R^T dR: skew, its vee the rotation vector
+    rows = np.zeros((6, len(state) - 1))  # z has the quaternion's three angles: one entry fewer
     rows[:3, :n] = d[:, 3]
     rows[3:, :n] = np.stack([spin[2, 1], spin[0, 2], spin[1, 0]])
-    return rows
+    angle = math.acos(max(-1.0, min(1.0, (float(np.trace(at[:3, :3])) - 1) / 2)))
+    return rows, float(np.linalg.norm(at[:3, 3])), angle
 
 
 def friction_bound(system: MultirateLoop, coulomb: np.ndarray, output: np.ndarray, rows: tuple[str, ...],
-                   parts: int = SUB_INTERVALS) -> FrictionBound:  # fmt: skip
+                   parts: int = SUB_INTERVALS,
+                   settled: Callable[[np.ndarray], bool] | None = None) -> FrictionBound:  # fmt: skip
     """:class:`FrictionBound` of ``system`` (linearised with the viscous friction alone) under dry-friction
-    torques ``|d_j| <= coulomb[j]`` at the scenario's schedule, for the outputs ``output @ z`` named ``rows``."""
+    torques ``|d_j| <= coulomb[j]`` at the scenario's schedule, for the outputs ``output @ z`` named ``rows``;
+    ``settled(upper)``: whether an upper bound (each row's, the rest of the sum included) already settles the
+    caller's question, which stops the sum there (its ``upper`` is then that bound)."""
     imp, lin = system.implementation, system.lin
     h, delta = imp.period, imp.period / parts
     pi, sched = system.monodromy(imp)
@@ -154,14 +161,14 @@ def friction_bound(system: MultirateLoop, coulomb: np.ndarray, output: np.ndarra
     # a part's int |g| <= |int g| + delta^2 / 3 sup |g'|, sup |g'| <= |g'(s_l)| + delta / 2 ||r|| e^(mu h) ||A^2 B c||
     kernel = np.concatenate([gamma, delta**2 / 3 * slope], axis=2) * np.tile(coulomb, 2)  # (L, nz, 2n)
     kernel = kernel.transpose(1, 0, 2).reshape(len(lin.a), -1)
+    halves = np.kron(np.ones((parts, 1)), np.kron(np.eye(2), np.ones((len(coulomb), 1))))  # (L 2n, 2): the sums
     growth = math.exp(max(0.0, float(np.linalg.eigvalsh((lin.a + lin.a.T) / 2)[-1])) * h)  # >= ||exp(A s)||
     second = h * delta**2 / 6 * growth * float(np.linalg.norm(lin.a @ lin.a @ lin.b_tau, axis=0) @ coulomb)
-    spread = h * growth * float(np.linalg.norm(lin.b_tau, axis=0) @ coulomb)  # >= int ||exp(A s) B|c| ||
 
     def summed(terms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For the rows ``terms`` (``(phases, rows, inputs, nz)``) through which inputs ``w`` reach the outputs:
         per phase and output, the sum of ``|r Gamma_l b_j| c_j`` and the bound on its excess."""
-        values = np.abs(terms @ kernel).reshape(*terms.shape[:3], parts, 2, -1).sum(axis=(2, 3, 5))
+        values = (np.abs(terms @ kernel) @ halves).sum(axis=2)  # summed over the parts and joints by a product
         return values[..., 0], values[..., 1] + np.linalg.norm(terms, axis=-1).sum(axis=2) * second
 
     steps, nz = sched.steps, len(lin.a)
@@ -171,33 +178,136 @@ def friction_bound(system: MultirateLoop, coulomb: np.ndarray, output: np.ndarra
     tangent = system.tangent(pi)
     moving = np.abs(response.g @ tangent).max(axis=(0, 2), initial=0.0) > 1e-9 * np.abs(response.g).max()
     basis = scipy.linalg.null_space(tangent.T) if tangent.shape[1] else np.eye(len(pi))
-    gain = _power_gain(basis.T @ pi @ basis)
     omega = response.omega.transpose(1, 0, 2).reshape(len(pi), steps * nz)  # (X, steps nz)
-    reach = float(sum(np.linalg.norm(basis.T @ w, 2) for w in response.omega))
+
+    def contribution(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One period's inputs through the state rows ``v`` (``(phases, rows, X)``): per phase and row the lower
+        sum and its excess, each a seminorm of ``v``."""
+        return summed((v @ omega).reshape(*v.shape[:2], steps, nz))
+
+    # A row v with v T = 0 is (v Q) Q^T: its contribution is at most |v Q| @ weights (the triangle inequality)
+    low, more = contribution(basis.T[None])
+    weights = (low + more)[0]
+    weights = weights + 1e-9 * weights.max()
+    gain = _power_gain(basis.T @ pi @ basis, weights)
     g, periods = response.g, 0
     while True:
-        terms = (g @ omega).reshape(steps, len(rows), steps, nz)
-        low, more = summed(terms)
+        low, more = contribution(g)
         lower, upper = lower + low, upper + low + more
         periods += 1
         g = g @ pi
-        tail = (np.linalg.norm(g @ basis, axis=-1) * gain * reach * spread).max(axis=0)
+        tail = (np.abs(g @ basis) @ weights * gain).max(axis=0)
         if np.all(tail <= TAIL * lower.max(axis=0)) or periods >= MAX_PERIODS or not math.isfinite(gain):
             break
-    bounded = (tail <= TAIL * lower.max(axis=0)) & ~moving
+        if settled is not None and not moving.any() and settled(upper.max(axis=0) + tail):
+            break
+    bounded = np.isfinite(tail) & ~moving  # upper + tail bounds the sum wherever the tail is finite
     return FrictionBound(rows, lower.max(axis=0), np.where(bounded, upper.max(axis=0) + tail, math.inf), periods,
                          parts)  # fmt: skip
 
 
-def _power_gain(pi: np.ndarray) -> float:
-    """A bound on ``sum_m ||pi^m||_2``: with ``K`` the first power whose norm ``theta`` is at most 1/2,
-    ``sum_(m < K) ||pi^m|| / (1 - theta)`` (``||pi^(qK + m)|| <= theta^q ||pi^m||``); ``inf`` where no power up to
+def _power_gain(pi: np.ndarray, weights: np.ndarray) -> float:
+    """A bound on ``sum_m ||y pi^m||_w / ||y||_w`` for the row norm ``||y||_w = |y| @ weights``: its induced norm
+    ``mu(A) = max_s sum_t |A_st| w_t / w_s``, ``K`` the first power with ``theta = mu(pi^K) <= 1/2``, and
+    ``sum_(m < K) mu(pi^m) / (1 - theta)`` (``mu`` is submultiplicative); ``inf`` where no power up to
     :data:`MAX_PERIODS` is that small."""
     power, total = np.eye(len(pi)), 0.0
     for _ in range(MAX_PERIODS):
-        norm = float(np.linalg.norm(power, 2))
+        norm = float((np.abs(power) @ weights / weights).max())
         if norm <= 0.5 and total > 0:
             return total / (1 - norm)
         total += norm
         power = power @ pi
     return math.inf
+
+
+def at_rest(upper: np.ndarray, position: float, angle: float) -> tuple[float, float]:
+    """The largest tracking position error (m) and angle (deg) at rest: the equilibrium's ``position`` (m) and
+    ``angle`` (rad) plus the norms of the bounds ``upper`` on :data:`TRACKING` (each component bounded, so the norm
+    of the bounds bounds the norm; angles add along a product of rotations)."""
+    return position + float(np.linalg.norm(upper[:3])), math.degrees(angle + float(np.linalg.norm(upper[3:])))
+
+
+@dataclass(frozen=True)
+class DryFrictionCheck:
+    """Fact 29 for a plant's tracking error at rest: the motion its dry friction (``coulomb``, N m a joint) can
+    drive (``bound``, on :data:`TRACKING`), added to the tracking error at the equilibrium (``offset_position``,
+    m, and ``offset_angle``, rad), against a ``criterion`` (position m, angle deg; None: none given)."""
+
+    coulomb: np.ndarray
+    bound: FrictionBound
+    offset_position: float
+    offset_angle: float
+    criterion: tuple[float, float] | None = None
+
+    @property
+    def position(self) -> float:
+        """The largest tracking position error at rest (m, :func:`at_rest`)."""
+        return at_rest(self.bound.upper, self.offset_position, self.offset_angle)[0]
+
+    @property
+    def angle_deg(self) -> float:
+        """The largest tracking angle at rest (deg, :func:`at_rest`)."""
+        return at_rest(self.bound.upper, self.offset_position, self.offset_angle)[1]
+
+    @property
+    def within(self) -> bool | None:
+        """Whether both stay within the criterion (None: no criterion)."""
+        return None if self.criterion is None else _within(self.position, self.angle_deg, self.criterion)
+
+    @property
+    def beyond(self) -> bool:
+        """Whether some torque within the friction's levels surely drives the error past the criterion: one
+        component's attained bound (``lower``), less the equilibrium's error, exceeds it."""
+        if self.criterion is None:
+            return False
+        lower = self.bound.lower
+        position = float(lower[:3].max()) - self.offset_position
+        angle = math.degrees(float(lower[3:].max()) - self.offset_angle)
+        return position > self.criterion[0] or angle > self.criterion[1]
+
+    def words(self) -> str:
+        """The statement in words."""
+        levels = ", ".join(f"{c:g}" for c in self.coulomb)
+        text = (f"dry friction up to {levels} N m (fact 29: a torque bounded by its Coulomb level, no smoothing) "
+                f"can hold the tracking error at rest at up to {self.position * 1e3:.4g} mm and "
+                f"{self.angle_deg:.4g} deg (the equilibrium's own error included; linearised)")
+        if self.criterion is not None:
+            text += (f", {'within' if self.within else 'beyond'} the criterion's {self.criterion[0] * 1e3:.4g} mm "
+                     f"and {self.criterion[1]:.4g} deg")
+        return text
+
+    def as_dict(self) -> dict:
+        """JSON-ready."""
+        return {"coulomb": self.coulomb.tolist(), "position": self.position, "angle_deg": self.angle_deg,
+                "rows": list(self.bound.rows), "upper": self.bound.upper.tolist(),
+                "lower": self.bound.lower.tolist(), "periods": self.bound.periods,
+                "sub_intervals": self.bound.sub_intervals,
+                "criterion": None if self.criterion is None else list(self.criterion), "within": self.within,
+                "statement": self.words()}  # fmt: skip
+
+
+def _within(position: float, angle_deg: float, criterion: tuple[float, float]) -> bool:
+    return position <= criterion[0] and angle_deg <= criterion[1]
+
+
+def dry_friction_check(
+    system: MultirateLoop, rest: ClosedLoop, state: np.ndarray, coulomb: np.ndarray, mount: np.ndarray | None,
+    criterion: tuple[float, float] | None, tight: bool = False,
+) -> DryFrictionCheck:
+    """:class:`DryFrictionCheck` of ``system`` (linearised at ``state`` of the loop at rest ``rest``, with the
+    plant's viscous friction alone): the bound summed until it settles ``criterion`` (within it; ``tight``: until
+    it converges whatever the criterion) or converges, with :data:`SUB_INTERVALS` parts of a period, and where the
+    upper bound is beyond the criterion (and the lower one not surely beyond) with 4 and 16 times as many, so that
+    only a criterion within the last gap between the bounds is left undecided (not certified)."""
+    rows, position, angle = tracking_rows(rest, state, mount)
+    levels = np.asarray(coulomb, dtype=float)
+    settled = None
+    if criterion is not None and not tight:
+        settled = lambda upper: _within(*at_rest(upper, position, angle), criterion)  # noqa: E731
+    for parts in (SUB_INTERVALS, 4 * SUB_INTERVALS, 16 * SUB_INTERVALS):
+        check = DryFrictionCheck(levels, friction_bound(system, levels, rows, TRACKING, parts, settled), position,
+                                 angle, criterion)  # fmt: skip
+        if check.within is not False or check.beyond:
+            break
+    return check

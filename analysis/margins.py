@@ -265,6 +265,11 @@ class TrackingBound:
     def as_dict(self) -> dict:
         return {"position": self.position, "angle_deg": self.angle_deg, "source": self.source}
 
+    @property
+    def limits(self) -> tuple[float, float]:
+        """``(position m, angle deg)``: what fact 29's tracking error at rest is judged against."""
+        return self.position, self.angle_deg
+
 
 def tracking_samples(traj: Trajectory, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The position ``|p|`` (m) and rotation angle (deg, by :func:`rotation_angle`) of the true
@@ -446,22 +451,24 @@ def shared_simulator(case: Case, errors: bool) -> SampledSimulator:
 class LinearCheck:
     """Fact 14 beside the measured searches: the sampled loop linearised at rest for the plant as
     declared (``system``), its linear margins (``margins``, :func:`dvfc.analysis.multirate.linear_margins`)
-    and the case (``case``: a plant parameter's value changes the plant, linearised anew), or, where the
-    statement does not apply, ``reason``."""
+    and the case (``case``: a plant parameter's value changes the plant, linearised anew; ``criterion``: what
+    its dry friction's tracking error at rest is judged against, fact 29), or, where the statement does not
+    apply, ``reason``."""
 
     system: MultirateLoop | None
     margins: dict | None
     reason: str | None
     case: Case | None = None
+    criterion: tuple[float, float] | None = None
 
     @staticmethod
-    def of(case: Case, record: dict) -> LinearCheck:
+    def of(case: Case, record: dict, criterion: tuple[float, float] | None = None) -> LinearCheck:
         """The check of a case from its fact-14 record (:func:`implemented_record`)."""
         if record["margins"] is None:
             return LinearCheck(None, None, record["reason"])
         plant = DeclaredPlant.of(case.settings)
         system = multirate_loop(case.loop, case.s0[: case.loop.robot.n], case.settings.sampled, plant)
-        return LinearCheck(system, record["margins"], None, case)
+        return LinearCheck(system, record["margins"], None, case, criterion)
 
     def rho(self, name: str, value: float) -> float | None:
         """``rho(Pi)`` with ``name = value`` (a value of :func:`grid_value`): of the schedule for
@@ -484,7 +491,7 @@ class LinearCheck:
         statement does not apply."""
         assert self.case is not None and name in PLANT, "LinearCheck.of, a plant parameter"
         loop, changed = self.case.loop, with_value(self.case.loop, self.case.settings, name, value)
-        return DeclaredPlant.of(changed).verdict(loop, self.case.s0[: loop.robot.n], changed.sampled)
+        return DeclaredPlant.of(changed).verdict(loop, self.case.s0[: loop.robot.n], changed.sampled, self.criterion)
 
     def margin(self, name: str, start: float, end: float) -> dict | None:
         """Fact 14's linear margin of a parameter searched from ``start`` to ``end``, a record ``{"value", "unit",
@@ -738,8 +745,8 @@ def margins(
     if settings.implementation is None:
         raise ScenarioError("implementation: margins are of the loop as implemented; add an [implementation] section")
     bound = tracking_bound(case, envelope)
-    record = implemented_record(loop, s0, settings)
-    linear = LinearCheck.of(case, record)
+    record = implemented_record(loop, s0, settings, bound.limits)
+    linear = LinearCheck.of(case, record, bound.limits)
     imp = settings.implementation
     own = trial(case, "latency", imp.latency, bound, linear, own_run)
     if not own["holds"]:

@@ -34,8 +34,10 @@ every nearby run converging to one of its equilibria (:func:`transverse`; docs/m
 With integral action (docs/math.md, fact 21) ``z`` ends with ``z_I``, held over the period
 (no rate) and updated at each sample, ``z_I <- z_I + h (X z_k + X_e e_k)`` (``xi = X z + X_e e``
 linearised), the law reading ``-K_I z_I``: ``6 + n`` more states (36 on a 6-joint arm). The
-plant's friction ``b qd + c tanh(qd/eps)`` linearised at ``qd = 0`` has the slope
-``b + c/eps``: ``A -> A - B_tau diag(b + c/eps) S_qd`` (:meth:`HeldLinearization.with_friction`).
+plant's viscous friction ``b qd`` is in the linearisation, ``A -> A - B_tau diag(b) S_qd``
+(:meth:`HeldLinearization.with_friction`); its dry friction, whatever its model, is a torque bounded by
+its Coulomb level ``c``, whose effect at rest :mod:`dvfc.analysis.dry_friction` bounds (fact 29): no
+smoothing width enters a verdict.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ import casadi as cs
 import numpy as np
 import scipy.linalg
 
+from dvfc.analysis.dry_friction import DryFrictionCheck, dry_friction_check
 from dvfc.analysis.implementation import Implementation
 from dvfc.analysis.linearize import _quaternion_product, equilibrium_configuration
 from dvfc.analysis.parametric import parameter_vector, symbolic
@@ -181,9 +184,9 @@ class HeldLinearization:
         return np.linalg.solve(np.eye(len(a_z)) - a_z - a_e @ c, self.flow(h)[1] @ tau_d)
 
     def with_friction(self, slope: np.ndarray | None) -> HeldLinearization:
-        """The same loop with the plant's joint friction linearised at ``qd = 0``: ``slope = b + c/eps``
-        per joint, ``A -> A - B_tau diag(slope) S_qd`` (``tanh`` is odd and smooth: the equilibrium
-        does not move, and this is its exact linearisation; fact 21). None: no friction, ``self``."""
+        """The same loop with a joint friction of slope ``slope`` per joint at ``qd = 0`` (the plant's viscous
+        ``b``, :attr:`DeclaredPlant.friction_slope`): ``A -> A - B_tau diag(slope) S_qd`` (friction vanishes at
+        rest: the equilibrium does not move; fact 21). None: no friction, ``self``."""
         if slope is None:
             return self
         n = self.b_tau.shape[1]
@@ -219,12 +222,13 @@ class DeclaredPlant:
             robot = Robot(robot.urdf, robot.frame, robot.mount, robot.armature, inputs.payload, inputs.mass_scale)
         return DeclaredPlant(robot, settings.errors)
 
-    def verdict(self, loop: ClosedLoop, q0: np.ndarray, imp: Implementation) -> LocalVerdict | None:
-        """Fact 14 for this plant (:func:`local_verdict`, every check included; not certified, ``rho = inf``,
-        where it has no equilibrium near the model's), None where the statement does not apply
-        (:func:`applicability` is the caller's)."""
+    def verdict(self, loop: ClosedLoop, q0: np.ndarray, imp: Implementation,
+                criterion: tuple[float, float] | None = None) -> LocalVerdict | None:  # fmt: skip
+        """Fact 14 for this plant (:func:`local_verdict`, every check included, its dry friction against
+        ``criterion``; not certified, ``rho = inf``, where it has no equilibrium near the model's), None where the
+        statement does not apply (:func:`applicability` is the caller's)."""
         try:
-            return local_verdict(loop, q0, imp, self)
+            return local_verdict(loop, q0, imp, self, criterion=criterion)
         except NoEquilibriumError as exc:
             return LocalVerdict(math.inf, False, str(exc))
         except NotApplicableError:
@@ -241,11 +245,16 @@ class DeclaredPlant:
 
     @property
     def friction_slope(self) -> np.ndarray | None:
-        """``b + c/eps`` per joint, the slope of the plant's friction at ``qd = 0`` (None: no friction)."""
+        """``b`` per joint, the slope of the plant's viscous friction, which the linearisation holds (None: none);
+        its dry friction is a bounded torque (:attr:`coulomb`, fact 29), not a slope."""
         e = self.errors
-        if e is None or not (np.any(e.viscous) or np.any(e.coulomb)):
-            return None
-        return np.asarray(e.viscous, dtype=float) + np.asarray(e.coulomb, dtype=float) / e.smoothing
+        return None if e is None or not np.any(e.viscous) else np.asarray(e.viscous, dtype=float)
+
+    @property
+    def coulomb(self) -> np.ndarray | None:
+        """``c`` per joint, the level of the plant's dry friction (None: none)."""
+        e = self.errors
+        return None if e is None or not np.any(e.coulomb) else np.asarray(e.coulomb, dtype=float)
 
     def masses_differ(self) -> bool:
         """Whether the plant's masses differ from the model's (a payload or a mass scale)."""
@@ -254,7 +263,8 @@ class DeclaredPlant:
 
     def differs(self, camera: Camera) -> bool:
         """Whether the plant differs from the controller's model in anything the linearisation sees."""
-        return self.masses_differ() or self.camera_errors(camera) is not None or self.friction_slope is not None
+        friction = self.friction_slope is not None or self.coulomb is not None
+        return self.masses_differ() or self.camera_errors(camera) is not None or friction
 
     def words(self, camera: Camera) -> str:
         """Which plant a statement is about, in words."""
@@ -271,9 +281,9 @@ class DeclaredPlant:
         if self.camera_errors(camera) is not None:
             parts.append("its camera (mount, intrinsics, distortion, feature points as declared)")
         if self.friction_slope is not None:
-            assert self.errors is not None, "friction_slope"
-            parts.append(f"joint friction, the smoothed model b qd + c tanh(qd / eps) at eps = "
-                         f"{self.errors.smoothing:g} rad/s, linearised at qd = 0 (slope b + c/eps)")
+            parts.append("viscous joint friction b qd (in the linearisation)")
+        if self.coulomb is not None:
+            parts.append("dry joint friction up to c (a bounded torque, fact 29)")
         return "the plant as declared: " + ", ".join(parts)
 
 
@@ -779,7 +789,8 @@ class LocalVerdict:
     equilibrium), ``certified`` (``rho < 1 - RHO_MARGIN``, the Lyapunov check, the self-motion's tangent
     residual and its poses' equilibrium check: :meth:`Transverse.certified`), ``reason`` when it is not;
     and what was computed (None where it stopped short): the monodromy, its schedule's steps, the part
-    across the self-motion and the Lyapunov check."""
+    across the self-motion, the Lyapunov check and, for a plant with dry friction whose monodromy is
+    certified, the tracking error that friction can hold at rest (``friction``, fact 29)."""
 
     rho: float
     certified: bool
@@ -789,17 +800,21 @@ class LocalVerdict:
     across: Transverse | None = None
     check: LyapunovCheck | None = None
     saturated: bool = False
+    friction: DryFrictionCheck | None = None
 
 
 SATURATED = "saturation is active at the equilibrium (|tau_eq| not strictly inside the efforts)"
 
 
 def local_verdict(loop: ClosedLoop, q0: np.ndarray, imp: Implementation, plant: DeclaredPlant,
-                  system: MultirateLoop | None = None) -> LocalVerdict:  # fmt: skip
-    """The one answer to "does fact 14 certify this plant's loop as implemented" (docs/math.md, facts 14
-    and 25), for ``certify``, ``margins`` and campaigns alike (``system``: the plant's linearised loop
-    when already built). Raises :class:`NotApplicableError` (:class:`NoEquilibriumError` where the plant
-    has no equilibrium near the model's)."""
+                  system: MultirateLoop | None = None, criterion: tuple[float, float] | None = None,
+                  tight: bool = False) -> LocalVerdict:  # fmt: skip
+    """The one answer to "does fact 14 certify this plant's loop as implemented" (docs/math.md, facts 14,
+    25 and 29), for ``certify``, ``margins`` and campaigns alike (``system``: the plant's linearised loop
+    when already built): with dry friction, also the tracking error it can hold at rest (fact 29) within
+    ``criterion`` (position m, angle deg; None: computed, not judged), its bound summed until it settles the
+    criterion or, ``tight``, until it converges (:func:`dry_friction_check`). Raises :class:`NotApplicableError`
+    (:class:`NoEquilibriumError` where the plant has no equilibrium near the model's)."""
     system = multirate_loop(loop, q0, imp, plant) if system is None else system
     if system.saturated(loop.robot.limits):
         return LocalVerdict(math.inf, False, SATURATED, saturated=True)
@@ -812,14 +827,26 @@ def local_verdict(loop: ClosedLoop, q0: np.ndarray, imp: Implementation, plant: 
     certified = rho < 1 - RHO_MARGIN and across.certified(check)
     reason = (f"rho = {rho:.6g}, the Lyapunov check (margin {check.margin:.3g}), the self-motion's residual "
               f"({across.residual:.2g}) or the check that its poses are equilibria fails")  # fmt: skip
-    return LocalVerdict(rho, certified, None if certified else reason, pi, sched.steps, across, check)
+    friction = None
+    if certified and plant.coulomb is not None:
+        lin = system.lin
+        state = lin.state if lin.state is not None else rest_state(loop, lin.q_eq)
+        mount = None if plant.errors is None else plant.errors.camera_vector(loop.camera)[:6]
+        rest = rest_model(loop, plant.robot)
+        friction = dry_friction_check(system, rest, state, plant.coulomb, mount, criterion, tight)
+        if friction.within is False:
+            certified, reason = False, friction.words()
+    return LocalVerdict(rho, certified, None if certified else reason, pi, sched.steps, across, check,
+                        friction=friction)  # fmt: skip
 
 
-def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> dict:
+def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings,
+                       criterion: tuple[float, float] | None = None) -> dict:  # fmt: skip
     """Fact 14 for the scenario's loop as implemented and its plant as declared (JSON-ready,
     :class:`DeclaredPlant`: ``plant`` names it): the monodromy's spectral radius, the certified
     local rate, the common period, the Lyapunov check, the scope, the declared effects it does not
-    cover and the linear margins; or why the statement does not apply."""
+    cover and the linear margins, and with dry friction the tracking error it can hold at rest (fact 29,
+    judged against ``criterion``: position m, angle deg, where given); or why the statement does not apply."""
     start = time.perf_counter()
     plant = DeclaredPlant.of(settings)
     words = {"plant": plant.words(loop.camera)}
@@ -831,7 +858,7 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
     try:
         frictionless = held_linearization(loop, s0[: loop.robot.n], plant)
         system = MultirateLoop(frictionless.with_friction(plant.friction_slope), imp, loop.mode, {})
-        verdict = local_verdict(loop, s0[: loop.robot.n], imp, plant, system)
+        verdict = local_verdict(loop, s0[: loop.robot.n], imp, plant, system, criterion, tight=True)
     except ValueError as exc:  # NotApplicableError, no equilibrium configuration, or none of the plant
         return {**not_applicable(str(exc)), **words}
     lin = system.lin
@@ -845,6 +872,7 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> 
     return {
         "integral_state": loop.integral,
         **_friction_record(plant, MultirateLoop(frictionless, imp, loop.mode, {})),
+        **({} if verdict.friction is None else {"dry_friction": verdict.friction.as_dict()}),
         **words,
         "applies": True,
         "certified": certified,
@@ -885,16 +913,16 @@ def self_motion_record(across: Transverse) -> dict | None:
 
 
 def _friction_record(plant: DeclaredPlant, frictionless: MultirateLoop) -> dict:
-    """The record's ``friction_slope`` when the plant has friction (fact 21): its slope ``b + c/eps`` at
-    ``qd = 0``, which the headline ``rho`` includes, and ``rho`` of the same plant without friction."""
+    """The record's ``friction_slope`` when the plant has viscous friction (fact 21): its slope ``b``, which the
+    headline ``rho`` includes, and ``rho`` of the same plant without friction."""
     slope = plant.friction_slope
     if slope is None:
         return {}
     return {"friction_slope": {
         "slope": slope.tolist(),
         "rho_without_friction": frictionless.rho(),
-        "scope": ("the plant's friction b qd + c tanh(qd/eps) linearised at qd = 0 (slope b + c/eps, the "
-                  "simulator's smoothed Coulomb model: a real joint sticks at rest); local, target at rest"),
+        "scope": ("the plant's viscous friction b qd in the linearisation; its dry friction is a torque bounded "
+                  "by its Coulomb level (dry_friction, fact 29), not a slope; local, target at rest"),
     }}  # fmt: skip
 
 
@@ -938,9 +966,11 @@ def implemented_text(record: dict) -> str:
     verdict = "CERTIFIED" if record["certified"] else f"NOT CERTIFIED ({record['reason']})"
     rate = "-" if record["rate"] is None else f"{record['rate']:.4g}"
     friction = record.get("friction_slope")
-    without = "" if friction is None else f" (without the friction slope: rho = {friction['rho_without_friction']:.6g})"
+    without = "" if friction is None else f" (without friction: rho = {friction['rho_without_friction']:.6g})"
     left = record.get("not_covered")
     uncovered = f"; not covered: {'; '.join(left)}" if left else ""
+    if (dry := record.get("dry_friction")) is not None:
+        uncovered = f"; {dry['statement']}{uncovered}"
     return (f"loop as implemented, linearised at rest (fact 14, local): {verdict} for {record['plant']}: rho = "
             f"{record['rho']:.6g} over {record['period'] * 1e3:.4g} ms{without}, rate {rate} 1/s, Lyapunov margin "
             f"{record['lyapunov_margin']:.3g}; linear margins {margins}{uncovered}")  # fmt: skip

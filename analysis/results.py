@@ -499,7 +499,7 @@ def certificate_result(
     if (coverage := integral_coverage(point)) is not None:
         record = replace(record, integral=coverage)
     if case.settings.implementation is not None:
-        record = replace(record, implemented=implemented_record(case.loop, case.s0, case.settings))
+        record = replace(record, implemented=implemented_record(case.loop, case.s0, case.settings, case.criterion))
     summary_ = CertificateSummary(points=1, certified=int(cert.certified), gamma_min=cert.gamma,
                                   seconds=time.perf_counter() - start)  # fmt: skip
     return CertificateResult.of(spec, [record], summary_, provenance)

@@ -752,7 +752,7 @@ def design_checker(case: Case, run: Callable[[GainPoint], dict]) -> Callable[[Ga
         record = dict(run(point))
         implemented = None
         if case.settings.implementation is not None:
-            implemented = implemented_record(designed_loop(case, point), case.s0, case.settings)
+            implemented = implemented_record(designed_loop(case, point), case.s0, case.settings, case.criterion)
         windows = None if spec is None else spec.of(point.k_xi)
         return {**record, "implemented": implemented, "sampled": sampled_shortfall(windows, implemented)}
 

@@ -902,11 +902,11 @@ MUTATIONS = (
     ),
     Mutation(
         'monodromy-friction-slope-sign',
-        "the plant's friction slope at rest enters fact 21's linearisation as negative damping",
+        "the plant's viscous friction enters fact 21's linearisation as negative damping",
         'analysis/multirate.py',
         (('a[:, n : 2 * n] -= self.b_tau @ np.diag(slope)',
           'a[:, n : 2 * n] += self.b_tau @ np.diag(slope)'),),
-        ('tests/test_integral.py::test_fact_21_rho_of_the_cell_with_the_integral_and_its_friction_slope',),
+        ('tests/test_integral.py::test_fact_21_rho_of_the_cell_with_the_integral_and_its_viscous_friction',),
     ),
     Mutation(
         'compensation-smoothing-mismatch-ignored',
@@ -984,12 +984,12 @@ MUTATIONS = (
         ('tests/test_margins.py::test_a_transient_does_not_hide_a_growing_mode_nor_noise_make_one',),
     ),
     Mutation(
-        'campaign-local-statement-silent-on-smoothing',
-        "the campaign's local verdicts stated as the plant's with no word of the smoothed friction they rest on",
+        'campaign-local-statement-silent-on-dry-friction',
+        "the campaign's local verdicts stated with no word of the dry friction's bound they rest on",
         'analysis/campaign.py',
-        (('    return None if errors is None or not (drawn or errors.has_dry_friction) else float(errors.smoothing)',
-          '    return None'),),
-        ('tests/test_campaign_statistics.py::test_a_local_verdict_on_smoothed_friction_names_the_smoothing_width',),
+        (('    return errors is not None and (drawn or errors.has_dry_friction)',
+          '    return False'),),
+        ('tests/test_campaign_statistics.py::test_a_local_verdict_on_dry_friction_names_its_bounded_torque_and_no_smoothing',),
     ),
     Mutation(
         'compiled-dae-differences-coarse-step',
@@ -1126,6 +1126,39 @@ MUTATIONS = (
         (("        if np.all(tail <= TAIL * lower.max(axis=0)) or periods",
           "        if periods >= 3 or periods"),),
         ("tests/test_dry_friction.py::test_fact_29_the_bounds_close_in_on_the_supremum_as_the_parts_shrink",),
+    ),
+    Mutation(
+        "verdict-smoothed-coulomb-slope",
+        "fact 14's verdict linearising the smoothed dry friction's slope b + c/eps again (a verdict set by eps)",
+        "analysis/multirate.py",
+        (("        return None if e is None or not np.any(e.viscous) else np.asarray(e.viscous, dtype=float)\n",
+          "        return None if e is None else np.asarray(e.viscous, dtype=float) + "
+          "np.asarray(e.coulomb) / e.smoothing\n"),),
+        ("tests/test_dry_friction.py::test_fact_29_a_draws_verdict_does_not_depend_on_the_smoothing_width",),
+    ),
+    Mutation(
+        "verdict-ignores-dry-friction",
+        "a plant with dry friction certified by rho alone, whatever the tracking error its friction can hold at rest",
+        "analysis/multirate.py",
+        (("    if certified and plant.coulomb is not None:\n", "    if False:\n"),),
+        ("tests/test_dry_friction.py::test_fact_29_a_plant_whose_dry_friction_can_hold_the_error_beyond_the_criterion_is_not_certified",),
+    ),
+    Mutation(
+        "dry-friction-angle-unjudged",
+        "fact 29's check against the criterion reading the position only",
+        "analysis/dry_friction.py",
+        (("    return position <= criterion[0] and angle_deg <= criterion[1]\n",
+          "    return position <= criterion[0]\n"),),
+        ("tests/test_dry_friction.py::test_fact_29_a_plant_whose_dry_friction_can_hold_the_error_beyond_the_criterion_is_not_certified",),
+    ),
+    Mutation(
+        "dry-friction-offset-dropped",
+        "fact 29's tracking error at rest without the equilibrium's own error",
+        "analysis/dry_friction.py",
+        (("    return position + float(np.linalg.norm(upper[:3])), "
+          "math.degrees(angle + float(np.linalg.norm(upper[3:])))\n",
+          "    return float(np.linalg.norm(upper[:3])), math.degrees(float(np.linalg.norm(upper[3:])))\n"),),
+        ("tests/test_dry_friction.py::test_fact_29_the_tracking_error_at_rest_counts_the_equilibriums_own",),
     ),
     Mutation(
         'campaign-synthesis-checks-ignore-saturation',
