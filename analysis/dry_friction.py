@@ -147,11 +147,12 @@ def tracking_rows(
 
 def friction_bound(system: MultirateLoop, coulomb: np.ndarray, output: np.ndarray, rows: tuple[str, ...],
                    parts: int = SUB_INTERVALS,
-                   settled: Callable[[np.ndarray], bool] | None = None) -> FrictionBound:  # fmt: skip
+                   settled: Callable[[np.ndarray, np.ndarray], bool] | None = None) -> FrictionBound:  # fmt: skip
     """:class:`FrictionBound` of ``system`` (linearised with the viscous friction alone) under dry-friction
     torques ``|d_j| <= coulomb[j]`` at the scenario's schedule, for the outputs ``output @ z`` named ``rows``;
-    ``settled(upper)``: whether an upper bound (each row's, the rest of the sum included) already settles the
-    caller's question, which stops the sum there (its ``upper`` is then that bound)."""
+    ``settled(upper, lower)``: whether the bounds so far (each row's, the upper one with the rest of the sum, the
+    lower one of the periods summed) already settle the caller's question, which stops the sum there (its
+    ``upper`` and ``lower`` are then those bounds)."""
     imp, lin = system.implementation, system.lin
     h, delta = imp.period, imp.period / parts
     pi, sched = system.monodromy(imp)
@@ -199,7 +200,7 @@ def friction_bound(system: MultirateLoop, coulomb: np.ndarray, output: np.ndarra
         tail = (np.abs(g @ basis) @ weights * gain).max(axis=0)
         if np.all(tail <= TAIL * lower.max(axis=0)) or periods >= MAX_PERIODS or not math.isfinite(gain):
             break
-        if settled is not None and not moving.any() and settled(upper.max(axis=0) + tail):
+        if settled is not None and not moving.any() and settled(upper.max(axis=0) + tail, lower.max(axis=0)):
             break
     bounded = np.isfinite(tail) & ~moving  # upper + tail bounds the sum wherever the tail is finite
     return FrictionBound(rows, lower.max(axis=0), np.where(bounded, upper.max(axis=0) + tail, math.inf), periods,
@@ -242,40 +243,46 @@ class DryFrictionCheck:
 
     @property
     def position(self) -> float:
-        """The largest tracking position error at rest (m, :func:`at_rest`)."""
-        return at_rest(self.bound.upper, self.offset_position, self.offset_angle)[0]
+        """The tracking position error at rest it states (m, :func:`at_rest`): from the upper bounds, or where no
+        finer sum can bring it within the criterion (:attr:`beyond`), from the attained ones."""
+        return at_rest(self._stated, self.offset_position, self.offset_angle)[0]
 
     @property
     def angle_deg(self) -> float:
-        """The largest tracking angle at rest (deg, :func:`at_rest`)."""
-        return at_rest(self.bound.upper, self.offset_position, self.offset_angle)[1]
+        """The tracking angle at rest it states (deg), as :attr:`position`."""
+        return at_rest(self._stated, self.offset_position, self.offset_angle)[1]
+
+    @property
+    def _stated(self) -> np.ndarray:
+        return self.bound.lower if self.beyond else self.bound.upper
 
     @property
     def within(self) -> bool | None:
-        """Whether both stay within the criterion (None: no criterion)."""
-        return None if self.criterion is None else _within(self.position, self.angle_deg, self.criterion)
+        """Whether the error at rest from the upper bounds stays within the criterion (None: no criterion)."""
+        upper = at_rest(self.bound.upper, self.offset_position, self.offset_angle)
+        return None if self.criterion is None else _within(*upper, self.criterion)
 
     @property
     def beyond(self) -> bool:
-        """Whether some torque within the friction's levels surely drives the error past the criterion: one
-        component's attained bound (``lower``), less the equilibrium's error, exceeds it."""
-        if self.criterion is None:
-            return False
-        lower = self.bound.lower
-        position = float(lower[:3].max()) - self.offset_position
-        angle = math.degrees(float(lower[3:].max()) - self.offset_angle)
-        return position > self.criterion[0] or angle > self.criterion[1]
+        """Whether no finer sum can bring the check within the criterion: the error at rest computed from the
+        attained bounds ``lower`` is already beyond it (every upper bound is at least ``lower``)."""
+        lower = at_rest(self.bound.lower, self.offset_position, self.offset_angle)
+        return self.criterion is not None and not _within(*lower, self.criterion)
 
     def words(self) -> str:
         """The statement in words."""
         levels = ", ".join(f"{c:g}" for c in self.coulomb)
-        text = (f"dry friction up to {levels} N m (fact 29: a torque bounded by its Coulomb level, no smoothing) "
-                f"can hold the tracking error at rest at up to {self.position * 1e3:.4g} mm and "
-                f"{self.angle_deg:.4g} deg (the equilibrium's own error included; linearised)")
-        if self.criterion is not None:
-            text += (f", {'within' if self.within else 'beyond'} the criterion's {self.criterion[0] * 1e3:.4g} mm "
-                     f"and {self.criterion[1]:.4g} deg")
-        return text
+        held = f"{self.position * 1e3:.4g} mm and {self.angle_deg:.4g} deg"
+        text = f"dry friction up to {levels} N m (fact 29: a torque bounded by its Coulomb level, no smoothing) "
+        scope = "the equilibrium's own error included; linearised"
+        if self.criterion is None:
+            return text + f"can hold the tracking error at rest at up to {held} ({scope})"
+        criterion = f"the criterion's {self.criterion[0] * 1e3:.4g} mm and {self.criterion[1]:.4g} deg"
+        if self.beyond:
+            return (text + f"holds the tracking error at rest beyond {criterion} whatever the sum's resolution (its "
+                    f"attained bounds give {held}; {scope})")
+        return (text + f"can hold the tracking error at rest at up to {held} ({scope}), "
+                f"{'within' if self.within else 'beyond'} {criterion}")
 
     def as_dict(self) -> dict:
         """JSON-ready."""
@@ -298,14 +305,17 @@ def dry_friction_check(
     """:class:`DryFrictionCheck` of ``system`` (linearised at ``state`` of the loop at rest ``rest``, with the
     plant's viscous friction alone): the bound summed until it settles ``criterion`` (within it; ``tight``: until
     it converges whatever the criterion) or converges, with :data:`SUB_INTERVALS` parts of a period, and where the
-    upper bound is beyond the criterion (and the lower one not surely beyond) with 4 and 16 times as many, so that
-    only a criterion within the last gap between the bounds is left undecided (not certified)."""
+    upper bound is beyond the criterion (and the lower one does not rule it out) with 4 times as many, so that only
+    a criterion within the gap between the bounds then is left undecided (not certified)."""
     rows, position, angle = tracking_rows(rest, state, mount)
     levels = np.asarray(coulomb, dtype=float)
     settled = None
     if criterion is not None and not tight:
-        settled = lambda upper: _within(*at_rest(upper, position, angle), criterion)  # noqa: E731
-    for parts in (SUB_INTERVALS, 4 * SUB_INTERVALS, 16 * SUB_INTERVALS):
+        def settled(upper: np.ndarray, lower: np.ndarray) -> bool:  # within, or no finer sum can be
+            return _within(*at_rest(upper, position, angle), criterion) or not _within(
+                *at_rest(lower, position, angle), criterion)
+
+    for parts in (SUB_INTERVALS, 4 * SUB_INTERVALS):
         check = DryFrictionCheck(levels, friction_bound(system, levels, rows, TRACKING, parts, settled), position,
                                  angle, criterion)  # fmt: skip
         if check.within is not False or check.beyond:
