@@ -29,7 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from dvfc.analysis.parametric import parameter_vector, symbolic
-from dvfc.models.lie import SE3
+from dvfc.models.errors import seen_through
 from dvfc.models.loop import ClosedLoop
 
 if TYPE_CHECKING:  # the linearised loop's module builds on this one
@@ -66,10 +66,9 @@ class FrictionBound:
 @dataclass(frozen=True)
 class PeriodResponse:
     """One common period of fact 14's multirate map with the friction's inputs ``w_k`` (one a control period
-    ``k``, added to ``z`` at its end): ``X' = pi X + sum_k omega[k] w_k``, and the outputs at its samples,
-    ``y_p = g[p] X + sum_(k < p) within[p, k] w_k``."""
+    ``k``, added to ``z`` at its end): ``X' = Pi X + sum_k omega[k] w_k`` (``Pi`` the monodromy), and the outputs
+    at its samples, ``y_p = g[p] X + sum_(k < p) within[p, k] w_k``."""
 
-    pi: np.ndarray
     omega: np.ndarray  # (steps, X, nz)
     g: np.ndarray  # (steps, rows, X)
     within: np.ndarray  # (steps, steps, rows, nz), zero where k >= p
@@ -99,7 +98,7 @@ def period_response(a_z: np.ndarray, a_e: np.ndarray, c: np.ndarray, sched: Sche
     y = np.array(outputs)
     within = y[:, :, size:].reshape(sched.steps, -1, sched.steps, nz).transpose(0, 2, 1, 3)
     omega = end[:, size:].reshape(size, sched.steps, nz).transpose(1, 0, 2)
-    return PeriodResponse(end[:, :size], omega, y[:, :, :size], within)
+    return PeriodResponse(omega, y[:, :, :size], within)
 
 
 def input_kernel(a: np.ndarray, b: np.ndarray, h: float, parts: int) -> tuple[np.ndarray, np.ndarray]:
@@ -127,8 +126,7 @@ def tracking_rows(
     frame (3, rad), ``g`` the relative pose of the camera seen through the ``mount`` error (6: ``xyz``, ``rpy``;
     None: none), moved by ``dq``; and that error's position (m) and angle (rad) at ``state``."""
     model = symbolic(rest)
-    offset = np.zeros(6) if mount is None else np.asarray(mount, dtype=float)
-    camera = SE3.from_xyz_rpy(cs.DM(offset[:3]), cs.DM(offset[3:])).inverse() @ model.relative_pose
+    camera = seen_through(model.relative_pose, cs.DM.zeros(6) if mount is None else cs.DM(mount))
     matrix = (model.reference.inverse() @ camera).as_matrix()
     jacobian = cs.jacobian(cs.vec(matrix[:3, :]), model.state)
     p = [] if model.parameters is None else [model.parameters]

@@ -176,6 +176,10 @@ class HeldLinearization:
             a_e[nz - nt :] += h * self.xi_e
         return a_z, a_e
 
+    def state_at_rest(self, loop: ClosedLoop) -> np.ndarray:
+        """The state at the equilibrium linearised at: :attr:`state`, or the model's (:func:`rest_state`)."""
+        return rest_state(loop, self.q_eq) if self.state is None else self.state
+
     def steady_state(self, h: float, c: np.ndarray, tau_d: np.ndarray) -> np.ndarray:
         """The fixed point ``z`` of the sampled loop under a constant joint torque ``tau_d`` (fact 21):
         every held value is constant there (``e = c z``), so ``(I - A_z - A_e c) z = G_tau tau_d``
@@ -829,10 +833,8 @@ def local_verdict(loop: ClosedLoop, q0: np.ndarray, imp: Implementation, plant: 
               f"({across.residual:.2g}) or the check that its poses are equilibria fails")  # fmt: skip
     friction = None
     if certified and plant.coulomb is not None:
-        lin = system.lin
-        state = lin.state if lin.state is not None else rest_state(loop, lin.q_eq)
+        state, rest = system.lin.state_at_rest(loop), rest_model(loop, plant.robot)
         mount = None if plant.errors is None else plant.errors.camera_vector(loop.camera)[:6]
-        rest = rest_model(loop, plant.robot)
         friction = dry_friction_check(system, rest, state, plant.coulomb, mount, criterion, tight)
         if friction.within is False:
             certified, reason = False, friction.words()
@@ -967,13 +969,13 @@ def implemented_text(record: dict) -> str:
     rate = "-" if record["rate"] is None else f"{record['rate']:.4g}"
     friction = record.get("friction_slope")
     without = "" if friction is None else f" (without friction: rho = {friction['rho_without_friction']:.6g})"
+    dry = record.get("dry_friction")
+    held = "" if dry is None else f"; {dry['statement']}"
     left = record.get("not_covered")
     uncovered = f"; not covered: {'; '.join(left)}" if left else ""
-    if (dry := record.get("dry_friction")) is not None:
-        uncovered = f"; {dry['statement']}{uncovered}"
     return (f"loop as implemented, linearised at rest (fact 14, local): {verdict} for {record['plant']}: rho = "
             f"{record['rho']:.6g} over {record['period'] * 1e3:.4g} ms{without}, rate {rate} 1/s, Lyapunov margin "
-            f"{record['lyapunov_margin']:.3g}; linear margins {margins}{uncovered}")  # fmt: skip
+            f"{record['lyapunov_margin']:.3g}; linear margins {margins}{held}{uncovered}")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -1032,7 +1034,7 @@ def program_monodromy(loop: ClosedLoop, q0: np.ndarray, imp: Implementation,
     seen = cs.substitute(seen, rest.t, 0)
     features = cs.Function("features", [rest.q], [seen, cs.jacobian(seen, rest.q)])
     f_eq, f_q = (np.asarray(v) for v in features(lin.q_eq))
-    at = rest_state(loop, lin.q_eq) if lin.state is None else lin.state
+    at = lin.state_at_rest(loop)
     gbar_eq = at[2 * n : 2 * n + 7]
     embed, project = _tangent(gbar_eq[3:])
     late = 1e3  # s: past the planned reference, the ramp and integral_start

@@ -64,9 +64,9 @@ from dvfc.models.errors import (
     controller_features,
     friction_slope,
     friction_torque,
+    seen_through,
     true_features,
 )
-from dvfc.models.lie import SE3
 from dvfc.models.loop import QUADRATURES, ClosedLoop
 from dvfc.models.robot import JointLimits
 
@@ -456,8 +456,7 @@ class SampledSimulator(Simulator):
         column (:meth:`true_tracking`; called with one column a time, it maps over them)."""
         model = self.model
         mount = cs.SX.sym("mount", 6)
-        g = SE3.from_xyz_rpy(mount[:3], mount[3:]).inverse() @ model.relative_pose
-        error = cs.vec((model.reference.inverse() @ g).as_matrix())
+        error = cs.vec((model.reference.inverse() @ seen_through(model.relative_pose, mount)).as_matrix())
         p = [] if model.parameters is None else [model.parameters]
         return cs.Function("true_tracking", [model.t, model.state, mount, *p], [error])
 

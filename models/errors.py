@@ -117,13 +117,18 @@ def distort(x: Matrix, y: Matrix, k: Matrix) -> tuple[Matrix, Matrix, Matrix]:
     return radial, tx, ty
 
 
+def seen_through(relative: SE3, mount: Matrix) -> SE3:
+    """The relative pose ``relative`` (nominal camera to object) as the true camera sees it, mounted with the
+    error ``mount`` (``xyz``, ``rpy``: the first six entries of :meth:`PlantErrors.camera_vector`)."""
+    return SE3.from_xyz_rpy(mount[0:3], mount[3:6]).inverse() @ relative
+
+
 def true_features(camera: Camera, relative: SE3, parameters: Matrix) -> tuple[Matrix, Matrix, Matrix]:
     """What the true camera makes of the relative pose ``relative`` (nominal camera to object):
     the true features about the true principal point (px), the same about the nominal principal
     point, and the true depths. ``parameters`` is :meth:`PlantErrors.camera_vector`."""
-    mount = SE3.from_xyz_rpy(parameters[0:3], parameters[3:6])
     fx, fy, offset, k = parameters[6], parameters[7], parameters[8:10], parameters[10:15]
-    seen = mount.inverse() @ relative
+    seen = seen_through(relative, parameters)
     true, nominal, depths = [], [], []
     for i in range(camera.m):
         x, y, z = cs.vertsplit(seen.act(cs.DM(camera.points[i]) + parameters[15 + 3 * i : 18 + 3 * i]))

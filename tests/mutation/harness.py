@@ -550,7 +550,8 @@ MUTATIONS = (
         "mount-error-not-inverted",
         "the true camera sees the target through the mount error, not its inverse",
         "models/errors.py",
-        (("    seen = mount.inverse() @ relative\n", "    seen = mount @ relative\n"),),
+        (("    return SE3.from_xyz_rpy(mount[0:3], mount[3:6]).inverse() @ relative\n",
+          "    return SE3.from_xyz_rpy(mount[0:3], mount[3:6]) @ relative\n"),),
         ("tests/test_dispersion.py::test_mount_error_features_are_the_true_cameras_and_the_law_keeps_the_nominal_jacobian",),
     ),
     Mutation(
