@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -323,12 +323,20 @@ def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[floa
         A chain joint not revolute or continuous, an axis not of unit length, or a link moved by
         the chain with a negative principal inertia.
     """
-    root = ET.parse(urdf).getroot()
+    return _bounds(Path(urdf).read_bytes(), tuple(joints), tuple(float(a) for a in armature))
+
+
+@lru_cache(maxsize=16)
+def _bounds(urdf: bytes, joints: tuple[str, ...], armature: tuple[float, ...]) -> MassBounds:
+    """:func:`mass_matrix_bounds` of a URDF's text, computed once for each text, chain and armature (a case is
+    built anew for each candidate design, campaign draw and margin point, on the same arm); its arrays read-only,
+    as every arm built on them shares them."""
+    root = ET.fromstring(urdf)
     n = len(joints)
     arm = np.asarray(armature, dtype=float) if armature else np.zeros(n)
     upper, lower = np.diag(arm), arm.copy()
     bodies = [_EMPTY] * n
-    for item in _moved_links(root, joints):
+    for item in _moved_links(root, list(joints)):
         moved, beta, a, spin = item.moved, item.beta, item.axis, item.spin
         alpha = np.full((len(moved), len(moved)), item.principal[-1])
         alpha[0, :] = alpha[:, 0] = np.linalg.norm(spin @ a)  # |a_i^T S a_c| <= |S a_c|
@@ -337,8 +345,10 @@ def mass_matrix_bounds(urdf: str | Path, joints: list[str], armature: tuple[floa
         lower[moved] += item.link.mass * np.square(item.beta_lo) + np.r_[a @ spin @ a,
                                                                          np.full(len(moved) - 1, item.principal[0])]
         bodies[moved[0]] = _merge(bodies[moved[0]], item.link, item.rotation, item.translation)
-    mu = np.array([np.linalg.eigvalsh(body.inertia)[0] for body in bodies])
-    return MassBounds(upper, lower, np.maximum(mu, 0.0), arm)
+    mu = np.maximum([np.linalg.eigvalsh(body.inertia)[0] for body in bodies], 0.0)
+    for array in (upper, lower, mu, arm):
+        array.setflags(write=False)
+    return MassBounds(upper, lower, mu, arm)
 
 
 def _merge(body: _Link, link: _Link, rotation: np.ndarray, translation: np.ndarray) -> _Link:

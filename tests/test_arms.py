@@ -22,9 +22,9 @@ runner = CliRunner()
 
 
 def short(name: str, tmp_path: Path, duration: float = 10.0, **edits) -> Path:
-    """The example ``name`` with the horizon ``duration`` and without JIT (one run each)."""
+    """The example ``name`` with the horizon ``duration``, compiled as the example is."""
     data = tomllib.loads((EXAMPLES / f"{name}.toml").read_text())
-    data["simulation"].update(duration=duration, jit=False)
+    data["simulation"].update(duration=duration)
     for section, values in edits.items():
         data.setdefault(section, {}).update(values)
     path = tmp_path / f"{name}.toml"

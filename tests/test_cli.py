@@ -497,7 +497,7 @@ def test_synthesize_keeps_the_users_file_and_certifies_the_rounded_gains(tmp_pat
     reported is the certificate of exactly those rounded values. (The bounds keep the design
     within the arm's limits and certified as implemented, so that it is written at all.)"""
     bounds = "\n[synthesize]\nk_xi = [1.0, 5.0]\nk_c = [0.1, 2.0]\nk_e = [0.1, 10.0]\n"
-    original = DEFAULT_SCENARIO_TEXT.replace("jit = true", "jit = false") + bounds
+    original = DEFAULT_SCENARIO_TEXT + bounds
     scenario = tmp_path / "commented.toml"
     scenario.write_text(original)
     target = tmp_path / "syn.toml"

@@ -3,9 +3,9 @@ level and the same values, numbers to :data:`RTOL`, so that a change in how resu
 serialised cannot change what the commands promise (docs/cli.md).
 
 Run on the default example (``simulate``, ``pose``, ``certify``, ``verify``, ``export --check``,
-``synthesize``), on the default shortened to :data:`SHORT` s (``margins``), on the shipped cell shortened
-likewise (``campaign``, three runs) and on ``examples/ur5_grid.toml`` (``certify`` of a grid). Left out
-of the comparison: what is the machine's and not the result's (:data:`VOLATILE`: wall times, the
+``synthesize``), on the default shortened to :data:`SHORT` s (``margins``, on two worker processes), on the
+shipped cell shortened likewise (``campaign``, three runs) and on ``examples/ur5_grid.toml`` (``certify`` of a
+grid). Left out of the comparison: what is the machine's and not the result's (:data:`VOLATILE`: wall times, the
 step's timing, provenance, the load) and the output folder's path (written ``<OUT>``).
 ``DVFC_WRITE_GOLDEN=1 pytest tests/test_golden.py`` records them anew.
 """
@@ -70,7 +70,7 @@ def commands(folder: Path) -> dict[str, list[str]]:
         "verify": ["verify", default, "--out", str(folder / "verify")],
         "export": ["export", default, "--out", str(folder / "export"), "--check"],
         "synthesize": ["synthesize", default, "--out", str(folder / "synthesize" / "designed.toml")],
-        "margins": ["margins", short, "--out", str(folder / "margins")],
+        "margins": ["margins", short, "--out", str(folder / "margins"), "--workers", "2"],
         "campaign": ["campaign", cell, "--runs", "3", "--out", str(folder / "campaign")],
     }
 

@@ -511,8 +511,8 @@ def test_the_observer_row_says_where_its_start_came_from(solved):
 def test_the_controller_section_states_the_exports_digest_replay_step_times_and_coverage(report, tmp_path):
     """Section 7 of the report: the program's SHA-256 equal to ``dvfc export``'s for the same
     scenario, the replay over its 10 s (5000 samples at 500 Hz) identical to the bit, the compiled
-    step timed over 1e4 calls without and with an image in wall and thread CPU time (min <= median <=
-    p99.9 <= max), and what fact 14 for the program's loop (facts 14, 22) says of it."""
+    step timed over 1e4 calls without and with an image in wall and thread CPU time (0 <= min <= median <=
+    p99.9 <= max, the max positive), and what fact 14 for the program's loop (facts 14, 22) says of it."""
     html = unescape(report[0].read_text())
     section = section_of(html, '<h2 id="controller">7. The controller that runs</h2>')
     scenario = report[0].parent / "ur5_circle.toml"  # the report's own scenario
@@ -531,8 +531,8 @@ def test_the_controller_section_states_the_exports_digest_replay_step_times_and_
     for row in rows:
         calls, *times = row[1:]
         assert calls == "10000"
-        values = [float(t) for t in times]
-        assert 0 < values[0] <= values[1] <= values[2] <= values[3]
+        values = [float(t) for t in times]  # a clock coarser than a step reads 0 for some calls (seen: thread CPU time)
+        assert 0 <= values[0] <= values[1] <= values[2] <= values[3] and values[3] > 0
     coverage = " ".join(section[section.index('id="controller-coverage"') :].split("</p>")[0].split())
     assert "Fact 14 for the program's loop (docs/math.md, facts 14 and 22)" in coverage
     implemented = dvfc.certify(dvfc.load(scenario), lower_bounds=False).points[0].implemented
