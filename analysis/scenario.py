@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import TypeVar
 
 import casadi as cs
 import numpy as np
@@ -97,8 +100,30 @@ def _check_position_limits(robot: Robot, q0: np.ndarray) -> None:
         )
 
 
+ARMS = 16
+"""Arms and cameras kept built (the least recently used dropped): scenarios that differ only in numbers (a
+synthesis' candidates, the gains of a sweep) get the same :class:`Robot` and :class:`Camera`, so that the
+functions built on them (their symbolic structure, compiled libraries and linearisations, each keyed by the
+objects' identity) are built once per arm, as the campaign's draws share them."""
+
+_Built = TypeVar("_Built", Robot, Camera)
+_built: OrderedDict[tuple, Robot | Camera] = OrderedDict()
+
+
+def _interned(key: tuple, make: Callable[[], _Built]) -> _Built:
+    """The object built for ``key`` before, else ``make()`` kept for it (at most :data:`ARMS` of them)."""
+    if key in _built:
+        _built.move_to_end(key)
+    else:
+        _built[key] = make()
+        if len(_built) > ARMS:
+            _built.popitem(last=False)
+    return _built[key]  # type: ignore[return-value]
+
+
 def build_robot(section: RobotSection, base: Path) -> Robot:
-    """The arm of a scenario (built-in name or URDF path relative to the scenario file)."""
+    """The arm of a scenario (built-in name or URDF path relative to the scenario file), one object for
+    each URDF text, camera link, mount and armature (:func:`_interned`)."""
     try:
         if section.model is not None:
             urdf = builtin_urdf(section.model)
@@ -115,7 +140,8 @@ def build_robot(section: RobotSection, base: Path) -> Robot:
             armature = ()
         if section.armature is not None:
             armature = tuple(section.armature)
-        return Robot(urdf, frame, section.mount.se3(), armature)
+        key = ("robot", str(urdf), urdf.read_bytes(), frame, section.mount.model_dump_json(), armature)
+        return _interned(key, lambda: Robot(urdf, frame, section.mount.se3(), armature))
     except RobotModelError as exc:
         field = "robot.model" if "unknown robot model" in str(exc) else "robot.urdf"
         if isinstance(exc, ChainError):
@@ -266,7 +292,16 @@ def build(
 
 def build_camera(section: CameraSection, base: Path, points: np.ndarray) -> Camera:
     """The controller's camera: from ``[camera]``, or its ``calibration`` file (relative to the
-    scenario's folder), which must agree with ``width`` and ``height`` when they are given."""
+    scenario's folder), which must agree with ``width`` and ``height`` when they are given; one object
+    for each set of values (:func:`_interned`)."""
+    camera = _camera(section, base, points)
+    key = ("camera", camera.focal_length, camera.points.tobytes(), camera.points.shape, camera.width, camera.height,
+           camera.principal_point, camera.aspect, camera.distortion)  # fmt: skip
+    return _interned(key, lambda: camera)
+
+
+def _camera(section: CameraSection, base: Path, points: np.ndarray) -> Camera:
+    """:func:`build_camera` before it is interned."""
     if section.calibration is None:
         return section.camera(points)
     path = base / section.calibration

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import casadi as cs
 import numpy as np
-from adam.casadi import KinDynComputations
 
 from dvfc.models.inertia import InertiaModelError, MassBounds, mass_matrix_bounds, urdf_attribute
 from dvfc.models.lie import SE3, Matrix, vee
@@ -418,6 +417,8 @@ class Robot:
             )
         if self.armature and len(self.armature) != self.n:
             raise RobotModelError(f"armature: expected {self.n} entries (one per joint), got {len(self.armature)}")
+        from adam.casadi import KinDynComputations  # here: imported with scipy's spatial module (0.3-0.5 s)
+
         try:
             text = frozen_urdf(self.urdf, self.moving)
             if self.perturbed:

@@ -3,15 +3,20 @@ one build (and one compiled library) for every design of an arm."""
 
 from __future__ import annotations
 
+import re
+import tomllib
 from dataclasses import replace
 from pathlib import Path
 
+import casadi as cs
 import numpy as np
 import pytest
+import tomli_w
 
 import dvfc
 from dvfc.analysis import compile as compile_module
 from dvfc.analysis import parametric
+from dvfc.analysis.case import Case
 from dvfc.analysis.linearize import linearize, peak_sinusoid, rest_simulator
 from dvfc.analysis.sampled import as_implemented
 from dvfc.analysis.scenario import DEFAULT_SCENARIO, build, load
@@ -19,6 +24,7 @@ from dvfc.analysis.simulate import Simulator, dynamics_function
 from dvfc.models.driven import Sinusoid
 from dvfc.models.lie import SE3
 from dvfc.models.loop import Gains, Weights
+from dvfc.models.robot import BUILTIN_CAMERA_FRAME, builtin_urdf
 
 from helpers import CELL, build_loop
 
@@ -80,14 +86,15 @@ def test_symbolic_loop_evaluates_as_the_numeric_one(rng):
 
 
 def test_a_design_change_reuses_the_symbolic_loop():
-    """``replace`` of a loop's design reuses its symbolic loop; another structure (mode, the
-    sampled loop) or another arm gets its own."""
+    """``replace`` of a loop's design reuses its symbolic loop, and so does the scenario built again (the
+    same arm and camera objects); another structure (mode, the sampled loop) gets its own (another arm:
+    :func:`test_a_scenario_rebuilt_with_other_numbers_shares_its_arm_camera_and_structure`)."""
     loop, _, _ = build_loop()
     model = parametric.symbolic(loop)
     assert parametric.symbolic(other_design(loop)) is model
     assert parametric.symbolic(replace(loop, mode="image")) is not model
     assert parametric.symbolic(replace(loop, sampled=True)) is not model
-    assert parametric.symbolic(build_loop()[0]) is not model  # another Robot object
+    assert parametric.symbolic(build_loop()[0]) is model  # built again: the same Robot and Camera objects
     assert not np.array_equal(parametric.parameter_vector(loop), parametric.parameter_vector(other_design(loop)))
 
 
@@ -181,3 +188,40 @@ def test_a_planned_start_takes_its_start_duration_and_hold_as_inputs(monkeypatch
     per_design(monkeypatch)
     for run, design in zip(runs, (loop, other), strict=True):
         assert_same_run(run, as_implemented(design, settings).run(s0), 1e-9)
+
+
+def test_a_scenario_rebuilt_with_other_numbers_shares_its_arm_camera_and_structure(tmp_path):
+    """One model per arm: the default with other gains (a synthesis' candidate) is built on the same
+    :class:`Robot` and :class:`Camera` objects, so its symbolic structure is the first's; an arm whose URDF
+    text changed (a link 10% heavier, same file), or another focal length, is built anew and its numbers are
+    its own."""
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(builtin_urdf("ur5").read_text())
+    first = Case.load(write_scenario(tmp_path, urdf))
+    other = first.with_gains(k_e=11.0)
+    assert other.loop.robot is first.loop.robot and other.loop.camera is first.loop.camera
+    assert parametric.symbolic(other.loop) is parametric.symbolic(first.loop)
+    mass = lambda case: np.asarray(cs.Function("m", [case.loop.robot.q], [case.loop.robot.mass_matrix])(case.s0[:6]))  # noqa: E731
+    text = urdf.read_text()
+    heavier = re.sub(r'(<link name="forearm_link">.*?<mass value=")([0-9.]+)', lambda m: f"{m[1]}{1.1 * float(m[2])!r}",
+                     text, count=1, flags=re.S)  # fmt: skip
+    assert heavier != text
+    urdf.write_text(heavier)
+    edited = Case.load(write_scenario(tmp_path, urdf))
+    assert edited.loop.robot is not first.loop.robot
+    assert np.abs(mass(edited) - mass(first)).max() > 1e-3
+    assert edited.loop.robot.mass_bounds.m_hi > first.loop.robot.mass_bounds.m_hi
+    zoomed = first.with_scenario(first.scenario.model_copy(update={"camera": first.scenario.camera.model_copy(
+        update={"focal_length": 1.1 * first.scenario.camera.focal_length})}))  # fmt: skip
+    assert zoomed.loop.camera is not first.loop.camera
+    assert zoomed.loop.camera.focal_length == pytest.approx(1.1 * first.loop.camera.focal_length)
+
+
+def write_scenario(folder: Path, urdf: Path) -> Path:
+    """The default scenario on the arm of the URDF file ``urdf`` (the UR5's camera link), written in ``folder``."""
+    data = tomllib.loads(DEFAULT_SCENARIO.read_text())
+    data["robot"].pop("model")
+    data["robot"] |= {"urdf": str(urdf), "camera_frame": BUILTIN_CAMERA_FRAME["ur5"]}
+    path = folder / "arm.toml"
+    path.write_text(tomli_w.dumps(data))
+    return path

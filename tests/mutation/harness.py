@@ -1162,6 +1162,22 @@ MUTATIONS = (
         ("tests/test_dry_friction.py::test_fact_29_the_tracking_error_at_rest_counts_the_equilibriums_own",),
     ),
     Mutation(
+        "interned-arm-ignores-urdf-text",
+        "an arm found again by its URDF's path alone: an edited URDF (another mass) keeps the arm built before it",
+        "analysis/scenario.py",
+        (("        key = (\"robot\", str(urdf), urdf.read_bytes(), frame, section.mount.model_dump_json(), armature)\n",
+          "        key = (\"robot\", str(urdf), frame, section.mount.model_dump_json(), armature)\n"),),
+        ("tests/test_parametric.py::test_a_scenario_rebuilt_with_other_numbers_shares_its_arm_camera_and_structure",),
+    ),
+    Mutation(
+        "interned-camera-ignores-focal-length",
+        "a camera found again without its focal length: another focal length keeps the camera built before it",
+        "analysis/scenario.py",
+        (("    key = (\"camera\", camera.focal_length, camera.points.tobytes(),",
+          "    key = (\"camera\", camera.points.tobytes(),"),),
+        ("tests/test_parametric.py::test_a_scenario_rebuilt_with_other_numbers_shares_its_arm_camera_and_structure",),
+    ),
+    Mutation(
         'campaign-synthesis-checks-ignore-saturation',
         "the campaign synthesis' checks pass a design whose hold torque saturates at rest",
         'analysis/cell.py',
