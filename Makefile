@@ -47,8 +47,10 @@ typecheck: install
 	for layer in models analysis reports; do ln -sfn ../../../$$layer $(TYPECHECK)/$$layer; done
 	$(BIN)/mypy
 
+# The notebooks first: each is one long test (up to about 1.5 min), started while the other core runs the tests
+# it can share out, not left for the end where one core would wait on it.
 test: lint typecheck system-deps
-	$(PYTEST) --durations=25 --nbmake tests notebooks
+	$(PYTEST) --durations=25 --nbmake notebooks tests
 
 check: lint typecheck
 	$(PYTEST) -m "not slow" tests

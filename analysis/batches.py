@@ -16,13 +16,13 @@ from contextlib import closing
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
-
-import pyarrow as pa
-import pyarrow.parquet as pq
+from typing import TYPE_CHECKING, Any
 
 from dvfc.analysis.output import atomic_write, json_text, raise_if_interrupted
 from dvfc.analysis.tasks import run_tasks
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 
 def batches(start: int, total: int, size: int) -> Iterator[tuple[int, int]]:
@@ -88,7 +88,7 @@ class BatchRun:
             for (first, stop), result in zip(ranges, results, strict=True):
                 raise_if_interrupted()  # keep nothing of this batch
                 written = table(result)
-                atomic_write(self.part(first), partial(pq.write_table, written, compression=compression))
+                atomic_write(self.part(first), partial(_write_table, written, compression=compression))
                 state = {**(state if absorb is None else absorb(state, result)), "done": stop}
                 self._save(state)
                 if progress is not None:
@@ -98,3 +98,10 @@ class BatchRun:
     def _save(self, state: dict[str, Any]) -> None:
         data = {**self.identity, **state}
         atomic_write(self.directory / self.state, lambda h: h.write(json_text(data).encode()))
+
+
+def _write_table(table: pa.Table, handle, compression: str) -> None:
+    """``table`` written as Parquet to ``handle`` (pyarrow imported here: a command's imports without it)."""
+    import pyarrow.parquet as pq
+
+    pq.write_table(table, handle, compression=compression)

@@ -21,12 +21,10 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as cs
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from dvfc.analysis import sensitivity
 from dvfc.analysis.batches import BatchRun
@@ -43,6 +41,9 @@ from dvfc.analysis.scenario import ScenarioError
 from dvfc.analysis.simulate import RunStatus, Settings, Trajectory
 from dvfc.models.errors import PlantErrors, camera_size, true_features
 from dvfc.models.loop import ClosedLoop
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 RUNS = "runs"
 """Folder of a campaign's dataset in its output directory: one Parquet file per batch."""
@@ -251,6 +252,8 @@ def batch_table(columns: dict[str, list]) -> pa.Table:
     """A batch's rows as a table, a column with no value in the batch (every entry None: ``local_error_q`` of runs
     that stopped at their start, say) typed ``float64`` as the other batches' are, so that the batches read as one
     dataset."""
+    import pyarrow as pa  # here: a command's imports without it
+
     table = pa.table(columns)
     fields = [pa.field(f.name, pa.float64()) if pa.types.is_null(f.type) else f for f in table.schema]
     return table.cast(pa.schema(fields))
@@ -258,6 +261,8 @@ def batch_table(columns: dict[str, list]) -> pa.Table:
 
 def read_runs(directory: Path) -> pa.Table:
     """Every run of a campaign in ``directory``, in run order."""
+    import pyarrow.parquet as pq
+
     return pq.read_table(directory / RUNS).sort_by("run")
 
 

@@ -19,12 +19,10 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import casadi as cs
 import numpy as np
-import pyarrow as pa
-import pyarrow.csv as pacsv
-import pyarrow.parquet as pq
 
 from dvfc.analysis.batches import BatchRun
 from dvfc.analysis.certify import INFLATION, GainPoint, Reason, exact_s, gamma_of, output_blocks, sound_k_e, xi_limits
@@ -33,6 +31,9 @@ from dvfc.analysis.output import atomic_write
 from dvfc.models.lie import SE3, SO3
 from dvfc.models.loop import PlantWeights
 from dvfc.models.planar import TASK, planar_output_matrix
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 AXES = {
     "k_xi": ("k_xi", None),
@@ -193,6 +194,8 @@ measured size is in docs/measured.md (``benchmarks/certify.py``), at most this."
 def batch_table(result: dict[str, np.ndarray], axes: list[str]) -> pa.Table:
     """A batch as a table: ``index``, the axis values, ``certified``, ``gamma`` and ``margin``
     (null where no gamma exists) and ``reason`` (code, see :class:`~dvfc.analysis.certify.Reason`)."""
+    import pyarrow as pa  # here: a command's imports without it
+
     nan = lambda v: pa.array(v, mask=np.isnan(v))  # noqa: E731
     return pa.table({
         "index": pa.array(result["index"], pa.uint64()),
@@ -211,12 +214,17 @@ ENVELOPE_COLUMNS = ("rate", "max_target_speed")
 
 def read_points(directory: Path) -> pa.Table:
     """Every point of a sweep in ``directory``, in index order."""
+    import pyarrow.parquet as pq
+
     return pq.read_table(directory / POINTS).sort_by("index")
 
 
 def export_csv(directory: Path, target: Path) -> None:
     """The sweep's points as one CSV file (header, then one row per point), atomically."""
     parts = sorted((directory / POINTS).glob("part-*.parquet"))
+
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
 
     def write(handle) -> None:
         for i, part in enumerate(parts):

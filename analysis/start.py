@@ -35,7 +35,6 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import casadi as cs
-import cv2
 import numpy as np
 
 from dvfc.analysis.certify import GainPoint
@@ -90,6 +89,7 @@ def image_pose(camera: Camera, features: np.ndarray) -> SE3:
     ``solvePnP`` (``SOLVEPNP_IPPE`` for a planar target, ``SOLVEPNP_ITERATIVE`` otherwise) on the
     centred image coordinates ``f_i = lambda [x/z, y/z]`` (11), with the camera matrix
     ``diag(lambda, lambda, 1)``. ``features`` (2m,)."""
+    import cv2  # here, as scipy's rotations: a command's imports without them
     from scipy.spatial.transform import Rotation
 
     points = np.asarray(camera.points, dtype=float)

@@ -13,6 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 import tomli_w
 from typer.testing import CliRunner
@@ -247,7 +248,7 @@ def test_crash_between_data_write_and_state_save_resumes_exactly(tmp_path, monke
         if window.startswith("after"):
             patch.setattr(grid, "_record", crash_on(3, grid._record))
         else:
-            patch.setattr(grid.pq, "write_table", crash_on(3, grid.pq.write_table))
+            patch.setattr(pq, "write_table", crash_on(3, pq.write_table))
         with pytest.raises(InjectedError):
             run_sweep(spec, out, batch_size=7)
     state = json.loads((out / "sweep.json").read_text())

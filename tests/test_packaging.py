@@ -17,12 +17,14 @@ def test_license_is_an_spdx_expression():
     assert "setuptools>=77" in PYPROJECT["build-system"]["requires"]
 
 
-HEAVY = ("cvxpy", "control", "matplotlib", "scipy.stats", "scipy.optimize", "SALib", "dask", "weasyprint", "casadi")
+HEAVY = ("cvxpy", "control", "matplotlib", "scipy.stats", "scipy.optimize", "SALib", "dask", "weasyprint", "casadi",
+         "pyarrow")  # fmt: skip
 """Libraries ``dvfc --help`` must not load: each costs from a tenth of a second to a second to import."""
 
-SOLVERS_AND_PLOTS = ("cvxpy", "control", "matplotlib", "scipy.stats", "scipy.optimize", "SALib", "weasyprint")
+SOLVERS_AND_PLOTS = ("cvxpy", "control", "matplotlib", "scipy.stats", "scipy.optimize", "SALib", "weasyprint",
+                     "pyarrow")  # fmt: skip
 """Libraries a command loads only when its work needs them (the SDPs, the linearised loop's norms, the figures, the
-campaign's statistics), not to parse its options or to build the scenario."""
+campaign's statistics, the datasets of campaigns and sweeps), not to parse its options or to build the scenario."""
 
 
 def loaded_after(code: str) -> set[str]:
