@@ -843,12 +843,13 @@ def local_verdict(loop: ClosedLoop, q0: np.ndarray, imp: Implementation, plant: 
 
 
 def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings,
-                       criterion: tuple[float, float] | None = None) -> dict:  # fmt: skip
+                       criterion: tuple[float, float] | None = None, *, program: bool = True) -> dict:  # fmt: skip
     """Fact 14 for the scenario's loop as implemented and its plant as declared (JSON-ready,
     :class:`DeclaredPlant`: ``plant`` names it): the monodromy's spectral radius, the certified
     local rate, the common period, the Lyapunov check, the scope, the declared effects it does not
     cover and the linear margins, and with dry friction the tracking error it can hold at rest (fact 29,
-    judged against ``criterion``: position m, angle deg, where given); or why the statement does not apply."""
+    judged against ``criterion``: position m, angle deg, where given); or why the statement does not apply.
+    Without ``program``, not the exported program's loop (fact 22: :func:`with_program_record` adds it)."""
     start = time.perf_counter()
     plant = DeclaredPlant.of(settings)
     words = {"plant": plant.words(loop.camera)}
@@ -898,9 +899,19 @@ def implemented_record(loop: ClosedLoop, s0: np.ndarray, settings: Settings,
         "scope": SCOPE.format(gap=gap) + (SELF_MOTION_SCOPE.format(m=across.dimension) if across.dimension else ""),
         "not_covered": not_covered(settings, system),
         "margins": linear_margins(system),
-        **program_record(loop, s0, imp, plant),
+        **(program_record(loop, s0, imp, plant) if program else {}),
         "seconds": time.perf_counter() - start,
     }
+
+
+def with_program_record(record: dict, loop: ClosedLoop, s0: np.ndarray, settings: Settings) -> dict:
+    """``record``, of :func:`implemented_record` without ``program``, with the exported program's loop (its
+    :func:`program_record`) where :func:`implemented_record` gives it: a synthesis checks its candidates without
+    it (about 1 s each) and states it for the design it keeps."""
+    if "lyapunov_margin" not in record or "program_rho" in record:
+        return record
+    assert settings.implementation is not None, "a record that applies: the loop as implemented"
+    return {**record, **program_record(loop, s0, settings.implementation, DeclaredPlant.of(settings))}
 
 
 def self_motion_record(across: Transverse) -> dict | None:

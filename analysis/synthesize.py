@@ -46,7 +46,7 @@ import tomlkit
 from dvfc.analysis.case import Case
 from dvfc.analysis.certify import Certificate, GainPoint, certify, estimation_scale, output_blocks, solve
 from dvfc.analysis.envelope import GOLDEN_STEPS, design_of, golden_max, pose_diagonal, s_limit
-from dvfc.analysis.multirate import implemented_record
+from dvfc.analysis.multirate import implemented_record, with_program_record
 from dvfc.analysis.output import append_log, atomic_write, read_log
 from dvfc.analysis.record import ABSENT, INTERNAL, Absent, Record
 from dvfc.analysis.results import CertificatePoint, envelope_record, point_record, speed_theta_bar
@@ -752,7 +752,8 @@ def design_checker(case: Case, run: Callable[[GainPoint], dict]) -> Callable[[Ga
         record = dict(run(point))
         implemented = None
         if case.settings.implementation is not None:
-            implemented = implemented_record(designed_loop(case, point), case.s0, case.settings, case.criterion)
+            implemented = implemented_record(designed_loop(case, point), case.s0, case.settings, case.criterion,
+                                             program=False)  # fmt: skip
         windows = None if spec is None else spec.of(point.k_xi)
         return {**record, "implemented": implemented, "sampled": sampled_shortfall(windows, implemented)}
 
@@ -857,6 +858,9 @@ def synthesize_case(
             result = search.result
     if search is not None:
         run = None if search.chosen is None else search.chosen.run
+    if run is not None and run.get("implemented") is not None and result.point is not None:  # the kept design's
+        run = {**run, "implemented": with_program_record(run["implemented"], designed_loop(case, result.point),
+                                                         case.s0, case.settings)}  # fmt: skip
     if result.point is None:
         if windows is not None and (empty := windows.empty(bounds.k_xi)):
             result = replace(result, outcome=Outcome.INFEASIBLE, reason="; ".join(empty))
