@@ -26,7 +26,6 @@ from typing import TYPE_CHECKING
 
 import casadi as cs
 import numpy as np
-import scipy.linalg
 
 from dvfc.analysis.parametric import parameter_vector, symbolic
 from dvfc.models.errors import seen_through
@@ -105,6 +104,7 @@ def input_kernel(a: np.ndarray, b: np.ndarray, h: float, parts: int) -> tuple[np
     """``Gamma_l`` and ``exp(A (h - s_l)) A B`` for ``l = 0 .. parts - 1`` (each ``(parts, nz, n)``): the integral
     of ``exp(A (h - s)) B`` over the part ``l`` of ``[0, h]``, exactly ``exp(A (h - (l + 1) delta)) int_0^delta
     exp(A s) B ds``, and the derivative of ``exp(A (h - s)) B`` in ``-s`` at the part's middle ``s_l``."""
+    import scipy.linalg  # here: a command's imports without it
     nz, n = b.shape
     delta = h / parts
     generator = np.zeros((nz + n, nz + n))
@@ -151,6 +151,7 @@ def friction_bound(system: MultirateLoop, coulomb: np.ndarray, output: np.ndarra
     ``settled(upper, lower)``: whether the bounds so far (each row's, the upper one with the rest of the sum, the
     lower one of the periods summed) already settle the caller's question, which stops the sum there (its
     ``upper`` and ``lower`` are then those bounds)."""
+    import scipy.linalg  # here: a command's imports without it
     imp, lin = system.implementation, system.lin
     h, delta = imp.period, imp.period / parts
     pi, sched = system.monodromy(imp)

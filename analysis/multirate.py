@@ -52,7 +52,6 @@ from typing import Any
 
 import casadi as cs
 import numpy as np
-import scipy.linalg
 
 from dvfc.analysis.dry_friction import DryFrictionCheck, dry_friction_check
 from dvfc.analysis.implementation import Implementation
@@ -156,6 +155,7 @@ class HeldLinearization:
     def flow(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(Phi, G_tau, G_e, G_o)``: the held flow over ``h``, the first block row of
         ``expm([[A, B_tau, B_e, B_o], [0, 0, 0, 0]] h)``."""
+        import scipy.linalg  # here: a command's imports without it
         nz, nt, ne = self.a.shape[0], self.b_tau.shape[1], self.b_e.shape[1]
         inputs = np.hstack([self.b_tau, self.b_e, self.b_o])
         generator = np.zeros((nz + inputs.shape[1], nz + inputs.shape[1]))
@@ -395,6 +395,7 @@ def held_linearization(loop: ClosedLoop, q0: np.ndarray, plant: DeclaredPlant | 
     ``plant`` as declared, its equilibrium found by Newton from the model's (a mount error or a
     payload moves it; :data:`EQUILIBRIUM_TOLERANCE`), its features those of its true camera. The functions are
     the structure's (:func:`held_functions`), evaluated at this design's and plant's numbers."""
+    import scipy.linalg  # here: a command's imports without it
     plant = plant or DeclaredPlant()
     q_nom = equilibrium_configuration(loop, q0)
     n, task = loop.robot.n, loop.task_dim
@@ -518,6 +519,7 @@ def _equilibria_tangent(residual: cs.Function, y_eq: np.ndarray, n: int, dimensi
     """The tangent of the equilibria's manifold at ``y_eq`` in ``z = [dq; dqd; dp; dtheta; dz_I]``: the null
     space of the residual's Jacobian (:func:`_equilibrium_residual`), ``dqd = 0`` along it; None when its
     dimension is not ``dimension`` (the self-motion's)."""
+    import scipy.linalg  # here: a command's imports without it
     null = scipy.linalg.null_space(np.asarray(residual(y_eq)[1]))
     if null.shape[1] != dimension:
         return None
@@ -610,6 +612,7 @@ class LyapunovCheck:
 
 def lyapunov_check(pi: np.ndarray) -> LyapunovCheck:
     """:class:`LyapunovCheck` of ``pi``."""
+    import scipy.linalg  # here: a command's imports without it
     p = scipy.linalg.solve_discrete_lyapunov(pi.T, np.eye(pi.shape[0]))
     p = (p + p.T) / 2
     decrease = p - pi.T @ p @ pi
@@ -654,6 +657,7 @@ def transverse(pi: np.ndarray, self_motion: np.ndarray, equilibria: SelfMotionCh
     """:class:`Transverse` of the monodromy ``pi`` across the tangent whose first rows are ``self_motion`` (the
     rest zero: :attr:`HeldLinearization.self_motion` in ``dq``, or the tangent of every state;
     ``equilibria``: the check that its poses are equilibria, :class:`SelfMotionCheck`)."""
+    import scipy.linalg  # here: a command's imports without it
     m = self_motion.shape[1]
     if m == 0:
         return Transverse(pi, 0, 0.0)
